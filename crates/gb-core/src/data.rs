@@ -1,0 +1,222 @@
+use crate::{metrics, CoreError, CsvTable};
+use serde::{Deserialize, Serialize};
+
+/// Columns that are never taken as inputs by default (time or sample index).
+const INDEX_COLUMNS: [&str; 4] = ["t", "time", "k", "ts"];
+
+/// A measured (or simulated) experiment: input signals and one output,
+/// equidistantly sampled.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct DataSet {
+    /// Names of the input signals.
+    pub input_names: Vec<String>,
+    /// Name of the output signal.
+    pub output_name: String,
+    /// Input signals, `inputs[j][k]` = input j at sample k.
+    pub inputs: Vec<Vec<f64>>,
+    /// Output samples.
+    pub output: Vec<f64>,
+}
+
+/// Three contiguous blocks of a record: fit, select (model choice) and report.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BlockSplit {
+    /// End (exclusive) of the fit block, which starts at 0.
+    pub fit_end: usize,
+    /// End (exclusive) of the select block.
+    pub select_end: usize,
+    /// Total length (end of the report block).
+    pub len: usize,
+}
+
+impl DataSet {
+    /// Build a data set, checking that all signals have the same length.
+    pub fn new(
+        input_names: Vec<String>,
+        output_name: String,
+        inputs: Vec<Vec<f64>>,
+        output: Vec<f64>,
+    ) -> Result<Self, CoreError> {
+        if input_names.len() != inputs.len() {
+            return Err(CoreError::Dimension(format!(
+                "{} input names for {} input signals",
+                input_names.len(),
+                inputs.len()
+            )));
+        }
+        if let Some((j, u)) = inputs.iter().enumerate().find(|(_, u)| u.len() != output.len()) {
+            return Err(CoreError::Dimension(format!(
+                "input '{}' has {} samples, output has {}",
+                input_names[j],
+                u.len(),
+                output.len()
+            )));
+        }
+        if output.iter().chain(inputs.iter().flatten()).any(|v| !v.is_finite()) {
+            return Err(CoreError::InvalidArgument("signals contain NaN or infinity".into()));
+        }
+        Ok(Self {
+            input_names,
+            output_name,
+            inputs,
+            output,
+        })
+    }
+
+    /// Select signals from a CSV table. `output` defaults to the last column;
+    /// `inputs` defaults to every other column except time/index columns
+    /// (`t`, `time`, `k`, `ts`).
+    pub fn from_table(
+        table: &CsvTable,
+        inputs: &[String],
+        output: Option<&str>,
+    ) -> Result<Self, CoreError> {
+        let output_name = match output {
+            Some(o) => o.to_string(),
+            None => table
+                .names
+                .last()
+                .cloned()
+                .ok_or(CoreError::Empty { path: table.path.clone() })?,
+        };
+        let y = table.column(&output_name)?.to_vec();
+        let input_names: Vec<String> = if inputs.is_empty() {
+            table
+                .names
+                .iter()
+                .filter(|n| **n != output_name && !INDEX_COLUMNS.contains(&n.to_lowercase().as_str()))
+                .cloned()
+                .collect()
+        } else {
+            inputs.to_vec()
+        };
+        if input_names.is_empty() {
+            return Err(CoreError::InvalidArgument(format!(
+                "{}: no input column (columns: {})",
+                table.path.display(),
+                table.names.join(",")
+            )));
+        }
+        if let Some(n) = input_names.iter().find(|n| **n == output_name) {
+            return Err(CoreError::InvalidArgument(format!(
+                "{}: column '{n}' is both input and output",
+                table.path.display()
+            )));
+        }
+        let u = input_names
+            .iter()
+            .map(|n| table.column(n).map(<[f64]>::to_vec))
+            .collect::<Result<Vec<_>, _>>()?;
+        Self::new(input_names, output_name, u, y)
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.output.len()
+    }
+
+    /// True when there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.output.is_empty()
+    }
+
+    /// Number of input signals.
+    pub fn n_inputs(&self) -> usize {
+        self.inputs.len()
+    }
+
+    /// Samples `range` of every signal.
+    pub fn slice(&self, range: std::ops::Range<usize>) -> Self {
+        Self {
+            input_names: self.input_names.clone(),
+            output_name: self.output_name.clone(),
+            inputs: self.inputs.iter().map(|u| u[range.clone()].to_vec()).collect(),
+            output: self.output[range].to_vec(),
+        }
+    }
+
+    /// Check the data can identify a dynamic model: at least `min_len`
+    /// samples and no constant signal. `context` names the source in errors.
+    pub fn check_identifiable(&self, context: &str, min_len: usize) -> Result<(), CoreError> {
+        if self.len() < min_len {
+            return Err(CoreError::TooShort {
+                context: context.to_string(),
+                needed: min_len,
+                got: self.len(),
+            });
+        }
+        for (name, u) in self.input_names.iter().zip(&self.inputs) {
+            if metrics::std(u) <= f64::EPSILON * (1.0 + metrics::mean(u).abs()) {
+                return Err(CoreError::Constant {
+                    context: context.to_string(),
+                    name: name.clone(),
+                });
+            }
+        }
+        if metrics::std(&self.output) <= f64::EPSILON * (1.0 + metrics::mean(&self.output).abs()) {
+            return Err(CoreError::Constant {
+                context: context.to_string(),
+                name: self.output_name.clone(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Split into contiguous blocks with the given fractions for fit and
+    /// select (the rest is the report block).
+    ///
+    /// ```
+    /// # use gb_core::DataSet;
+    /// let ds = DataSet::new(vec!["u".into()], "y".into(), vec![vec![0.0; 100]], vec![0.0; 100]).unwrap();
+    /// let s = ds.split_blocks(0.5, 0.25);
+    /// assert_eq!((s.fit_end, s.select_end, s.len), (50, 75, 100));
+    /// ```
+    pub fn split_blocks(&self, fit: f64, select: f64) -> BlockSplit {
+        let n = self.len();
+        let fit_end = ((n as f64) * fit.clamp(0.0, 1.0)).round() as usize;
+        let select_end = (((n as f64) * (fit + select).clamp(0.0, 1.0)).round() as usize).max(fit_end);
+        BlockSplit {
+            fit_end,
+            select_end: select_end.min(n),
+            len: n,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::PathBuf;
+
+    fn table(text: &str) -> CsvTable {
+        CsvTable::from_reader(text.as_bytes(), PathBuf::from("d.csv")).unwrap()
+    }
+
+    #[test]
+    fn defaults_skip_time_and_take_last_as_output() {
+        let t = table("t,u1,u2,y\n0,1,2,3\n1,2,3,4\n");
+        let d = DataSet::from_table(&t, &[], None).unwrap();
+        assert_eq!(d.input_names, ["u1", "u2"]);
+        assert_eq!(d.output_name, "y");
+        assert_eq!(d.output, [3.0, 4.0]);
+    }
+
+    #[test]
+    fn constant_input_is_refused() {
+        let t = table("u,y\n1,1\n1,2\n1,3\n");
+        let d = DataSet::from_table(&t, &[], None).unwrap();
+        let e = d.check_identifiable("d.csv", 2).unwrap_err().to_string();
+        assert!(e.contains("'u' is constant"), "{e}");
+        let e = d.check_identifiable("d.csv", 10).unwrap_err().to_string();
+        assert!(e.contains("3 samples, at least 10"), "{e}");
+    }
+
+    #[test]
+    fn explicit_columns_and_missing() {
+        let t = table("a,b,c\n0,1,2\n1,2,4\n");
+        let d = DataSet::from_table(&t, &["c".into()], Some("a")).unwrap();
+        assert_eq!(d.inputs, vec![vec![2.0, 4.0]]);
+        assert!(DataSet::from_table(&t, &["zz".into()], Some("a")).is_err());
+        assert!(DataSet::from_table(&t, &["a".into()], Some("a")).is_err());
+    }
+}
