@@ -1,1 +1,74 @@
-//! gb-lmn
+//! # gb-lmn
+//!
+//! Local model networks for dynamic systems, trained for **simulation**
+//! (output error, NOE):
+//!
+//! ŷ(k) = Σᵢ Φᵢ(z(k)) · [1, x(k)]ᵀ θᵢ + h(k)ᵀ β
+//!
+//! where x(k) holds delayed simulated outputs ŷ(k−1…k−n_a) and delayed inputs,
+//! z(k) ⊂ x(k) spans the partition (regime) space, Φᵢ are normalised Gaussian
+//! validity functions (LOLIMOT, Nelles 2001) and h(k) are optional global
+//! hysteresis columns (play operators from `gb-preisach` on the simulated
+//! output and on the inputs) whose weights β enter linearly.
+//!
+//! A single leaf gives the linear output-error model (OE / ARX structure with
+//! offset). Training: least squares initialisation, then Levenberg–Marquardt on
+//! the simulation error with analytic sensitivities propagated through time
+//! ([`noe`]), rejecting unstable parameter sets.
+//!
+//! ```
+//! use gb_lmn::{NetworkSpec, fit_linear_oe, FitOptions};
+//! // y(k) = 0.5 y(k-1) + u(k-1)
+//! let u: Vec<f64> = (0..400).map(|k| ((k * 7919) % 13) as f64 - 6.0).collect();
+//! let mut y = vec![0.0; 400];
+//! for k in 1..400 { y[k] = 0.5 * y[k - 1] + u[k - 1]; }
+//! let spec = NetworkSpec::linear(1, &[1]);
+//! let model = fit_linear_oe(&spec, &[u.clone()], &y, &FitOptions::default()).unwrap();
+//! let sim = model.simulate_signals(&[u], &y[..1]).unwrap();
+//! assert!(gb_core::metrics::nrmse(&y, &sim).unwrap() < 1e-6);
+//! ```
+#![warn(missing_docs)]
+
+mod lolimot;
+mod network;
+pub mod noe;
+mod scaling;
+mod spec;
+
+pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
+pub use network::{Leaf, LocalModelNetwork};
+pub use noe::{fit_linear_oe, refine_output_error, FitOptions, NoiseFit, TrainReport};
+pub use scaling::Scaling;
+pub use spec::NetworkSpec;
+
+/// Errors of the local-model-network crate.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum LmnError {
+    /// Not enough samples for the requested structure.
+    #[error("{needed} samples are needed for this model structure, got {got}")]
+    TooShort {
+        /// Samples needed.
+        needed: usize,
+        /// Samples given.
+        got: usize,
+    },
+    /// Signals of inconsistent sizes.
+    #[error("dimension mismatch: {0}")]
+    Dimension(String),
+    /// Invalid structure or option.
+    #[error("invalid argument: {0}")]
+    InvalidArgument(String),
+    /// No stable model could be found.
+    #[error("no stable model found: {0}")]
+    Unstable(String),
+    /// A linear system could not be solved.
+    #[error("numerical failure: {0}")]
+    Numerical(String),
+}
+
+impl From<LmnError> for gb_core::CoreError {
+    fn from(e: LmnError) -> Self {
+        gb_core::CoreError::InvalidArgument(e.to_string())
+    }
+}
