@@ -21,6 +21,8 @@ pub enum TerminationCriterion {
     Aicc,
     /// Bayesian criterion N ln(SSE/N) + p ln N.
     Bic,
+    /// Grow to `max_leaves` (the caller judges on held-out data).
+    MaxLeaves,
 }
 
 /// Options of LOLIMOT construction.
@@ -209,6 +211,7 @@ pub fn fit_lolimot(
                 }
             }
             TerminationCriterion::Bic => base + pe * n.ln(),
+            TerminationCriterion::MaxLeaves => -(m as f64),
         }
     };
     let mut history: Vec<(f64, Vec<Leaf>)> = Vec::new();
@@ -237,7 +240,7 @@ pub fn fit_lolimot(
                 })
                 .collect(),
         ));
-        if cells.len() >= opts.max_leaves || worse_in_row >= 2 {
+        if cells.len() >= opts.max_leaves || (worse_in_row >= 2 && opts.criterion != TerminationCriterion::MaxLeaves) {
             break;
         }
         // worst splittable leaf
@@ -374,15 +377,36 @@ pub fn fit_lmn_oe(
     lopts: &LolimotOptions,
     fopts: &FitOptions,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cands = fit_lolimot(spec, inputs, y, yreg, lopts)?;
+    // Grow with measured output lags (NARX construction) and, if given, with
+    // the previous model's simulated lags (output-error construction); train
+    // each for simulation and keep the one with the smallest simulation error.
+    let mut sources: Vec<Option<&[f64]>> = vec![None];
+    if yreg.is_some() {
+        sources.push(yreg);
+    }
+    let mut best: Option<(f64, LocalModelNetwork)> = None;
     let mut last_err = LmnError::Unstable("no candidate network".into());
-    for c in cands {
-        match refine_output_error(&c, inputs, y, fopts) {
-            Ok((m, _)) => return Ok(m),
-            Err(e) => last_err = e,
+    for src in sources {
+        let cands = match fit_lolimot(spec, inputs, y, src, lopts) {
+            Ok(c) => c,
+            Err(e) => {
+                last_err = e;
+                continue;
+            }
+        };
+        for c in cands {
+            match refine_output_error(&c, inputs, y, fopts) {
+                Ok((m, rep)) => {
+                    if best.as_ref().is_none_or(|(b, _)| rep.mse_final < *b) {
+                        best = Some((rep.mse_final, m));
+                    }
+                    break;
+                }
+                Err(e) => last_err = e,
+            }
         }
     }
-    Err(last_err)
+    best.map(|(_, m)| m).ok_or(last_err)
 }
 
 #[cfg(test)]

@@ -246,6 +246,26 @@ impl LocalModelNetwork {
         }
     }
 
+    /// Per output lag i (index i−1), the summed weights of the output play
+    /// columns that act like an extra ŷ(k−i) term while the operators move.
+    pub(crate) fn output_play_shifts(&self) -> Vec<f64> {
+        let na = self.spec.na;
+        let nop = self.spec.output_play.len();
+        let b = self.spec.output_block();
+        let mut v = vec![0.0; na];
+        for l in 0..self.spec.hysteresis_lags {
+            if l < na {
+                v[l] = self.beta[l * b..l * b + nop].iter().sum();
+            }
+        }
+        v
+    }
+
+    /// Relay grid on the output, if any.
+    pub(crate) fn relay_grid(&self) -> Option<crate::relay::RelayGrid> {
+        (self.spec.output_relays > 0).then(|| crate::relay::RelayGrid::new(self.spec.output_relays, 2.5))
+    }
+
     /// Spectral radius of each leaf's autoregressive part, without and with all
     /// output-play columns moving (they then act like an extra ŷ(k−1) weight).
     pub fn max_spectral_radius(&self) -> f64 {
@@ -253,14 +273,16 @@ impl LocalModelNetwork {
         if na == 0 {
             return 0.0;
         }
-        let beta_out: f64 = self.beta[..self.spec.output_play.len()].iter().sum();
+        let shifts = self.output_play_shifts();
         let mut worst: f64 = 0.0;
         for leaf in &self.leaves {
             let a: Vec<f64> = leaf.theta[1..=na].to_vec();
             worst = worst.max(spectral_radius(&a));
-            if beta_out != 0.0 {
+            if shifts.iter().any(|v| *v != 0.0) {
                 let mut a2 = a.clone();
-                a2[0] += beta_out;
+                for (ai, s) in a2.iter_mut().zip(&shifts) {
+                    *ai += s;
+                }
                 worst = worst.max(spectral_radius(&a2));
             }
         }
@@ -287,10 +309,10 @@ impl LocalModelNetwork {
         let h = self.spec.n_hysteresis();
         let hyst = if h > 0 {
             format!(
-                " + {} play operators (Prandtl-Ishlinskii: {} on output, {} on inputs)",
-                h,
+                " + Preisach component ({} play operators on the output, {} relays on the output, {} play operators on the inputs)",
                 self.spec.output_play.len(),
-                h - self.spec.output_play.len()
+                self.spec.n_relays(),
+                h - self.spec.output_play.len() - self.spec.n_relays()
             )
         } else {
             String::new()

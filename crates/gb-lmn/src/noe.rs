@@ -247,7 +247,7 @@ impl LocalModelNetwork {
     }
 
     #[inline]
-    fn fill_x(&self, k: usize, yhat: &[f64], p: &Prepared, oplay: &[f64], x: &mut [f64]) {
+    fn fill_x(&self, k: usize, yhat: &[f64], p: &Prepared, oring: &[f64], x: &mut [f64]) {
         let spec = &self.spec;
         let mut c = 0;
         for i in 1..=spec.na {
@@ -260,16 +260,34 @@ impl LocalModelNetwork {
                 c += 1;
             }
         }
-        for v in oplay {
-            x[c] = *v;
-            c += 1;
-        }
-        for (j, cols) in p.ucols.iter().enumerate() {
-            for col in cols {
-                x[c] = col[k - spec.nk[j]];
-                c += 1;
+        let lags = spec.hysteresis_lags;
+        let b = spec.output_block();
+        if b > 0 {
+            for l in 0..lags {
+                let slot = ((k - l) % lags) * b;
+                x[c..c + b].copy_from_slice(&oring[slot..slot + b]);
+                c += b;
             }
         }
+        for (j, cols) in p.ucols.iter().enumerate() {
+            for l in 0..lags {
+                for col in cols {
+                    x[c] = col[k - spec.nk[j] - l];
+                    c += 1;
+                }
+            }
+        }
+    }
+
+    /// Output-side hysteresis state: play outputs and relay states, and a ring
+    /// of the last `hysteresis_lags` blocks of them.
+    fn output_hysteresis_init(&self, y0: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+        let oplay = self.output_bank().ok().flatten().map_or_else(Vec::new, |b| b.initial_state(y0));
+        let relays = self.relay_grid().map_or_else(Vec::new, |g| g.initial_state(y0));
+        let mut block = oplay.clone();
+        block.extend_from_slice(&relays);
+        let ring = block.repeat(self.spec.hysteresis_lags);
+        (oplay, relays, ring)
     }
 
     /// Free-run simulation in normalised units. `init` (normalised) gives the
@@ -289,18 +307,28 @@ impl LocalModelNetwork {
             out[k] = init.get(k).copied().unwrap_or(0.0);
         }
         let obank = self.output_bank().ok().flatten();
-        let mut oplay = match (&obank, k0) {
-            (Some(b), k0) if k0 > 0 => b.initial_state(out[k0 - 1]),
-            _ => vec![],
-        };
-        let mut moving = vec![false; oplay.len()];
+        let grid = self.relay_grid();
+        let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
+        let (mut oplay, mut relays, mut oring) = self.output_hysteresis_init(y0);
+        let nop = oplay.len();
+        let b = self.spec.output_block();
+        let lags = self.spec.hysteresis_lags;
+        let mut moving = vec![false; nop];
         let mut x = vec![0.0; self.spec.n_dynamic() + self.spec.n_hysteresis()];
         let mut s = self.scratch();
         for k in k0..n {
-            if let Some(b) = &obank {
-                b.step(&mut oplay, out[k - 1], &mut moving);
+            if b > 0 {
+                if let Some(bk) = &obank {
+                    bk.step(&mut oplay, out[k - 1], &mut moving);
+                }
+                if let Some(g) = &grid {
+                    g.step(&mut relays, out[k - 1]);
+                }
+                let slot = (k % lags) * b;
+                oring[slot..slot + nop].copy_from_slice(&oplay);
+                oring[slot + nop..slot + b].copy_from_slice(&relays);
             }
-            self.fill_x(k, out, p, &oplay, &mut x);
+            self.fill_x(k, out, p, &oring, &mut x);
             let v = self.eval(&x, &mut s, None, None);
             if !v.is_finite() || v.abs() > DIVERGED {
                 return false;
@@ -356,16 +384,18 @@ impl LocalModelNetwork {
         let mut out = vec![0.0; n];
         out[..k0].copy_from_slice(&p.yn[..k0]);
         let obank = self.output_bank().ok().flatten();
-        let nop = obank.as_ref().map_or(0, |b| b.len());
-        let mut oplay = match &obank {
-            Some(b) if k0 > 0 => b.initial_state(out[k0 - 1]),
-            _ => vec![0.0; nop],
-        };
+        let grid = self.relay_grid();
+        let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
+        let (mut oplay, mut relays, mut oring) = self.output_hysteresis_init(y0);
+        let nop = oplay.len();
+        let b = self.spec.output_block();
+        let lags = self.spec.hysteresis_lags;
         let mut moving = vec![false; nop];
         // ring buffer of the last n_a output sensitivities; slot (k mod na)
         let ring = na.max(1);
         let mut sy = vec![0.0; ring * np];
-        let mut sp = vec![0.0; nop * np];
+        // ring of play-operator sensitivities, slot (k mod lags), nop × np each
+        let mut sp = vec![0.0; lags * nop * np];
         let mut x = vec![0.0; nd + self.spec.n_hysteresis()];
         let mut gt = vec![0.0; np];
         let mut gx = vec![0.0; x.len()];
@@ -374,23 +404,35 @@ impl LocalModelNetwork {
         let mut cost = 0.0;
         let jtj_s = jtj.as_mut_slice();
         for k in k0..n {
-            if let Some(b) = &obank {
-                b.step(&mut oplay, out[k - 1], &mut moving);
-                let prev = ((k - 1) % ring) * np;
-                for (r, &mv) in moving.iter().enumerate() {
-                    if mv {
-                        if k > k0 {
-                            let (dst, src) = (r * np, prev);
-                            for q in 0..np {
-                                sp[dst + q] = sy[src + q];
+            if b > 0 {
+                if let Some(bk) = &obank {
+                    bk.step(&mut oplay, out[k - 1], &mut moving);
+                    let cur = (k % lags) * nop * np;
+                    let prv = ((k - 1) % lags) * nop * np;
+                    let sy_prev = ((k - 1) % ring) * np;
+                    for (r, &mv) in moving.iter().enumerate() {
+                        let dst = cur + r * np;
+                        if mv {
+                            if k > k0 {
+                                for q in 0..np {
+                                    sp[dst + q] = sy[sy_prev + q];
+                                }
+                            } else {
+                                sp[dst..dst + np].fill(0.0);
                             }
-                        } else {
-                            sp[r * np..(r + 1) * np].fill(0.0);
+                        } else if cur != prv {
+                            sp.copy_within(prv + r * np..prv + (r + 1) * np, dst);
                         }
                     }
                 }
+                if let Some(g) = &grid {
+                    g.step(&mut relays, out[k - 1]);
+                }
+                let slot = (k % lags) * b;
+                oring[slot..slot + nop].copy_from_slice(&oplay);
+                oring[slot + nop..slot + b].copy_from_slice(&relays);
             }
-            self.fill_x(k, &out, p, &oplay, &mut x);
+            self.fill_x(k, &out, p, &oring, &mut x);
             let v = self.eval(&x, &mut s, Some(&mut gt), Some(&mut gx));
             if !v.is_finite() || v.abs() > DIVERGED {
                 return None;
@@ -406,11 +448,17 @@ impl LocalModelNetwork {
                     }
                 }
             }
-            for r in 0..nop {
-                let g = gx[nd + r];
-                if g != 0.0 {
-                    for q in 0..np {
-                        snew[q] += g * sp[r * np + q];
+            for l in 0..lags {
+                if nop == 0 || k < k0 + l {
+                    break;
+                }
+                let base = ((k - l) % lags) * nop * np;
+                for r in 0..nop {
+                    let g = gx[nd + l * b + r];
+                    if g != 0.0 {
+                        for q in 0..np {
+                            snew[q] += g * sp[base + r * np + q];
+                        }
                     }
                 }
             }
@@ -472,13 +520,15 @@ impl LocalModelNetwork {
         if na == 0 {
             return;
         }
-        let nout = self.spec.output_play.len();
-        let beta_out: f64 = self.beta[..nout].iter().sum();
+        let shifts = self.output_play_shifts();
+        let has_shift = shifts.iter().any(|v| *v != 0.0);
         for leaf in &mut self.leaves {
             let a: Vec<f64> = leaf.theta[1..=na].to_vec();
             let mut a2 = a.clone();
-            a2[0] += beta_out;
-            let r = spectral_radius(&a).max(if nout > 0 { spectral_radius(&a2) } else { 0.0 });
+            for (ai, s) in a2.iter_mut().zip(&shifts) {
+                *ai += s;
+            }
+            let r = spectral_radius(&a).max(if has_shift { spectral_radius(&a2) } else { 0.0 });
             if r >= target {
                 let rho = target / r;
                 for i in 0..na {
@@ -641,18 +691,29 @@ pub(crate) fn regression_matrix(
     let n = yreg.len();
     let k0 = net.spec.max_lag().min(n);
     let ncol = net.spec.n_dynamic() + net.spec.n_hysteresis();
-    let ocols = match net.output_bank().ok().flatten() {
-        Some(b) if k0 > 0 => b.apply(&yreg[k0 - 1..]),
-        _ => vec![],
-    };
+    let obank = net.output_bank().ok().flatten();
+    let grid = net.relay_grid();
+    let y0 = if k0 > 0 { yreg[k0 - 1] } else { 0.0 };
+    let (mut oplay, mut relays, mut oring) = net.output_hysteresis_init(y0);
+    let nop = oplay.len();
+    let b = net.spec.output_block();
+    let lags = net.spec.hysteresis_lags;
+    let mut moving = vec![false; nop];
     let mut rows = vec![0.0; (n - k0) * ncol];
-    let mut oplay = vec![0.0; ocols.len()];
     for k in k0..n {
-        for (v, c) in oplay.iter_mut().zip(&ocols) {
-            *v = c[k - k0];
+        if b > 0 {
+            if let Some(bk) = &obank {
+                bk.step(&mut oplay, yreg[k - 1], &mut moving);
+            }
+            if let Some(g) = &grid {
+                g.step(&mut relays, yreg[k - 1]);
+            }
+            let slot = (k % lags) * b;
+            oring[slot..slot + nop].copy_from_slice(&oplay);
+            oring[slot + nop..slot + b].copy_from_slice(&relays);
         }
         let r = (k - k0) * ncol;
-        net.fill_x(k, yreg, p, &oplay, &mut rows[r..r + ncol]);
+        net.fill_x(k, yreg, p, &oring, &mut rows[r..r + ncol]);
     }
     (rows, ncol)
 }
@@ -768,6 +829,49 @@ pub(crate) fn global_ls(
     Ok(())
 }
 
+/// Embed a one-leaf network into a larger structure `spec` (same inputs and
+/// scalings): parameters of regressors present in both are copied, new ones
+/// start at zero, so the embedded model simulates exactly like `net` as long
+/// as the extra regressors have zero weight. `None` if `net` has several leaves.
+pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<LocalModelNetwork> {
+    if net.leaves.len() != 1 || spec.nb.len() != net.spec.nb.len() {
+        return None;
+    }
+    let mut out = net.clone();
+    out.spec = spec.clone();
+    out.z_index = spec.partition_indices();
+    out.z_lower = vec![0.0; out.z_index.len()];
+    out.z_upper = vec![1.0; out.z_index.len()];
+    out.leaves[0].lower = vec![0.0; out.z_index.len()];
+    out.leaves[0].upper = vec![1.0; out.z_index.len()];
+    let old = &net.leaves[0].theta;
+    let mut th = vec![0.0; 1 + spec.n_dynamic()];
+    th[0] = old[0];
+    for i in 0..spec.na.min(net.spec.na) {
+        th[1 + i] = old[1 + i];
+    }
+    let (mut oo, mut no) = (1 + net.spec.na, 1 + spec.na);
+    for j in 0..spec.nb.len() {
+        if spec.nk[j] == net.spec.nk[j] {
+            for i in 0..spec.nb[j].min(net.spec.nb[j]) {
+                th[no + i] = old[oo + i];
+            }
+        }
+        oo += net.spec.nb[j];
+        no += spec.nb[j];
+    }
+    out.leaves[0].theta = th;
+    out.beta = vec![0.0; spec.n_hysteresis()];
+    if spec.output_play == net.spec.output_play
+        && spec.input_play == net.spec.input_play
+        && spec.output_relays == net.spec.output_relays
+        && spec.hysteresis_lags == net.spec.hysteresis_lags
+    {
+        out.beta.clone_from(&net.beta);
+    }
+    Some(out)
+}
+
 /// Fit a linear output-error model (one leaf, plus any hysteresis columns of
 /// `spec`): ARX least squares, two pseudo-linear-regression passes with
 /// simulated output lags (instrumental-variable style), stabilisation, then
@@ -824,6 +928,34 @@ pub fn fit_linear_oe(
     refine_output_error(&best, inputs, y, opts).map(|(m, _)| m)
 }
 
+/// [`fit_linear_oe`], and also Levenberg–Marquardt started from `warm`
+/// embedded into `spec` (see [`embed_linear`]); the fit with the smaller
+/// simulation error on the data wins. Output-error costs have local minima,
+/// and a warm start from a smaller nested model can never do worse than it.
+pub fn fit_linear_oe_warm(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    warm: Option<&LocalModelNetwork>,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe(spec, inputs, y, opts);
+    let Some(start) = warm.and_then(|w| embed_linear(w, spec)) else {
+        return cold;
+    };
+    let warm_fit = refine_output_error(&start, inputs, y, opts).map(|(m, _)| m);
+    match (cold, warm_fit) {
+        (Ok(c), Ok(w)) => {
+            let ec = gb_core::metrics::rms(&c.simulation_residuals(inputs, y)?);
+            let ew = gb_core::metrics::rms(&w.simulation_residuals(inputs, y)?);
+            Ok(if ew < ec { w } else { c })
+        }
+        (Ok(c), Err(_)) => Ok(c),
+        (Err(_), Ok(w)) => Ok(w),
+        (Err(e), Err(_)) => Err(e),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -870,6 +1002,7 @@ mod tests {
         let mut spec = NetworkSpec::order(2, 1);
         spec.output_play = vec![0.2, 0.6];
         spec.input_play = vec![vec![0.5]];
+        spec.hysteresis_lags = 2;
         let mut net = linear_network(&spec, &[u.clone()], &y);
         // a two-leaf partition over y(k-1) to exercise the validity derivatives
         net.z_index = vec![0];
@@ -888,7 +1021,7 @@ mod tests {
                 theta: vec![-0.05, 1.1, -0.45, 0.5, 0.1],
             },
         ];
-        net.beta = vec![0.05, -0.03, 0.02];
+        net.beta = vec![0.05, -0.03, 0.02, -0.01, 0.04, 0.01];
         let p = net.prepare(&[u.clone()], &y).unwrap();
         let np = net.n_parameters();
         let mut jtj = DMatrix::zeros(np, np);

@@ -1,6 +1,10 @@
 use crate::LmnError;
 use serde::{Deserialize, Serialize};
 
+fn one() -> usize {
+    1
+}
+
 /// Dynamic structure of a network: which delayed signals form the regressor
 /// x(k), which of them span the partition space z(k), and optional hysteresis
 /// (play-operator) columns.
@@ -18,8 +22,16 @@ pub struct NetworkSpec {
     pub nk: Vec<usize>,
     /// Play-operator thresholds (normalised units) on the simulated output.
     pub output_play: Vec<f64>,
+    /// Levels of a relay grid (discrete Preisach operator) on the simulated
+    /// output over ±2.5 normalised units (0: none).
+    #[serde(default)]
+    pub output_relays: usize,
     /// Play-operator thresholds (normalised units) per input.
     pub input_play: Vec<Vec<f64>>,
+    /// Lags of every hysteresis column (1: only the latest; n: lags 1..n, as
+    /// a hysteretic force inside n-th order dynamics needs).
+    #[serde(default = "one")]
+    pub hysteresis_lags: usize,
     /// Indices into the dynamic part of x that span the partition space
     /// (empty: all of them).
     pub partition: Vec<usize>,
@@ -33,7 +45,9 @@ impl NetworkSpec {
             nb: nb.to_vec(),
             nk: vec![1; nb.len()],
             output_play: vec![],
+            output_relays: 0,
             input_play: vec![vec![]; nb.len()],
+            hysteresis_lags: 1,
             partition: vec![],
         }
     }
@@ -92,7 +106,18 @@ impl NetworkSpec {
 
     /// Number of hysteresis columns.
     pub fn n_hysteresis(&self) -> usize {
-        self.output_play.len() + self.input_play.iter().map(Vec::len).sum::<usize>()
+        self.hysteresis_lags
+            * (self.output_play.len() + self.n_relays() + self.input_play.iter().map(Vec::len).sum::<usize>())
+    }
+
+    /// Columns of one lag of the output-side hysteresis block.
+    pub fn output_block(&self) -> usize {
+        self.output_play.len() + self.n_relays()
+    }
+
+    /// Number of relay columns: levels·(levels+1)/2.
+    pub fn n_relays(&self) -> usize {
+        self.output_relays * (self.output_relays + 1) / 2
     }
 
     /// Largest delay: the number of initial samples a simulation needs.
@@ -105,7 +130,17 @@ impl NetworkSpec {
             .map(|(b, k)| k + b - 1)
             .max()
             .unwrap_or(0);
-        self.na.max(ul).max(1)
+        let l = self.hysteresis_lags.max(1);
+        let uh = self
+            .input_play
+            .iter()
+            .zip(&self.nk)
+            .filter(|(p, _)| !p.is_empty())
+            .map(|(_, k)| k + l - 1)
+            .max()
+            .unwrap_or(0);
+        let oh = if self.output_block() > 0 { l } else { 0 };
+        self.na.max(ul).max(uh).max(oh).max(1)
     }
 
     /// Indices of the partition space (all dynamic regressors if unset).
