@@ -351,11 +351,18 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
             v.push(Candidate {
                 cause,
                 structure: s,
-                extension: format!(
-                    "more capacity for the named {cause}: up to {} local models, {} play operators on the output",
-                    if s.network { s.max_leaves() } else { 1 },
-                    if s.hysteresis { 6 * (1 + s.detail as usize) } else { 0 }
-                ),
+                extension: if s.network && cause == "nonlinearity" {
+                    format!("more capacity for the named nonlinearity: up to {} local models", s.max_leaves())
+                } else {
+                    format!(
+                        "more capacity for the named hysteresis: {} play operators and {} relays on the output",
+                        6 * (1 + s.detail as usize),
+                        {
+                            let l = 6 + 2 * s.detail as usize;
+                            l * (l + 1) / 2
+                        }
+                    )
+                },
                 refine: true,
             });
         }

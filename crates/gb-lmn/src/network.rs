@@ -308,11 +308,13 @@ impl LocalModelNetwork {
         };
         let h = self.spec.n_hysteresis();
         let hyst = if h > 0 {
+            let ni: usize = self.spec.input_play.iter().map(Vec::len).sum();
             format!(
-                " + Preisach component ({} play operators on the output, {} relays on the output, {} play operators on the inputs)",
+                " + Preisach component ({} play operators and {} relays on the output, {} play operators on the inputs, at lags 1..{})",
                 self.spec.output_play.len(),
                 self.spec.n_relays(),
-                h - self.spec.output_play.len() - self.spec.n_relays()
+                ni,
+                self.spec.hysteresis_lags
             )
         } else {
             String::new()

@@ -1,1 +1,422 @@
-fn main() {}
+//! The `greybox` command-line tool.
+use clap::{Args, Parser, Subcommand};
+use gb_core::{CsvTable, DataSet, Model, Simulate};
+use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions, GreyBoxModel, ModelFitOptions, OrderChoice, Report, Structure};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+const ABOUT: &str = "greybox: identify nonlinear dynamical systems and see what your model gets wrong";
+
+const LONG_ABOUT: &str = "\
+greybox identifies models of dynamical systems from measured data and tells
+you what your model gets wrong: it simulates your model (free run), names the
+cause of the misfit (nonlinearity, hysteresis, dynamics, noise), extends the
+model and measures the gain on held-out data.
+
+Workflow:
+  greybox diagnose --example shock-absorber          # a demo on generated data
+  greybox generate bouc-wen -o data/                 # write train.csv, validate.csv
+  greybox diagnose data/train.csv --validate data/validate.csv --json report.json --save model.gbm
+  greybox simulate model.gbm data/validate.csv -o sim.csv
+  greybox fit data/train.csv --model linear+preisach -o model.gbm
+
+CSV files need a header row; a `t` column is ignored. Errors name the file,
+row and column and exit with code 2.";
+
+#[derive(Parser)]
+#[command(name = "greybox", version, about = ABOUT, long_about = LONG_ABOUT)]
+struct Cli {
+    /// No progress bars.
+    #[arg(long, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
+    #[command(after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json\n  greybox diagnose data.csv --order auto --save model.gbm")]
+    Diagnose(DiagnoseArgs),
+    /// Fit a model of a given structure by output-error identification.
+    #[command(after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model).\n\nExample:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm")]
+    Fit(FitArgs),
+    /// Simulate a saved model on the inputs of a CSV file (free run).
+    #[command(after_help = "Example:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50")]
+    Simulate(SimulateArgs),
+    /// Write train.csv and validate.csv for a generated system (fixed seed = same files).
+    #[command(after_help = "Systems: linear, msd-linear, msd-nonlinear, duffing, saturation, deadzone, preisach, bouc-wen, backlash, two-mass, student-t, shock-absorber\n\nExample:\n  greybox generate duffing -o duffing/ --seed 3")]
+    Generate(GenerateArgs),
+}
+
+#[derive(Args)]
+struct SignalArgs {
+    /// Input column (repeat for several inputs). Default: every column except the output and `t`.
+    #[arg(long = "input", value_name = "COLUMN")]
+    inputs: Vec<String>,
+    /// Output column. Default: the last column.
+    #[arg(long, value_name = "COLUMN")]
+    output: Option<String>,
+}
+
+#[derive(Args)]
+struct DiagnoseArgs {
+    /// Training data (CSV). Without --validate it is split into fit/select/report blocks.
+    #[arg(required_unless_present = "example")]
+    train: Option<PathBuf>,
+    /// Validation data (CSV) on which the NRMSE is reported.
+    #[arg(long)]
+    validate: Option<PathBuf>,
+    #[command(flatten)]
+    signals: SignalArgs,
+    /// Order of the engineer's linear output-error model, or `auto`.
+    #[arg(long, default_value = "2")]
+    order: String,
+    /// Write the report as JSON.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Save the final model (postcard).
+    #[arg(long, value_name = "FILE")]
+    save: Option<PathBuf>,
+    /// Run on a generated example instead of files: shock-absorber, or any `generate` system.
+    #[arg(long, value_name = "NAME", conflicts_with = "train")]
+    example: Option<String>,
+    /// Most extension steps (1..=4).
+    #[arg(long, default_value_t = 4)]
+    max_steps: usize,
+}
+
+#[derive(Args)]
+struct FitArgs {
+    /// Training data (CSV).
+    train: PathBuf,
+    /// Model structure SPEC.
+    #[arg(long, default_value = "linear")]
+    model: String,
+    /// Dynamic order n.
+    #[arg(long, default_value_t = 2)]
+    order: usize,
+    #[command(flatten)]
+    signals: SignalArgs,
+    /// Model file to write.
+    #[arg(short = 'o', long = "out", value_name = "FILE")]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct SimulateArgs {
+    /// Model file written by `fit` or `diagnose --save`.
+    model: PathBuf,
+    /// Data with the model's input columns (and optionally its output column).
+    data: PathBuf,
+    /// Output CSV: the inputs, the measured output if present, and y_sim.
+    #[arg(short = 'o', long = "out", value_name = "FILE")]
+    out: PathBuf,
+    /// The first N measured outputs may initialise the state; errors are reported on samples N.. only.
+    #[arg(long, default_value_t = 0)]
+    init_window: usize,
+}
+
+#[derive(Args)]
+struct GenerateArgs {
+    /// System name (see below).
+    system: String,
+    /// Output directory (created if missing).
+    #[arg(short = 'o', long = "out", value_name = "DIR")]
+    out: PathBuf,
+    /// Random seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Training samples.
+    #[arg(long, default_value_t = 8000)]
+    samples: usize,
+    /// Validation samples.
+    #[arg(long, default_value_t = 4000)]
+    validate_samples: usize,
+}
+
+type Result<T> = std::result::Result<T, String>;
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let quiet = cli.quiet || !std::io::stderr().is_terminal();
+    let r = match cli.command {
+        Command::Diagnose(a) => run_diagnose(a, quiet),
+        Command::Fit(a) => run_fit(a, quiet),
+        Command::Simulate(a) => run_simulate(a),
+        Command::Generate(a) => run_generate(a),
+    };
+    match r {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("greybox: error: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn load(path: &Path, s: &SignalArgs) -> Result<DataSet> {
+    let t = CsvTable::read(path).map_err(|e| e.to_string())?;
+    DataSet::from_table(&t, &s.inputs, s.output.as_deref()).map_err(|e| e.to_string())
+}
+
+fn spinner(quiet: bool, msg: &str) -> ProgressBar {
+    let pb = ProgressBar::new_spinner();
+    if quiet {
+        pb.set_draw_target(ProgressDrawTarget::hidden());
+    } else {
+        pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    }
+    pb.set_message(msg.to_string());
+    pb
+}
+
+struct BarObserver(ProgressBar);
+
+impl gb_diagnose::Observer for BarObserver {
+    fn progress(&self, done: usize, total: usize, message: &str) {
+        self.0.set_length(total as u64);
+        self.0.set_position(done as u64);
+        self.0.set_message(message.to_string());
+    }
+}
+
+fn parse_order(s: &str) -> Result<OrderChoice> {
+    if s == "auto" {
+        return Ok(OrderChoice::Auto);
+    }
+    match s.parse::<usize>() {
+        Ok(n) if (1..=gb_diagnose::MAX_ORDER).contains(&n) => Ok(OrderChoice::Fixed(n)),
+        _ => Err(format!(
+            "--order must be 1..={} or auto, got '{s}'",
+            gb_diagnose::MAX_ORDER
+        )),
+    }
+}
+
+fn run_diagnose(a: DiagnoseArgs, quiet: bool) -> Result<()> {
+    let order = parse_order(&a.order)?;
+    if a.max_steps == 0 || a.max_steps > 4 {
+        return Err(format!("--max-steps must be 1..=4, got {}", a.max_steps));
+    }
+    let data = if let Some(ex) = &a.example {
+        let name = if ex == "shock-absorber" { "shock-absorber" } else { ex.as_str() };
+        let g = systems::generate(name, 1, 8000, 4000).map_err(|e| e.to_string())?;
+        println!(
+            "example '{name}': generated {} training + {} validation samples (seed 1, SNR {:.1} dB, noise floor NRMSE {:.4})",
+            g.train.len(),
+            g.validate.len(),
+            g.snr_db,
+            g.noise_floor_nrmse
+        );
+        DiagnoseData::with_validation(g.train, g.validate).map_err(|e| e.to_string())?
+    } else {
+        let train_path = a.train.as_ref().ok_or("a training CSV or --example is needed")?;
+        let train = load(train_path, &a.signals)?;
+        match &a.validate {
+            Some(v) => {
+                let val = load(v, &a.signals)?;
+                DiagnoseData::with_validation(train, val).map_err(|e| format!("{}: {e}", v.display()))?
+            }
+            None => {
+                let d = DiagnoseData::from_single(train);
+                println!(
+                    "no --validate: {} split into contiguous blocks fit {}..{}, select {}..{}, report {}..{}",
+                    train_path.display(),
+                    d.fit.start,
+                    d.fit.end,
+                    d.select.start,
+                    d.select.end,
+                    d.report_range.start,
+                    d.report_range.end
+                );
+                d
+            }
+        }
+    };
+    let opts = DiagnoseOptions {
+        order,
+        max_steps: a.max_steps,
+        ..DiagnoseOptions::default()
+    };
+    let pb = ProgressBar::new(1 + a.max_steps as u64);
+    if quiet {
+        pb.set_draw_target(ProgressDrawTarget::hidden());
+    } else {
+        pb.set_style(
+            ProgressStyle::with_template("{spinner} [{bar:20}] {pos}/{len} {msg} ({elapsed})")
+                .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    }
+    let obs = BarObserver(pb.clone());
+    let d = diagnose(&data, &opts, Some(&obs)).map_err(|e| e.to_string())?;
+    pb.finish_and_clear();
+    print_report(&d.report);
+    // write outputs only after everything succeeded (each write is atomic)
+    if let Some(j) = &a.json {
+        let text = serde_json::to_string_pretty(&d.report).map_err(|e| e.to_string())?;
+        gb_core::write_atomic(j, text.as_bytes()).map_err(|e| e.to_string())?;
+        println!("report written to {}", j.display());
+    }
+    if let Some(s) = &a.save {
+        d.model.save(s).map_err(|e| e.to_string())?;
+        println!("final model saved to {}", s.display());
+    }
+    Ok(())
+}
+
+fn print_report(r: &Report) {
+    println!();
+    println!(
+        "data: inputs {} -> output {}; fit {} / select {} / report {} samples",
+        r.data.inputs.join(","),
+        r.data.output,
+        r.data.samples_fit,
+        r.data.samples_select,
+        r.data.samples_validate
+    );
+    println!("baseline: {}  NRMSE {:.4}  nll {:.3}", r.baseline.model, r.baseline.nrmse, r.baseline.nll);
+    println!();
+    println!(
+        "{:<4} {:<13} {:>8} {:>8} {:>8} {:>17} {:<8} extension / evidence",
+        "step", "cause", "NRMSE", "->", "gain", "select gain [95%]", "accepted"
+    );
+    for s in &r.steps {
+        let gain = if s.gain_metric == "nll" {
+            format!("{:+.3}nll", s.gain)
+        } else {
+            format!("{:+.1}%", 100.0 * s.gain)
+        };
+        println!(
+            "{:<4} {:<13} {:>8.4} {:>8.4} {:>8} {:>+6.3} [{:+.2},{:+.2}] {:<8} {}",
+            s.iteration,
+            s.cause,
+            s.nrmse_before,
+            s.nrmse_after,
+            gain,
+            s.gain_select,
+            s.gain_ci[0],
+            s.gain_ci[1],
+            if s.accepted { "yes" } else { "no" },
+            s.extension
+        );
+        if s.accepted {
+            println!("{:<14} evidence: {}", "", s.evidence);
+        }
+    }
+    println!();
+    if r.causes.is_empty() {
+        println!("causes: none - the model is adequate (no extension pays on held-out data)");
+    } else {
+        println!("causes: {}", r.causes.join(", "));
+    }
+    println!("final: {}  NRMSE {:.4}  nll {:.3}", r.final_model.model, r.final_model.nrmse, r.final_model.nll);
+}
+
+fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
+    let structure = Structure::parse(&a.model, a.order).map_err(|e| e.to_string())?;
+    let data = load(&a.train, &a.signals)?;
+    let min = 20 * (a.order + 1) * (data.n_inputs() + 1) + 50;
+    data.check_identifiable(&a.train.display().to_string(), min)
+        .map_err(|e| e.to_string())?;
+    let pb = spinner(quiet, &format!("fitting {} of order {}", structure.spec(), a.order));
+    let m = GreyBoxModel::fit(structure, &data, None, None, &ModelFitOptions::default()).map_err(|e| e.to_string())?;
+    pb.finish_and_clear();
+    let sim = m
+        .simulate(&data.inputs, &data.output[..m.max_lag().min(data.len())])
+        .map_err(|e| e.to_string())?;
+    let k0 = m.max_lag();
+    let nrmse = gb_core::metrics::nrmse(&data.output[k0..], &sim[k0..]).map_err(|e| e.to_string())?;
+    m.save(&a.out).map_err(|e| e.to_string())?;
+    println!("model: {}", m.describe());
+    println!("parameters: {}", m.n_parameters());
+    println!("training NRMSE (free-run simulation): {nrmse:.4}");
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+fn run_simulate(a: SimulateArgs) -> Result<()> {
+    let m = GreyBoxModel::load(&a.model).map_err(|e| e.to_string())?;
+    let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
+    let inputs: Vec<Vec<f64>> = m
+        .input_names
+        .iter()
+        .map(|n| t.column(n).map(<[f64]>::to_vec))
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| e.to_string())?;
+    let y = t.column(&m.output_name).ok().map(<[f64]>::to_vec);
+    if a.init_window > t.n_rows() {
+        return Err(format!("--init-window {} exceeds the {} samples of {}", a.init_window, t.n_rows(), a.data.display()));
+    }
+    let init: Vec<f64> = match &y {
+        Some(y) => y[..a.init_window.min(m.max_lag())].to_vec(),
+        None if a.init_window > 0 => {
+            return Err(format!(
+                "{}: --init-window needs the output column '{}'",
+                a.data.display(),
+                m.output_name
+            ))
+        }
+        None => vec![],
+    };
+    let sim = m.simulate(&inputs, &init).map_err(|e| e.to_string())?;
+    let mut names: Vec<&str> = m.input_names.iter().map(String::as_str).collect();
+    let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
+    if let Some(y) = &y {
+        names.push("y");
+        cols.push(y);
+    }
+    names.push("y_sim");
+    cols.push(&sim);
+    gb_core::write_csv_atomic(&a.out, &names, &cols).map_err(|e| e.to_string())?;
+    if let Some(y) = &y {
+        let n0 = a.init_window.min(y.len().saturating_sub(1));
+        let rmse = gb_core::metrics::rmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
+        let nrmse = gb_core::metrics::nrmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
+        println!(
+            "samples {}..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
+            n0,
+            y.len(),
+            100.0 * (1.0 - nrmse)
+        );
+    }
+    println!("simulation written to {}", a.out.display());
+    Ok(())
+}
+
+fn run_generate(a: GenerateArgs) -> Result<()> {
+    let g = systems::generate(&a.system, a.seed, a.samples, a.validate_samples).map_err(|e| e.to_string())?;
+    std::fs::create_dir_all(&a.out).map_err(|e| format!("{}: {e}", a.out.display()))?;
+    let t_tr: Vec<f64> = (0..g.train.len()).map(|k| k as f64 * g.ts).collect();
+    let t_va: Vec<f64> = (0..g.validate.len()).map(|k| k as f64 * g.ts).collect();
+    let w = |name: &str, t: &[f64], d: &DataSet| {
+        gb_core::write_csv_atomic(a.out.join(name), &["t", "u", "y"], &[t, &d.inputs[0], &d.output]).map_err(|e| e.to_string())
+    };
+    w("train.csv", &t_tr, &g.train)?;
+    w("validate.csv", &t_va, &g.validate)?;
+    let truth = serde_json::json!({
+        "system": g.system,
+        "seed": g.seed,
+        "expected_cause": g.expected_cause,
+        "noise_std": g.noise_std,
+        "noise_floor_nrmse": g.noise_floor_nrmse,
+        "snr_db": g.snr_db,
+        "ts": g.ts,
+        "parameters": g.parameters.iter().map(|(k, v)| (k.clone(), *v)).collect::<std::collections::BTreeMap<_, _>>(),
+    });
+    let text = serde_json::to_string_pretty(&truth).map_err(|e| e.to_string())?;
+    gb_core::write_atomic(a.out.join("truth.json"), text.as_bytes()).map_err(|e| e.to_string())?;
+    println!(
+        "{}: wrote {}/train.csv ({} samples), validate.csv ({}), truth.json; hidden effect: {}; noise floor NRMSE {:.4}",
+        g.system,
+        a.out.display(),
+        g.train.len(),
+        g.validate.len(),
+        g.expected_cause.as_deref().unwrap_or("none"),
+        g.noise_floor_nrmse
+    );
+    Ok(())
+}
