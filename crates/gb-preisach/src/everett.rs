@@ -470,7 +470,6 @@ impl GridEverett {
     /// the masses, F(α, β) = Σ w_kl A_k(α) B_l(β) with A_k, B_l the covered
     /// fractions of the cell in α and β (and (α−β)/Δ inside one diagonal
     /// cell).
-    #[allow(dead_code)]
     pub(crate) fn add_basis(&self, a: &GridNode, b: &GridNode, coef: f64, out: &mut [f64]) {
         let (i, j) = (a.cell, b.cell);
         if i == j {
@@ -491,7 +490,6 @@ impl GridEverett {
     }
 
     /// Add `coef · ∂/∂α ∂F(α, β)/∂w` (`wrt_alpha`) or the β derivative.
-    #[allow(dead_code)]
     pub(crate) fn add_basis_derivative(
         &self,
         a: &GridNode,

@@ -24,16 +24,20 @@
 #![warn(missing_docs)]
 
 mod everett;
+mod identify;
 mod play;
 mod preisach;
+mod regressor;
 mod relay;
 mod special;
 
 pub use everett::{
     DensityCell, DensityShape, Everett, GridEverett, GridNode, ParametricEverett, ParametricNode,
 };
+pub use identify::{fit_grid_preisach, FitOptions, PreisachFit};
 pub use play::{PlayOperator, PlayOperatorBank};
 pub use preisach::{InitialState, Preisach, PreisachState};
+pub use regressor::{GridPreisachRegressor, HysteresisRegressor, PlayBankState, Regressors};
 pub use relay::RelayGrid;
 
 /// Errors of the Preisach crate.
