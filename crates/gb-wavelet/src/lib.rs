@@ -1,1 +1,30 @@
-//! gb-wavelet
+//! # gb-wavelet
+//!
+//! Fast wavelet transforms for greybox: planned two-channel filter banks
+//! ([`Wavelet`]), single-level and multilevel transforms with PyWavelets'
+//! coefficient layout and extension modes ([`Mode`]).
+//!
+//! ```
+//! use gb_wavelet::{wavedec, waverec, Mode, Wavelet};
+//! let w = Wavelet::new("db4")?;
+//! let x: Vec<f64> = (0..256).map(|i| (i as f64 / 10.0).sin()).collect();
+//! let coeffs = wavedec(&x, &w, Mode::Periodization, None)?; // [a_J, d_J, …, d_1]
+//! let y = waverec(&coeffs, &w, Mode::Periodization)?;
+//! assert!(x.iter().zip(&y).all(|(a, b)| (a - b).abs() < 1e-12));
+//! # Ok::<(), gb_wavelet::WaveletError>(())
+//! ```
+#![warn(missing_docs)]
+
+mod error;
+#[rustfmt::skip]
+mod filters;
+mod mode;
+mod multilevel;
+mod transform;
+mod wavelet;
+
+pub use error::{Result, WaveletError};
+pub use mode::Mode;
+pub use multilevel::{wavedec, waverec, DecompositionPlan};
+pub use transform::{dwt, dwt_len, idwt, idwt_len};
+pub use wavelet::{Family, Symmetry, Wavelet};
