@@ -25,6 +25,7 @@
 
 mod everett;
 mod identify;
+mod pi;
 mod play;
 mod preisach;
 mod regressor;
@@ -35,6 +36,7 @@ pub use everett::{
     DensityCell, DensityShape, Everett, GridEverett, GridNode, ParametricEverett, ParametricNode,
 };
 pub use identify::{fit_grid_preisach, FitOptions, PreisachFit};
+pub use pi::{Envelope, GeneralizedPlay, PrandtlIshlinskii, StopOperator, StopOperatorBank};
 pub use play::{PlayOperator, PlayOperatorBank};
 pub use preisach::{InitialState, Preisach, PreisachState};
 pub use regressor::{GridPreisachRegressor, HysteresisRegressor, PlayBankState, Regressors};

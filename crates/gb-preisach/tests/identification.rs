@@ -1,4 +1,5 @@
 //! Identification of a known Preisach density from noisy data.
+#![allow(clippy::needless_range_loop)]
 use gb_preisach::{
     fit_grid_preisach, Everett, FitOptions, GridEverett, GridPreisachRegressor,
     HysteresisRegressor, InitialState, ParametricEverett, Preisach,

@@ -1,4 +1,5 @@
 //! The Everett-function form and the classic relay grid agree.
+#![allow(clippy::needless_range_loop)]
 use gb_preisach::{GridEverett, InitialState, ParametricEverett, Preisach, RelayGrid};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
