@@ -20,6 +20,7 @@ mod error;
 mod filters;
 mod mode;
 mod multilevel;
+mod simd;
 mod transform;
 mod wavelet;
 

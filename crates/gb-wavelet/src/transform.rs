@@ -81,30 +81,67 @@ fn extended(x: &[f64], idx: isize, mode: Mode) -> f64 {
     }
 }
 
-/// Interior analysis kernel with a compile-time filter length.
+/// `c + a·b` (portable kernels; the AVX2 kernels in `simd.rs` fuse it).
 #[inline(always)]
-fn analysis_interior_fixed<const F: usize>(
+fn madd(a: f64, b: f64, c: f64) -> f64 {
+    a * b + c
+}
+
+/// Outputs per block of the vectorised kernels.
+const BLOCK: usize = 8;
+/// Largest half filter length with a specialised kernel (`F ≤ 40`).
+const MAX_HALF: usize = 20;
+
+/// Interior analysis kernel, half filter length `H` known at compile time:
+/// `a[i] = Σ_t lo[2t] x[2i+2t] + lo[2t+1] x[2i+2t+1]` (polyphase form),
+/// computed for `BLOCK` consecutive outputs at once on a deinterleaved copy of
+/// the input window so that the inner loops run over contiguous data.
+#[inline(always)]
+fn analysis_interior_fixed<const H: usize>(
     x: &[f64],
     lo: &[f64],
     hi: &[f64],
     a: &mut [f64],
     d: &mut [f64],
 ) {
-    let lo: &[f64; F] = lo.try_into().expect("filter length checked by dispatch");
-    let hi: &[f64; F] = hi.try_into().expect("filter length checked by dispatch");
-    for (i, (ai, di)) in a.iter_mut().zip(d.iter_mut()).enumerate() {
-        let w = &x[2 * i..2 * i + F];
-        let mut sa = 0.0;
-        let mut sd = 0.0;
-        for j in 0..F {
-            sa += lo[j] * w[j];
-            sd += hi[j] * w[j];
-        }
-        *ai = sa;
-        *di = sd;
+    let mut lo_e = [0.0; H];
+    let mut lo_o = [0.0; H];
+    let mut hi_e = [0.0; H];
+    let mut hi_o = [0.0; H];
+    for t in 0..H {
+        lo_e[t] = lo[2 * t];
+        lo_o[t] = lo[2 * t + 1];
+        hi_e[t] = hi[2 * t];
+        hi_o[t] = hi[2 * t + 1];
     }
+    let n = a.len();
+    let full = n - n % BLOCK;
+    let span = BLOCK + H - 1;
+    let mut xe = [0.0; BLOCK + MAX_HALF];
+    let mut xo = [0.0; BLOCK + MAX_HALF];
+    for i0 in (0..full).step_by(BLOCK) {
+        let xs = &x[2 * i0..2 * i0 + 2 * span];
+        for k in 0..span {
+            xe[k] = xs[2 * k];
+            xo[k] = xs[2 * k + 1];
+        }
+        let mut sa = [0.0; BLOCK];
+        let mut sd = [0.0; BLOCK];
+        for t in 0..H {
+            for l in 0..BLOCK {
+                sa[l] = madd(lo_e[t], xe[t + l], sa[l]);
+                sa[l] = madd(lo_o[t], xo[t + l], sa[l]);
+                sd[l] = madd(hi_e[t], xe[t + l], sd[l]);
+                sd[l] = madd(hi_o[t], xo[t + l], sd[l]);
+            }
+        }
+        a[i0..i0 + BLOCK].copy_from_slice(&sa);
+        d[i0..i0 + BLOCK].copy_from_slice(&sd);
+    }
+    analysis_interior_dyn(&x[2 * full..], lo, hi, &mut a[full..], &mut d[full..]);
 }
 
+#[inline(always)]
 fn analysis_interior_dyn(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d: &mut [f64]) {
     let f = lo.len();
     for (i, (ai, di)) in a.iter_mut().zip(d.iter_mut()).enumerate() {
@@ -112,25 +149,38 @@ fn analysis_interior_dyn(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d: &m
         let mut sa = 0.0;
         let mut sd = 0.0;
         for ((l, h), v) in lo.iter().zip(hi).zip(w) {
-            sa += l * v;
-            sd += h * v;
+            sa = madd(*l, *v, sa);
+            sd = madd(*h, *v, sd);
         }
         *ai = sa;
         *di = sd;
     }
 }
 
-/// `a[i] = Σ_j lo[j] x[2i+j]` for the whole of `a` (needs `x.len() ≥ 2(len−1)+F`).
-fn analysis_interior(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d: &mut [f64]) {
+#[inline(always)]
+fn analysis_interior_generic(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d: &mut [f64]) {
     macro_rules! dispatch {
-        ($($f:literal)*) => {
-            match lo.len() {
-                $($f => analysis_interior_fixed::<$f>(x, lo, hi, a, d),)*
+        ($($h:literal)*) => {
+            match lo.len() / 2 {
+                $($h => analysis_interior_fixed::<$h>(x, lo, hi, a, d),)*
                 _ => analysis_interior_dyn(x, lo, hi, a, d),
             }
         };
     }
-    dispatch!(2 4 6 8 10 12 14 16 18 20 22 24 26 28 30 32 34 36 38 40);
+    dispatch!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20);
+}
+
+/// `a[i] = Σ_j lo[j] x[2i+j]` for the whole of `a` (needs `x.len() ≥ 2(len−1)+F`).
+fn analysis_interior(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if lo.len() / 2 <= crate::simd::MAX_HALF && crate::simd::available() {
+        // SAFETY: AVX2 and FMA are available, 1 ≤ H ≤ MAX_HALF, and the caller
+        // guarantees the input window covers every output.
+        let done = unsafe { crate::simd::analysis(x, lo, hi, a, d) };
+        analysis_interior_dyn(&x[2 * done..], lo, hi, &mut a[done..], &mut d[done..]);
+        return;
+    }
+    analysis_interior_generic(x, lo, hi, a, d);
 }
 
 /// One analysis step into caller-supplied buffers (no allocation).
@@ -192,24 +242,9 @@ pub(crate) fn analysis(
     }
 }
 
-#[inline(always)]
-fn dot<const H: usize>(w: &[f64], p: &[f64]) -> f64 {
-    let w: &[f64; H] = w.try_into().expect("window length checked by dispatch");
-    let p: &[f64; H] = p.try_into().expect("filter length checked by dispatch");
-    let mut s = 0.0;
-    for j in 0..H {
-        s += w[j] * p[j];
-    }
-    s
-}
-
-#[inline(always)]
-fn dot_dyn(w: &[f64], p: &[f64]) -> f64 {
-    w.iter().zip(p).map(|(a, b)| a * b).sum()
-}
-
-/// Non-periodic synthesis: every output pair `(2u, 2u+1)` uses the windows
-/// `a[u..u+H]`, `d[u..u+H]`.
+/// Synthesis pairs kernel, `H` known at compile time: output pair
+/// `(2u, 2u+1)` uses the windows `a[u..u+H]`, `d[u..u+H]` with the even and odd
+/// polyphase components; `BLOCK` pairs at a time.
 #[inline(always)]
 fn synthesis_pairs_fixed<const H: usize>(
     a: &[f64],
@@ -217,27 +252,60 @@ fn synthesis_pairs_fixed<const H: usize>(
     poly: &[Vec<f64>; 4],
     out: &mut [f64],
 ) {
-    let [le, lo, he, ho] = poly;
-    for (u, pair) in out.chunks_exact_mut(2).enumerate() {
-        let wa = &a[u..u + H];
-        let wd = &d[u..u + H];
-        pair[0] = dot::<H>(wa, le) + dot::<H>(wd, he);
-        pair[1] = dot::<H>(wa, lo) + dot::<H>(wd, ho);
+    let mut le = [0.0; H];
+    let mut lo = [0.0; H];
+    let mut he = [0.0; H];
+    let mut ho = [0.0; H];
+    le.copy_from_slice(&poly[0][..H]);
+    lo.copy_from_slice(&poly[1][..H]);
+    he.copy_from_slice(&poly[2][..H]);
+    ho.copy_from_slice(&poly[3][..H]);
+    let pairs = out.len() / 2;
+    let full = pairs - pairs % BLOCK;
+    let span = BLOCK + H - 1;
+    for u0 in (0..full).step_by(BLOCK) {
+        let wa = &a[u0..u0 + span];
+        let wd = &d[u0..u0 + span];
+        let mut ev = [0.0; BLOCK];
+        let mut od = [0.0; BLOCK];
+        for t in 0..H {
+            for l in 0..BLOCK {
+                ev[l] = madd(le[t], wa[t + l], ev[l]);
+                ev[l] = madd(he[t], wd[t + l], ev[l]);
+                od[l] = madd(lo[t], wa[t + l], od[l]);
+                od[l] = madd(ho[t], wd[t + l], od[l]);
+            }
+        }
+        let o = &mut out[2 * u0..2 * u0 + 2 * BLOCK];
+        for l in 0..BLOCK {
+            o[2 * l] = ev[l];
+            o[2 * l + 1] = od[l];
+        }
     }
+    synthesis_pairs_dyn(&a[full..], &d[full..], poly, &mut out[2 * full..]);
 }
 
+#[inline(always)]
 fn synthesis_pairs_dyn(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut [f64]) {
     let h = poly[0].len();
     let [le, lo, he, ho] = poly;
     for (u, pair) in out.chunks_exact_mut(2).enumerate() {
         let wa = &a[u..u + h];
         let wd = &d[u..u + h];
-        pair[0] = dot_dyn(wa, le) + dot_dyn(wd, he);
-        pair[1] = dot_dyn(wa, lo) + dot_dyn(wd, ho);
+        let (mut ev, mut od) = (0.0, 0.0);
+        for t in 0..h {
+            ev = madd(le[t], wa[t], ev);
+            ev = madd(he[t], wd[t], ev);
+            od = madd(lo[t], wa[t], od);
+            od = madd(ho[t], wd[t], od);
+        }
+        pair[0] = ev;
+        pair[1] = od;
     }
 }
 
-fn synthesis_pairs(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut [f64]) {
+#[inline(always)]
+fn synthesis_pairs_generic(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut [f64]) {
     macro_rules! dispatch {
         ($($h:literal)*) => {
             match poly[0].len() {
@@ -249,12 +317,27 @@ fn synthesis_pairs(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut [f64]) 
     dispatch!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20);
 }
 
+/// `out[2u] = a[u..u+H]·lo_even + d[u..u+H]·hi_even`, `out[2u+1]` likewise with
+/// the odd components, for every pair of `out` (needs `a.len() ≥ out.len()/2 + H − 1`).
+fn synthesis_pairs(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::simd::available() {
+        // SAFETY: AVX2 and FMA are available and the caller guarantees the
+        // coefficient windows cover every output pair.
+        let done = unsafe { crate::simd::synthesis_pairs(a, d, poly, out) };
+        synthesis_pairs_dyn(&a[done..], &d[done..], poly, &mut out[2 * done..]);
+        return;
+    }
+    synthesis_pairs_generic(a, d, poly, out);
+}
+
 /// Periodization synthesis: `out[m]` with `p = m + H − 1`, `q = ⌊p/2⌋`,
-/// phase `p mod 2`, window `a[q−H+1..=q]` taken mod `n`.
+/// phase `p mod 2`, window `a[q−H+1..=q]` taken mod `n`. The interior, where
+/// no index wraps, runs through the pairs kernel.
 fn synthesis_periodization(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut [f64]) {
     let n = a.len();
     let h = poly[0].len();
-    for (m, o) in out.iter_mut().enumerate() {
+    let one = |m: usize| -> f64 {
         let p = m + h - 1;
         let q = p / 2;
         let (pl, ph) = if p % 2 == 0 {
@@ -262,18 +345,35 @@ fn synthesis_periodization(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut
         } else {
             (&poly[1], &poly[3])
         };
-        if q + 1 >= h && q < n {
-            let lo = q + 1 - h;
-            *o = dot_dyn(&a[lo..=q], pl) + dot_dyn(&d[lo..=q], ph);
-        } else {
-            let mut s = 0.0;
-            for t in 0..h {
-                // index q − H + 1 + t, mod n
-                let idx = (q + n * h + 1 + t - h) % n;
-                s += a[idx] * pl[t] + d[idx] * ph[t];
-            }
-            *o = s;
+        let mut s = 0.0;
+        for t in 0..h {
+            // index q − H + 1 + t, mod n
+            let idx = (q + n * h + 1 + t - h) % n;
+            s += a[idx] * pl[t] + d[idx] * ph[t];
         }
+        s
+    };
+    // Pairs sharing a window: (2u, 2u+1) for odd H, (2u+1, 2u+2) for even H,
+    // with window start u − c.
+    let (c, first_out) = if h % 2 == 1 {
+        ((h - 1) / 2, 0)
+    } else {
+        ((h - 2) / 2, 1)
+    };
+    let u_lo = c;
+    let u_hi = (n + c + 1).saturating_sub(h);
+    let (m_lo, m_hi) = if u_hi > u_lo {
+        let m_lo = 2 * u_lo + first_out;
+        let m_hi = (2 * u_hi + first_out).min(2 * n);
+        // keep whole pairs only
+        let m_hi = m_lo + (m_hi - m_lo) / 2 * 2;
+        synthesis_pairs(&a[u_lo - c..], &d[u_lo - c..], poly, &mut out[m_lo..m_hi]);
+        (m_lo, m_hi)
+    } else {
+        (0, 0)
+    };
+    for m in (0..m_lo).chain(m_hi..2 * n) {
+        out[m] = one(m);
     }
 }
 
@@ -406,4 +506,21 @@ pub fn idwt(approx: &[f64], detail: &[f64], wavelet: &Wavelet, mode: Mode) -> Re
     let mut out = vec![0.0; len];
     wavelet.idwt_into(approx, detail, mode, &mut out)?;
     Ok(out)
+}
+
+/// Portable analysis interior (for comparing the SIMD kernels in tests).
+#[cfg(test)]
+pub(crate) fn analysis_portable(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d: &mut [f64]) {
+    analysis_interior_generic(x, lo, hi, a, d);
+}
+
+/// Portable synthesis pairs (for comparing the SIMD kernels in tests).
+#[cfg(test)]
+pub(crate) fn synthesis_pairs_portable(
+    a: &[f64],
+    d: &[f64],
+    poly: &[Vec<f64>; 4],
+    out: &mut [f64],
+) {
+    synthesis_pairs_generic(a, d, poly, out);
 }
