@@ -29,6 +29,8 @@ pub mod error;
 pub mod filter;
 pub mod kalman;
 pub mod model;
+pub mod models;
+pub mod noise;
 pub mod resampling;
 pub mod rng;
 pub mod smoothing;
