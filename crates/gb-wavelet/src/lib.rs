@@ -21,11 +21,21 @@ mod filters;
 mod mode;
 mod multilevel;
 mod simd;
+mod sparse;
+mod special;
+mod threshold;
 mod transform;
 mod wavelet;
 
 pub use error::{Result, WaveletError};
 pub use mode::Mode;
 pub use multilevel::{wavedec, waverec, DecompositionPlan};
+pub use sparse::{best_n_term, coefficient_rows, NTermApproximation, SparseCoefficients};
+pub use special::{mills_ratio, norm_cdf, norm_pdf, norm_quantile, upper_tail};
+pub use threshold::{
+    bayes_shrink_threshold, denoise, denoise_with, noise_sigma, sure_risk, sure_shrink_threshold,
+    sure_threshold, universal_threshold, DenoiseOptions, Denoised, EmpiricalBayes,
+    ThresholdFunction, ThresholdRule,
+};
 pub use transform::{dwt, dwt_len, idwt, idwt_len};
 pub use wavelet::{Family, Symmetry, Wavelet};
