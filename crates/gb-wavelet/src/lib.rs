@@ -15,11 +15,13 @@
 //! ```
 #![warn(missing_docs)]
 
+mod dwt2;
 mod error;
 #[rustfmt::skip]
 mod filters;
 mod mode;
 mod multilevel;
+mod packet;
 mod simd;
 mod sparse;
 mod special;
@@ -27,9 +29,11 @@ mod threshold;
 mod transform;
 mod wavelet;
 
+pub use dwt2::{dwt2, idwt2, wavedec2, waverec2, Array2D, Coefficients2D, Details2D};
 pub use error::{Result, WaveletError};
 pub use mode::Mode;
 pub use multilevel::{wavedec, waverec, DecompositionPlan};
+pub use packet::{EntropyCost, PacketNode, WaveletPacket};
 pub use sparse::{best_n_term, coefficient_rows, NTermApproximation, SparseCoefficients};
 pub use special::{mills_ratio, norm_cdf, norm_pdf, norm_quantile, upper_tail};
 pub use threshold::{
