@@ -354,7 +354,7 @@ fn normalise(parallel: bool, w: &mut [f64], stats: &[ChunkStat], norm: Norm) {
 /// ```
 #[derive(Debug, Clone)]
 pub struct ParticleFilter {
-    config: FilterConfig,
+    pub(crate) config: FilterConfig,
 }
 
 impl ParticleFilter {

@@ -26,6 +26,7 @@
 #![warn(missing_docs)]
 
 pub mod error;
+pub mod estimation;
 pub mod filter;
 pub mod kalman;
 pub mod model;
