@@ -10,7 +10,7 @@
 //! staircase (see [`crate::Preisach`]), so any Everett function, parametric or
 //! tabulated, defines a model.
 
-use crate::special::{cauchy_cdf, cauchy_pdf, normal_cdf, normal_pdf};
+use crate::special::{cauchy_cdf, cauchy_pdf, normal_cdf_fast, normal_pdf};
 use crate::PreisachError;
 use serde::{Deserialize, Serialize};
 use std::fmt::Debug;
@@ -85,10 +85,10 @@ pub enum DensityShape {
 }
 
 impl DensityShape {
-    #[inline]
+    #[inline(always)]
     fn cdf(self, z: f64) -> f64 {
         match self {
-            DensityShape::Gaussian => normal_cdf(z),
+            DensityShape::Gaussian => normal_cdf_fast(z),
             DensityShape::Lorentzian => cauchy_cdf(z),
         }
     }
@@ -235,7 +235,7 @@ impl Everett for ParametricEverett {
         (f64::NEG_INFINITY, f64::INFINITY)
     }
 
-    #[inline]
+    #[inline(always)]
     fn node(&self, x: f64) -> ParametricNode {
         ParametricNode {
             x,

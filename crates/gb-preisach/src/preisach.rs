@@ -54,12 +54,14 @@ pub(crate) struct Corner<N> {
 
 /// Caller-owned memory of a [`Preisach`] operator: a fixed-capacity stack of
 /// alternating dominant extrema (the staircase corners) plus the current
-/// input. Created by [`Preisach::state`]; steps allocate nothing once the
-/// stack has reached its depth (it is preallocated up to 64 corners or the
-/// memory cap).
+/// input. Created by [`Preisach::state`]; with a memory cap (≤ 64) the stack
+/// is allocated once and steps never allocate (otherwise it doubles, rarely,
+/// when the memory gets deeper than ever before).
 #[derive(Debug, Clone)]
 pub struct PreisachState<N> {
-    pub(crate) corners: Vec<Corner<N>>,
+    /// Corner slots; `buf[..n]` in use.
+    buf: Vec<Corner<N>>,
+    n: usize,
     pub(crate) run_x: f64,
     pub(crate) run_node: N,
     pub(crate) run_term: f64,
@@ -68,15 +70,21 @@ pub struct PreisachState<N> {
 }
 
 impl<N: Copy> PreisachState<N> {
+    /// The corners in use (s₀ first).
+    #[inline]
+    pub(crate) fn corners(&self) -> &[Corner<N>] {
+        &self.buf[..self.n]
+    }
+
     /// The stored dominant extrema M₁, m₁, M₂, … (oldest first, without the
     /// lower support bound s₀ and without the current input).
     pub fn extrema(&self) -> Vec<f64> {
-        self.corners[1..].iter().map(|c| c.x).collect()
+        self.corners()[1..].iter().map(|c| c.x).collect()
     }
 
     /// Number of stored dominant extrema.
     pub fn depth(&self) -> usize {
-        self.corners.len() - 1
+        self.n - 1
     }
 
     /// The current (clamped) input.
@@ -86,12 +94,12 @@ impl<N: Copy> PreisachState<N> {
 
     /// Whether the current input is on an ascending branch.
     pub fn ascending(&self) -> bool {
-        self.corners.len() % 2 == 1
+        self.n % 2 == 1
     }
 
     /// The current output y.
     pub fn output(&self) -> f64 {
-        let last = self.corners[self.corners.len() - 1].prefix;
+        let last = self.buf[self.n - 1].prefix;
         self.offset + 2.0 * (last + self.run_term)
     }
 }
@@ -150,14 +158,14 @@ impl<E: Everett> Preisach<E> {
         let (lo, hi) = self.everett.support();
         let cap = self.memory_cap.map_or(usize::MAX, |c| c.saturating_add(1));
         let lo_node = self.everett.node(lo);
-        let mut corners = Vec::with_capacity(cap.min(65));
-        corners.push(Corner {
+        let anchor = Corner {
             x: lo,
             node: lo_node,
             prefix: 0.0,
-        });
+        };
         let mut st = PreisachState {
-            corners,
+            buf: vec![anchor; cap.min(65)],
+            n: 1,
             run_x: lo,
             run_node: lo_node,
             run_term: 0.0,
@@ -209,12 +217,15 @@ impl<E: Everett> Preisach<E> {
         advance(st, x);
         let node = self.everett.node(x);
         st.run_node = node;
-        let last = &st.corners[st.corners.len() - 1];
-        let term = if st.corners.len() & 1 == 1 {
-            self.everett.value(&node, &last.node)
+        let last = &st.buf[st.n - 1];
+        let asc = st.n & 1 == 1;
+        let (a, b) = if asc {
+            (&node, &last.node)
         } else {
-            -self.everett.value(&last.node, &node)
+            (&last.node, &node)
         };
+        let v = self.everett.value(a, b);
+        let term = if asc { v } else { -v };
         st.run_term = term;
         st.offset + 2.0 * (last.prefix + term)
     }
@@ -228,8 +239,8 @@ impl<E: Everett> Preisach<E> {
         if !(x > lo && x < hi) {
             return (y, 0.0);
         }
-        let last = &st.corners[st.corners.len() - 1];
-        let d = if st.corners.len() & 1 == 1 {
+        let last = &st.buf[st.n - 1];
+        let d = if st.n & 1 == 1 {
             2.0 * self.everett.partials(&st.run_node, &last.node).0
         } else {
             -2.0 * self.everett.partials(&last.node, &st.run_node).1
@@ -258,35 +269,41 @@ pub(crate) fn check_finite(x: &[f64]) -> Result<(), PreisachError> {
 /// Memory update: reversal detection, memory cap, wiping out.
 #[inline]
 pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
-    let c = &mut st.corners;
-    let mut ascending = c.len() & 1 == 1;
-    if (ascending && x < st.run_x) || (!ascending && x > st.run_x) {
-        // Turning point at the previous input.
-        if c.len() >= st.cap {
-            c.pop();
+    let mut n = st.n;
+    let mut asc = n & 1 == 1;
+    if (asc && x < st.run_x) || (!asc && x > st.run_x) {
+        if n >= st.cap {
+            n -= 1;
         } else {
-            let prefix = c[c.len() - 1].prefix + st.run_term;
-            c.push(Corner {
+            if n >= st.buf.len() {
+                // Unbounded memory deeper than ever before: double the slots.
+                let fill = st.buf[0];
+                let extra = st.buf.len();
+                st.buf.resize(2 * extra, fill);
+            }
+            let prefix = st.buf[n - 1].prefix + st.run_term;
+            st.buf[n] = Corner {
                 x: st.run_x,
                 node: st.run_node,
                 prefix,
-            });
+            };
+            n += 1;
         }
-        ascending = !ascending;
+        asc = !asc;
     }
-    if ascending {
-        // Wipe out maxima (and their minima) below x.
-        while c.len() >= 3 && x >= c[c.len() - 2].x {
-            c.truncate(c.len() - 2);
+    if asc {
+        while n >= 3 && x >= st.buf[n - 2].x {
+            n -= 2;
         }
     } else {
-        while c.len() >= 4 && x <= c[c.len() - 2].x {
-            c.truncate(c.len() - 2);
+        while n >= 4 && x <= st.buf[n - 2].x {
+            n -= 2;
         }
-        if c.len() == 2 && x <= c[0].x {
-            c.truncate(1);
+        if n == 2 && x <= st.buf[0].x {
+            n = 1;
         }
     }
+    st.n = n;
     st.run_x = x;
 }
 
@@ -430,6 +447,46 @@ mod tests {
             .unwrap();
         assert_eq!(y1, y2);
         assert!(gauss().with_memory_cap(0).is_err());
+    }
+
+    /// Output from the explicit formula over the memory corners.
+    fn reference_output<E: Everett>(p: &Preisach<E>, st: &PreisachState<E::Node>) -> f64 {
+        let f = p.everett();
+        let (lo, _) = f.support();
+        let mut s = vec![lo];
+        s.extend(st.extrema());
+        s.push(st.input());
+        let mut sum = 0.0;
+        for j in 1..s.len() {
+            let (a, b) = (s[j - 1].max(s[j]), s[j - 1].min(s[j]));
+            let sign = if j % 2 == 1 { 1.0 } else { -1.0 };
+            sum += sign * f.everett(a, b);
+        }
+        -f.total() + 2.0 * sum
+    }
+
+    #[test]
+    fn deep_memory_grows_and_matches_explicit_formula() {
+        use rand::{Rng, SeedableRng};
+        let p = gauss();
+        let mut st = p.state(&InitialState::NegativeSaturation).unwrap();
+        // A slowly decaying oscillation builds 300 nested extrema.
+        for k in 0..300 {
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            let y = p.step(&mut st, sign * (1.0 - k as f64 / 400.0));
+            assert!((y - reference_output(&p, &st)).abs() < 1e-12);
+        }
+        assert_eq!(st.depth(), 299);
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(5);
+        for _ in 0..5000 {
+            let y = p.step(&mut st, rng.random_range(-1.2..1.2));
+            assert!((y - reference_output(&p, &st)).abs() < 1e-12);
+            let e = st.extrema();
+            // Alternating, nested dominant extrema.
+            for w in e.windows(3) {
+                assert!((w[0] - w[2]).abs() > 0.0 && (w[0] - w[1]) * (w[2] - w[1]) > 0.0);
+            }
+        }
     }
 
     #[test]

@@ -185,7 +185,7 @@ impl HysteresisRegressor for GridPreisachRegressor {
         d_row.iter_mut().for_each(|v| *v = 0.0);
         let (lo, hi) = g.bounds();
         g.add_basis(&g.node(hi), &g.node(lo), -1.0, row);
-        let c = &st.corners;
+        let c = st.corners();
         let k = c.len();
         let link = |j: usize, prev: &GridNode, cur: &GridNode, row: &mut [f64]| {
             if j % 2 == 1 {
