@@ -22,6 +22,7 @@ mod filters;
 mod mode;
 mod multilevel;
 mod packet;
+mod refinable;
 mod simd;
 mod sparse;
 mod special;
@@ -34,6 +35,9 @@ pub use error::{Result, WaveletError};
 pub use mode::Mode;
 pub use multilevel::{wavedec, waverec, DecompositionPlan};
 pub use packet::{EntropyCost, PacketNode, WaveletPacket};
+pub use refinable::{
+    wavefun, Atom, AtomKind, ExpansionTerm, RefinableFunctions, WaveletExpansion, WaveletFunctions,
+};
 pub use sparse::{best_n_term, coefficient_rows, NTermApproximation, SparseCoefficients};
 pub use special::{mills_ratio, norm_cdf, norm_pdf, norm_quantile, upper_tail};
 pub use threshold::{
