@@ -497,6 +497,13 @@ pub fn dwt(signal: &[f64], wavelet: &Wavelet, mode: Mode) -> Result<(Vec<f64>, V
 
 /// Single-level synthesis, allocating, like `pywt.idwt`.
 pub fn idwt(approx: &[f64], detail: &[f64], wavelet: &Wavelet, mode: Mode) -> Result<Vec<f64>> {
+    if approx.len() != detail.len() {
+        return Err(WaveletError::ShapeMismatch(format!(
+            "approximation has {} coefficients, detail {}",
+            approx.len(),
+            detail.len()
+        )));
+    }
     let len = wavelet
         .idwt_len(approx.len(), mode)
         .ok_or(WaveletError::TooShort {
