@@ -1,8 +1,18 @@
 //! # gb-preisach
 //!
-//! Rate-independent hysteresis operators. This first part holds the play
-//! (backlash) operator and banks of them, whose outputs enter models linearly
-//! (a Prandtl–Ishlinskii model is a weighted sum of play operators).
+//! Rate-independent hysteresis: the Preisach model evaluated exactly through
+//! its primitive (Everett) function, the relay-grid form as a cross-check,
+//! identification of a nonparametric Everett function by linear least
+//! squares, play / stop / generalised play operators and the
+//! Prandtl–Ishlinskii model with its exact inverse.
+//!
+//! References: I. D. Mayergoyz, *Mathematical Models of Hysteresis and their
+//! Applications*, 2003; D. H. Everett, Trans. Faraday Soc. 1955;
+//! M. Brokate and J. Sprekels, *Hysteresis and Phase Transitions*, 1996;
+//! M. A. Krasnosel'skii and A. V. Pokrovskii, *Systems with Hysteresis*, 1989;
+//! J. Hauth, *Grey-Box Modelling for Nonlinear Systems*, TU Kaiserslautern,
+//! 2008 (the Everett/primitive-function trick making Preisach linear in its
+//! parameters).
 //!
 //! ```
 //! use gb_preisach::PlayOperatorBank;
@@ -13,9 +23,24 @@
 //! ```
 #![warn(missing_docs)]
 
+mod everett;
+mod identify;
+mod pi;
 mod play;
+mod preisach;
+mod regressor;
+mod relay;
+mod special;
 
+pub use everett::{
+    DensityCell, DensityShape, Everett, GridEverett, GridNode, ParametricEverett, ParametricNode,
+};
+pub use identify::{fit_grid_preisach, FitOptions, PreisachFit};
+pub use pi::{Envelope, GeneralizedPlay, PrandtlIshlinskii, StopOperator, StopOperatorBank};
 pub use play::{PlayOperator, PlayOperatorBank};
+pub use preisach::{InitialState, Preisach, PreisachState};
+pub use regressor::{GridPreisachRegressor, HysteresisRegressor, PlayBankState, Regressors};
+pub use relay::RelayGrid;
 
 /// Errors of the Preisach crate.
 #[derive(Debug, thiserror::Error)]
@@ -24,4 +49,15 @@ pub enum PreisachError {
     /// An argument is out of its domain.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// A vector or matrix has the wrong size.
+    #[error("dimension mismatch: expected {expected}, got {got}")]
+    DimensionMismatch {
+        /// Expected length.
+        expected: usize,
+        /// Actual length.
+        got: usize,
+    },
+    /// A least-squares problem could not be solved.
+    #[error("numerical failure: {0}")]
+    Numerical(String),
 }

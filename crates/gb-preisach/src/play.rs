@@ -54,7 +54,9 @@ impl PlayOperatorBank {
     /// A bank with the given thresholds (each finite and ≥ 0, at least one).
     pub fn new(thresholds: Vec<f64>) -> Result<Self, PreisachError> {
         if thresholds.is_empty() {
-            return Err(PreisachError::InvalidArgument("a play bank needs at least one threshold".into()));
+            return Err(PreisachError::InvalidArgument(
+                "a play bank needs at least one threshold".into(),
+            ));
         }
         let ops = thresholds
             .into_iter()

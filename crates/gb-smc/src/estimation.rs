@@ -1,0 +1,710 @@
+//! Parameter estimation: particle marginal Metropolis–Hastings (PMMH) and
+//! iterated filtering (IF2).
+//!
+//! Both follow the solver / state / observer shape: a validated solver
+//! configuration, an explicit state advanced one iteration at a time, and an
+//! [`Observer`] called after every iteration (e.g. for a progress bar).
+//!
+//! * **PMMH** (Andrieu, Doucet & Holenstein 2010): Metropolis–Hastings on `θ`
+//!   with the particle estimate `p̂_θ(y)` in place of the likelihood; because
+//!   `p̂` is unbiased the chain targets the exact posterior `p(θ | y)`. Proposals
+//!   are Gaussian random walks, adapted after `adapt_start` iterations to
+//!   `(2.38² / d) (Σ̂ + εI)` with `Σ̂` the running covariance of the chain (Haario et al. 2001).
+//! * **IF2** (Ionides et al. 2015): a particle filter on the extended state
+//!   `(x_t, θ_t)` with `θ_t = θ_{t-1} + σ_m ε_t`, repeated with random-walk
+//!   scales `σ_m = σ_0 c^m` shrinking geometrically; the swarm of `θ` converges to the MLE.
+use crate::error::{Result, SmcError};
+use crate::filter::{FilterConfig, FilterKind, FilterWorkspace, ParticleFilter};
+use crate::model::{Observations, StateSpaceModel};
+use crate::resampling::{resample_unchecked, Resampling};
+use crate::rng::{derive_seed, domain, stream, SmcRng, CHUNK};
+use rand::Rng;
+use rand_distr::StandardNormal;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// A family of state-space models indexed by a parameter vector `θ ∈ R^d`, with a prior.
+pub trait ParametricModel: Sync {
+    /// The model type.
+    type Model: StateSpaceModel;
+    /// Dimension `d` of `θ`.
+    fn dim(&self) -> usize;
+    /// The model at `θ`, or `None` where `θ` is invalid.
+    fn build(&self, theta: &[f64]) -> Option<Self::Model>;
+    /// `log p(θ)` up to a constant; `-inf` outside the support (not used by IF2).
+    fn log_prior(&self, theta: &[f64]) -> f64;
+}
+
+/// Called after every iteration of an iterative estimator.
+pub trait Observer<S> {
+    /// Sees the state after an iteration.
+    fn observe(&mut self, state: &S);
+}
+
+impl<S, F: FnMut(&S)> Observer<S> for F {
+    fn observe(&mut self, state: &S) {
+        self(state)
+    }
+}
+
+/// An observer that does nothing.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoObserver;
+
+impl<S> Observer<S> for NoObserver {
+    fn observe(&mut self, _state: &S) {}
+}
+
+/// Posterior summary of one parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ParamSummary {
+    /// Posterior mean.
+    pub mean: f64,
+    /// Posterior standard deviation.
+    pub sd: f64,
+    /// 2.5 % quantile.
+    pub q025: f64,
+    /// Median.
+    pub median: f64,
+    /// 97.5 % quantile.
+    pub q975: f64,
+}
+
+/// PMMH settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PmmhConfig {
+    /// Particles of the inner filter.
+    pub n_particles: usize,
+    /// MCMC iterations (including burn-in).
+    pub n_iter: usize,
+    /// Iterations discarded from the summaries.
+    pub burn_in: usize,
+    /// Seed.
+    pub seed: u64,
+    /// Initial random-walk standard deviations (one per parameter).
+    pub initial_step: Vec<f64>,
+    /// Adapt the proposal covariance.
+    pub adapt: bool,
+    /// Iteration at which adaptation starts.
+    pub adapt_start: usize,
+    /// Resampling of the inner filter.
+    pub resampling: Resampling,
+    /// Kind of the inner filter.
+    pub kind: FilterKind,
+}
+
+impl PmmhConfig {
+    /// Defaults: bootstrap filter, systematic resampling, adaptation from iteration 200.
+    pub fn new(n_particles: usize, n_iter: usize, initial_step: Vec<f64>) -> Self {
+        Self {
+            n_particles,
+            n_iter,
+            burn_in: n_iter / 5,
+            seed: 0,
+            initial_step,
+            adapt: true,
+            adapt_start: 200,
+            resampling: Resampling::Systematic,
+            kind: FilterKind::Bootstrap,
+        }
+    }
+}
+
+/// State of a PMMH chain.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PmmhState {
+    /// Completed iterations.
+    pub iter: usize,
+    /// Current `θ`.
+    pub theta: Vec<f64>,
+    /// `log p̂_θ(y)` at the current `θ`.
+    pub log_likelihood: f64,
+    /// `log p(θ)` at the current `θ`.
+    pub log_prior: f64,
+    /// Accepted proposals so far.
+    pub accepted: usize,
+    /// Whether the last proposal was accepted.
+    pub last_accepted: bool,
+    /// Running mean of the chain.
+    pub running_mean: Vec<f64>,
+    /// Running covariance of the chain (row-major `d × d`, sums of squares).
+    running_m2: Vec<f64>,
+    /// Cholesky factor of the proposal covariance (row-major lower triangle).
+    pub proposal_chol: Vec<f64>,
+}
+
+impl PmmhState {
+    /// Acceptance rate so far.
+    pub fn acceptance_rate(&self) -> f64 {
+        if self.iter == 0 {
+            0.0
+        } else {
+            self.accepted as f64 / self.iter as f64
+        }
+    }
+}
+
+/// Result of a PMMH run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PmmhResult {
+    /// Parameter dimension `d`.
+    pub dim: usize,
+    /// Chain, row-major `n_iter × d`.
+    pub chain: Vec<f64>,
+    /// `log p̂(y)` along the chain.
+    pub log_likelihoods: Vec<f64>,
+    /// Fraction of accepted proposals.
+    pub acceptance_rate: f64,
+    /// Posterior summaries after burn-in, one per parameter.
+    pub summary: Vec<ParamSummary>,
+}
+
+impl PmmhResult {
+    /// Draw `k` of the chain.
+    pub fn draw(&self, k: usize) -> &[f64] {
+        &self.chain[k * self.dim..(k + 1) * self.dim]
+    }
+}
+
+/// Summaries of the rows `burn_in..` of a row-major `n × d` chain.
+pub fn posterior_summary(chain: &[f64], dim: usize, burn_in: usize) -> Vec<ParamSummary> {
+    let rows = chain.len() / dim.max(1);
+    let start = burn_in.min(rows.saturating_sub(1));
+    (0..dim)
+        .map(|j| {
+            let mut v: Vec<f64> = (start..rows).map(|k| chain[k * dim + j]).collect();
+            let n = v.len() as f64;
+            let mean = v.iter().sum::<f64>() / n;
+            let var = v.iter().map(|x| (x - mean) * (x - mean)).sum::<f64>() / (n - 1.0).max(1.0);
+            v.sort_unstable_by(f64::total_cmp);
+            let q = |p: f64| {
+                let pos = p * (v.len() - 1) as f64;
+                let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+                v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
+            };
+            ParamSummary {
+                mean,
+                sd: var.sqrt(),
+                q025: q(0.025),
+                median: q(0.5),
+                q975: q(0.975),
+            }
+        })
+        .collect()
+}
+
+/// Lower Cholesky factor of a row-major SPD matrix, `None` if not positive definite.
+fn cholesky(a: &[f64], d: usize) -> Option<Vec<f64>> {
+    let mut l = vec![0.0; d * d];
+    for i in 0..d {
+        for j in 0..=i {
+            let mut s = a[i * d + j];
+            for k in 0..j {
+                s -= l[i * d + k] * l[j * d + k];
+            }
+            if i == j {
+                if !(s > 0.0 && s.is_finite()) {
+                    return None;
+                }
+                l[i * d + i] = s.sqrt();
+            } else {
+                l[i * d + j] = s / l[j * d + j];
+            }
+        }
+    }
+    Some(l)
+}
+
+/// Particle marginal Metropolis–Hastings.
+///
+/// ```
+/// use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig, NoObserver};
+/// use gb_smc::{LinearGaussian, Observations};
+/// /// Unknown AR coefficient φ with a uniform prior on (−1, 1).
+/// struct Phi;
+/// impl ParametricModel for Phi {
+///     type Model = LinearGaussian;
+///     fn dim(&self) -> usize { 1 }
+///     fn build(&self, th: &[f64]) -> Option<LinearGaussian> { LinearGaussian::ar1(th[0], 1.0, 0.5).ok() }
+///     fn log_prior(&self, th: &[f64]) -> f64 { if th[0].abs() < 1.0 { 0.0 } else { f64::NEG_INFINITY } }
+/// }
+/// let (_, y) = LinearGaussian::ar1(0.8, 1.0, 0.5).unwrap().simulate(100, 1);
+/// let mut cfg = PmmhConfig::new(300, 400, vec![0.05]);
+/// cfg.burn_in = 100;
+/// let res = Pmmh::new(cfg).unwrap().run(&Phi, &Observations::new(&y), &[0.5], &mut NoObserver).unwrap();
+/// assert!(res.acceptance_rate > 0.05);
+/// assert!((res.summary[0].mean - 0.8).abs() < 0.3);
+/// ```
+#[derive(Debug, Clone)]
+pub struct Pmmh {
+    config: PmmhConfig,
+    filter: FilterConfig,
+}
+
+impl Pmmh {
+    /// Validates the settings.
+    pub fn new(config: PmmhConfig) -> Result<Self> {
+        if config.n_iter == 0 {
+            return Err(SmcError::InvalidParameter {
+                name: "n_iter",
+                value: 0.0,
+                reason: "need at least one iteration",
+            });
+        }
+        for &s in &config.initial_step {
+            crate::error::check(
+                "initial_step",
+                s,
+                s > 0.0 && s.is_finite(),
+                "must be positive",
+            )?;
+        }
+        let filter = FilterConfig::new(config.n_particles)
+            .kind(config.kind)
+            .resampling(config.resampling);
+        ParticleFilter::new(filter.clone())?;
+        Ok(Self { config, filter })
+    }
+
+    fn loglik<P: ParametricModel>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta: &[f64],
+        iter: usize,
+        ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
+    ) -> Option<Result<f64>> {
+        let model = problem.build(theta)?;
+        let seed = derive_seed(self.config.seed, domain::PMMH_FILTER, iter as u64);
+        let pf = ParticleFilter {
+            config: self.filter.clone().seed(seed),
+        };
+        Some(
+            pf.run_with(&model, obs, ws, |_| {})
+                .map(|o| o.log_likelihood),
+        )
+    }
+
+    /// Initial state at `theta0`.
+    pub fn init<P: ParametricModel>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta0: &[f64],
+        ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
+    ) -> Result<PmmhState> {
+        let d = problem.dim();
+        if theta0.len() != d || self.config.initial_step.len() != d {
+            return Err(SmcError::LengthMismatch {
+                what: "theta0 / initial_step vs dim",
+                expected: d,
+                got: if theta0.len() != d {
+                    theta0.len()
+                } else {
+                    self.config.initial_step.len()
+                },
+            });
+        }
+        let lp = problem.log_prior(theta0);
+        if lp.is_nan() || lp == f64::NEG_INFINITY {
+            return Err(SmcError::InvalidInitialParameter);
+        }
+        let ll = self
+            .loglik(problem, obs, theta0, 0, ws)
+            .ok_or(SmcError::InvalidInitialParameter)??;
+        let mut chol = vec![0.0; d * d];
+        for (i, s) in self.config.initial_step.iter().enumerate() {
+            chol[i * d + i] = *s;
+        }
+        Ok(PmmhState {
+            iter: 0,
+            theta: theta0.to_vec(),
+            log_likelihood: ll,
+            log_prior: lp,
+            accepted: 0,
+            last_accepted: false,
+            running_mean: theta0.to_vec(),
+            running_m2: vec![0.0; d * d],
+            proposal_chol: chol,
+        })
+    }
+
+    /// One Metropolis–Hastings iteration.
+    pub fn step<P: ParametricModel>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        state: &mut PmmhState,
+        ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
+    ) -> Result<()> {
+        let d = state.theta.len();
+        let it = state.iter + 1;
+        let mut rng = stream(self.config.seed, domain::PMMH_MH, it as u64, 0);
+        let z: Vec<f64> = (0..d).map(|_| rng.sample(StandardNormal)).collect();
+        let prop: Vec<f64> = (0..d)
+            .map(|i| {
+                state.theta[i]
+                    + (0..=i)
+                        .map(|k| state.proposal_chol[i * d + k] * z[k])
+                        .sum::<f64>()
+            })
+            .collect();
+        let lp = problem.log_prior(&prop);
+        let mut accepted = false;
+        if lp > f64::NEG_INFINITY && !lp.is_nan() {
+            if let Some(Ok(ll)) = self.loglik(problem, obs, &prop, it, ws) {
+                let log_alpha = ll + lp - state.log_likelihood - state.log_prior;
+                let u: f64 = rng.random();
+                if u.ln() < log_alpha {
+                    state.theta = prop;
+                    state.log_likelihood = ll;
+                    state.log_prior = lp;
+                    accepted = true;
+                }
+            }
+        }
+        state.iter = it;
+        state.last_accepted = accepted;
+        state.accepted += accepted as usize;
+        // Welford update of the running mean / covariance (the initial point counts as draw 0)
+        let n = (it + 1) as f64;
+        let delta: Vec<f64> = (0..d)
+            .map(|i| state.theta[i] - state.running_mean[i])
+            .collect();
+        for (m, dl) in state.running_mean.iter_mut().zip(&delta) {
+            *m += dl / n;
+        }
+        for (row, dl) in state.running_m2.chunks_mut(d).zip(&delta) {
+            for ((r, th), m) in row.iter_mut().zip(&state.theta).zip(&state.running_mean) {
+                *r += dl * (th - m);
+            }
+        }
+        if self.config.adapt && it >= self.config.adapt_start && it > d {
+            let sd2 = 2.38 * 2.38 / d as f64;
+            let cov: Vec<f64> = (0..d * d)
+                .map(|k| {
+                    let (i, j) = (k / d, k % d);
+                    let eps = if i == j {
+                        1e-6 * self.config.initial_step[i].powi(2)
+                    } else {
+                        0.0
+                    };
+                    sd2 * (state.running_m2[k] / (n - 1.0) + eps)
+                })
+                .collect();
+            if let Some(l) = cholesky(&cov, d) {
+                state.proposal_chol = l;
+            }
+        }
+        Ok(())
+    }
+
+    /// Runs the chain from `theta0`, calling `observer` after each iteration.
+    pub fn run<P: ParametricModel, O: Observer<PmmhState>>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta0: &[f64],
+        observer: &mut O,
+    ) -> Result<PmmhResult> {
+        let mut ws = FilterWorkspace::new();
+        let mut state = self.init(problem, obs, theta0, &mut ws)?;
+        let d = theta0.len();
+        let mut chain = Vec::with_capacity(self.config.n_iter * d);
+        let mut lls = Vec::with_capacity(self.config.n_iter);
+        for _ in 0..self.config.n_iter {
+            self.step(problem, obs, &mut state, &mut ws)?;
+            chain.extend_from_slice(&state.theta);
+            lls.push(state.log_likelihood);
+            observer.observe(&state);
+        }
+        Ok(PmmhResult {
+            dim: d,
+            summary: posterior_summary(&chain, d, self.config.burn_in),
+            chain,
+            log_likelihoods: lls,
+            acceptance_rate: state.acceptance_rate(),
+        })
+    }
+}
+
+/// IF2 settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct If2Config {
+    /// Particles.
+    pub n_particles: usize,
+    /// Filtering iterations `M`.
+    pub n_iter: usize,
+    /// Random-walk standard deviations `σ_0` per parameter and time step.
+    pub rw_sd: Vec<f64>,
+    /// Geometric cooling factor `c` per iteration (`σ_m = σ_0 c^m`); the
+    /// classical choice is `0.05^{1/50}`, i.e. 5 % of `σ_0` after 50 iterations.
+    pub cooling: f64,
+    /// Seed.
+    pub seed: u64,
+    /// Use rayon over particle chunks (results do not depend on it).
+    pub parallel: bool,
+}
+
+impl If2Config {
+    /// Defaults: cooling `0.05^{1/50}`.
+    pub fn new(n_particles: usize, n_iter: usize, rw_sd: Vec<f64>) -> Self {
+        Self {
+            n_particles,
+            n_iter,
+            rw_sd,
+            cooling: 0.05f64.powf(1.0 / 50.0),
+            seed: 0,
+            parallel: true,
+        }
+    }
+}
+
+/// State of IF2 after an iteration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct If2State {
+    /// Completed iterations.
+    pub iter: usize,
+    /// Mean of the parameter swarm.
+    pub theta: Vec<f64>,
+    /// Log-likelihood estimate of the perturbed filter in this iteration.
+    pub log_likelihood: f64,
+    /// Current random-walk scale factor `c^m`.
+    pub scale: f64,
+}
+
+/// Result of IF2.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct If2Result {
+    /// Final estimate (mean of the final swarm).
+    pub theta: Vec<f64>,
+    /// Swarm mean after each iteration.
+    pub trace: Vec<Vec<f64>>,
+    /// Perturbed-filter log-likelihood per iteration.
+    pub log_likelihoods: Vec<f64>,
+}
+
+type If2Item<'a, S> = (
+    usize,
+    (((&'a mut [S], &'a mut [f64]), &'a mut [f64]), &'a mut [f64]),
+);
+
+/// Iterated filtering (IF2) for maximum-likelihood estimation.
+///
+/// ```
+/// use gb_smc::estimation::{If2, If2Config, NoObserver, ParametricModel};
+/// use gb_smc::{LinearGaussian, Observations};
+/// struct Phi;
+/// impl ParametricModel for Phi {
+///     type Model = LinearGaussian;
+///     fn dim(&self) -> usize { 1 }
+///     fn build(&self, th: &[f64]) -> Option<LinearGaussian> { LinearGaussian::ar1(th[0], 1.0, 0.5).ok() }
+///     fn log_prior(&self, _: &[f64]) -> f64 { 0.0 }
+/// }
+/// let (_, y) = LinearGaussian::ar1(0.8, 1.0, 0.5).unwrap().simulate(200, 1);
+/// let res = If2::new(If2Config::new(300, 30, vec![0.02])).unwrap()
+///     .run(&Phi, &Observations::new(&y), &[0.3], &mut NoObserver).unwrap();
+/// assert!((res.theta[0] - 0.8).abs() < 0.15);
+/// ```
+#[derive(Debug, Clone)]
+pub struct If2 {
+    config: If2Config,
+}
+
+impl If2 {
+    /// Validates the settings.
+    pub fn new(config: If2Config) -> Result<Self> {
+        if config.n_particles == 0 || config.n_iter == 0 {
+            return Err(SmcError::InvalidParameter {
+                name: "n_particles / n_iter",
+                value: 0.0,
+                reason: "must be positive",
+            });
+        }
+        for &s in &config.rw_sd {
+            crate::error::check(
+                "rw_sd",
+                s,
+                s >= 0.0 && s.is_finite(),
+                "must be non-negative",
+            )?;
+        }
+        crate::error::check(
+            "cooling",
+            config.cooling,
+            config.cooling > 0.0 && config.cooling <= 1.0,
+            "must lie in (0, 1]",
+        )?;
+        Ok(Self { config })
+    }
+
+    /// Runs IF2 from `theta0`, calling `observer` after each iteration.
+    pub fn run<P: ParametricModel, O: Observer<If2State>>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta0: &[f64],
+        observer: &mut O,
+    ) -> Result<If2Result> {
+        let cfg = &self.config;
+        let d = problem.dim();
+        if theta0.len() != d || cfg.rw_sd.len() != d {
+            return Err(SmcError::LengthMismatch {
+                what: "theta0 / rw_sd vs dim",
+                expected: d,
+                got: theta0.len().min(cfg.rw_sd.len()),
+            });
+        }
+        if obs.is_empty() {
+            return Err(SmcError::EmptyData);
+        }
+        let n = cfg.n_particles;
+        let tt = obs.len();
+        let model0 = problem
+            .build(theta0)
+            .ok_or(SmcError::InvalidInitialParameter)?;
+        let fill = model0.sample_initial(obs.input(0), &mut stream(cfg.seed, domain::FILL, 0, 0));
+        let mut x = vec![fill.clone(); n];
+        let mut x_new = vec![fill; n];
+        let mut th: Vec<f64> = theta0.iter().copied().cycle().take(n * d).collect();
+        let mut th_new = th.clone();
+        let mut lw = vec![0.0; n];
+        let mut w = vec![0.0; n];
+        let mut anc: Vec<usize> = (0..n).collect();
+        let mut counts = Vec::new();
+        let mut stats: Vec<(f64, f64, bool)> = Vec::new();
+        let mut trace = Vec::with_capacity(cfg.n_iter);
+        let mut lls = Vec::with_capacity(cfg.n_iter);
+        let ln_n = (n as f64).ln();
+        for m in 0..cfg.n_iter {
+            let scale = cfg.cooling.powi(m as i32);
+            let seed = derive_seed(cfg.seed, domain::IF2, m as u64);
+            let mut loglik = 0.0;
+            for t in 0..tt {
+                let y = obs.y(t);
+                let u = obs.input(t);
+                let (x_old, th_old, anc_ref) = (&x, &th, &anc);
+                let rw = &cfg.rw_sd;
+                let body = |(k, (((xc, tc), lc), wc)): If2Item<'_, _>| {
+                    let mut rng: SmcRng = stream(seed, domain::MOVE, t as u64, k as u64);
+                    let mut max = f64::NEG_INFINITY;
+                    let mut bad = false;
+                    for j in 0..xc.len() {
+                        let i = k * CHUNK + j;
+                        let a = if t == 0 { i } else { anc_ref[i] };
+                        let ti = &mut tc[j * d..(j + 1) * d];
+                        for q in 0..d {
+                            let z: f64 = rng.sample(StandardNormal);
+                            ti[q] = th_old[a * d + q] + scale * rw[q] * z;
+                        }
+                        let l = match problem.build(ti) {
+                            Some(model) => {
+                                let xi = if t == 0 {
+                                    model.sample_initial(u, &mut rng)
+                                } else {
+                                    model.sample_transition(t, &x_old[a], u, &mut rng)
+                                };
+                                let l = model.log_observation(t, &xi, y, u);
+                                xc[j] = xi;
+                                l
+                            }
+                            None => f64::NEG_INFINITY,
+                        };
+                        bad |= l.is_nan() || l == f64::INFINITY;
+                        lc[j] = l;
+                        max = max.max(l);
+                    }
+                    let mut s = 0.0;
+                    if max > f64::NEG_INFINITY && !bad {
+                        for (wi, &l) in wc.iter_mut().zip(lc.iter()) {
+                            *wi = crate::filter::exp_nonpos(l - max);
+                            s += *wi;
+                        }
+                    } else {
+                        wc.iter_mut().for_each(|v| *v = 0.0);
+                    }
+                    (max, s, bad)
+                };
+                if cfg.parallel && n > CHUNK {
+                    x_new
+                        .par_chunks_mut(CHUNK)
+                        .zip(th_new.par_chunks_mut(CHUNK * d))
+                        .zip(lw.par_chunks_mut(CHUNK))
+                        .zip(w.par_chunks_mut(CHUNK))
+                        .enumerate()
+                        .map(body)
+                        .collect_into_vec(&mut stats);
+                } else {
+                    stats.clear();
+                    stats.extend(
+                        x_new
+                            .chunks_mut(CHUNK)
+                            .zip(th_new.chunks_mut(CHUNK * d))
+                            .zip(lw.chunks_mut(CHUNK))
+                            .zip(w.chunks_mut(CHUNK))
+                            .enumerate()
+                            .map(body),
+                    );
+                }
+                if stats.iter().any(|s| s.2) {
+                    return Err(SmcError::InvalidLogWeight { t });
+                }
+                let max = stats.iter().map(|s| s.0).fold(f64::NEG_INFINITY, f64::max);
+                if max == f64::NEG_INFINITY {
+                    return Err(SmcError::AllWeightsZero { t });
+                }
+                let mut total = 0.0;
+                for (wc, s) in w.chunks_mut(CHUNK).zip(&stats) {
+                    let f = if s.0 > f64::NEG_INFINITY {
+                        (s.0 - max).exp()
+                    } else {
+                        0.0
+                    };
+                    wc.iter_mut().for_each(|v| *v *= f);
+                    total += s.1 * f;
+                }
+                loglik += max + total.ln() - ln_n;
+                std::mem::swap(&mut x, &mut x_new);
+                std::mem::swap(&mut th, &mut th_new);
+                let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
+                resample_unchecked(
+                    Resampling::Systematic,
+                    &w,
+                    total,
+                    &mut rng,
+                    &mut anc,
+                    &mut counts,
+                );
+            }
+            // final swarm: resampled parameters
+            for (i, &a) in anc.iter().enumerate() {
+                th_new[i * d..(i + 1) * d].copy_from_slice(&th[a * d..(a + 1) * d]);
+            }
+            std::mem::swap(&mut th, &mut th_new);
+            let mut mean = vec![0.0; d];
+            for p in th.chunks(d) {
+                for (m_, v) in mean.iter_mut().zip(p) {
+                    *m_ += v / n as f64;
+                }
+            }
+            // the next iteration starts from the final swarm (identity ancestors)
+            for (i, a) in anc.iter_mut().enumerate() {
+                *a = i;
+            }
+            let state = If2State {
+                iter: m + 1,
+                theta: mean.clone(),
+                log_likelihood: loglik,
+                scale,
+            };
+            observer.observe(&state);
+            trace.push(mean);
+            lls.push(loglik);
+        }
+        Ok(If2Result {
+            theta: trace.last().cloned().unwrap_or_else(|| theta0.to_vec()),
+            trace,
+            log_likelihoods: lls,
+        })
+    }
+}
