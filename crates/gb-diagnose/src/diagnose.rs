@@ -320,6 +320,38 @@ pub struct Diagnosis {
     pub model: GreyBoxModel,
 }
 
+/// The model with both a network and hysteresis for a tie: the network with
+/// zero-weight hysteresis columns trained further by LM, or the hysteresis
+/// model itself (a one-leaf network), whichever simulates the fit data better.
+fn fit_combined(
+    both: Structure,
+    lmn: &GreyBoxModel,
+    hyst: &GreyBoxModel,
+    fit: &DataSet,
+    o: &ModelFitOptions,
+) -> Result<GreyBoxModel, DiagnoseError> {
+    let spec = both.network_spec(fit.n_inputs());
+    let mut best = GreyBoxModel { structure: both, ..hyst.clone() };
+    let res = |m: &GreyBoxModel| -> f64 {
+        m.network
+            .simulation_residuals(&fit.inputs, &fit.output)
+            .map_or(f64::INFINITY, |e| metrics::rms(&e))
+    };
+    let mut best_cost = res(&best);
+    if let Some(start) = gb_lmn::embed_hysteresis(&lmn.network, &spec) {
+        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &o.fit) {
+            let cand = GreyBoxModel { network: net, structure: both, ..lmn.clone() };
+            let c = res(&cand);
+            if c < best_cost {
+                best_cost = c;
+                best = cand;
+            }
+        }
+    }
+    let _ = best_cost;
+    Ok(best)
+}
+
 fn fit_eval(
     s: Structure,
     d: &DiagnoseData,
@@ -519,18 +551,34 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
             .max_by(|a, b| a.gain.total_cmp(&b.gain))
             .map(|s| s.idx);
         let mut chosen = structural_best;
-        // tie-break hysteresis vs nonlinearity on the memory evidence when the gains are close
+        // Hysteresis and nonlinearity both pay and their intervals overlap:
+        // fit the model with both and keep the cause with the larger unique
+        // contribution (the gain of adding it to the other one).
+        let mut tie_note: Option<String> = None;
         if let Some(ci) = chosen {
-            let other = if cands[ci].cause == "nonlinearity" { "hysteresis" } else if cands[ci].cause == "hysteresis" { "nonlinearity" } else { "" };
+            let other = match cands[ci].cause {
+                "nonlinearity" => "hysteresis",
+                "hysteresis" => "nonlinearity",
+                _ => "",
+            };
             if let Some(o) = scored.iter().find(|s| s.pays && !cands[s.idx].refine && cands[s.idx].cause == other) {
                 let best = scored.iter().find(|s| s.idx == ci).map_or([0.0, 0.0], |s| s.ci);
-                // the two bootstrap intervals overlap: the gains do not decide
-                let close = o.ci[1] >= best[0] && best[1] >= o.ci[0];
-                if close {
-                    let memory = ev.memory.1 < 1e-3 && ev.memory.0 > ev.static_nonlinearity.0;
-                    let prefer = if memory { "hysteresis" } else { "nonlinearity" };
-                    if cands[o.idx].cause == prefer {
-                        chosen = Some(o.idx);
+                if o.ci[1] >= best[0] && best[1] >= o.ci[0] {
+                    let (ni, hi) = if cands[ci].cause == "nonlinearity" { (ci, o.idx) } else { (o.idx, ci) };
+                    let both = Structure { network: true, hysteresis: true, ..cur.model.structure };
+                    let lmn = &fitted[ni].as_ref().expect("fitted").model;
+                    let hyst = &fitted[hi].as_ref().expect("fitted").model;
+                    if let Ok(comb) = fit_combined(both, lmn, hyst, &fit, &opts.fit).and_then(|m| evaluate(m, d)) {
+                        let en = &fitted[ni].as_ref().expect("fitted").e_select;
+                        let eh = &fitted[hi].as_ref().expect("fitted").e_select;
+                        let (g_h, _) = relative_gain_ci(en, &comb.e_select, block, 50, 0);
+                        let (g_n, _) = relative_gain_ci(eh, &comb.e_select, block, 50, 0);
+                        chosen = Some(if g_h > g_n { hi } else { ni });
+                        tie_note = Some(format!(
+                            "; tie with {other} resolved by unique contributions: hysteresis adds {:+.1}% to a network, a network adds {:+.1}% to hysteresis",
+                            100.0 * g_h,
+                            100.0 * g_n
+                        ));
                     }
                 }
             }
@@ -571,6 +619,10 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
                 "dynamics" => ev.dynamics_text(),
                     _ => ev.noise_text(),
                 }
+            };
+            let evidence = match (&tie_note, Some(s.idx) == chosen) {
+                (Some(t), true) => format!("{evidence}{t}"),
+                _ => evidence,
             };
             rows.push(Step {
                 iteration: it,

@@ -172,7 +172,7 @@ impl RelayGrid {
                 let a = -half_range + 2.0 * half_range * (i as f64 + 0.5) / n as f64;
                 let b = -half_range + 2.0 * half_range * (j as f64 + 0.5) / n as f64;
                 // density: Gaussian in the interaction (α−β) and bias (α+β)/2 coordinates
-                let w = (-((a - b) / (0.6 * half_range)).powi(2)).exp() * (-(0.5 * (a + b) / (0.5 * half_range)).powi(2)).exp();
+                let w = (-((a - b) / (0.6 * half_range)).powi(2)).exp() * (-(0.5 * (a + b) / half_range).powi(2)).exp();
                 alpha.push(a);
                 beta.push(b);
                 weight.push(w);

@@ -39,7 +39,7 @@ mod spec;
 pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
 pub use network::{Leaf, LocalModelNetwork};
 pub use relay::RelayGrid;
-pub use noe::{embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error, FitOptions, NoiseFit, TrainReport};
+pub use noe::{embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error, FitOptions, NoiseFit, TrainReport};
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
 

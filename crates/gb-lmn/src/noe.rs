@@ -872,6 +872,19 @@ pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<Local
     Some(out)
 }
 
+/// Add the hysteresis columns of `spec` (with zero weights) to a network
+/// whose dynamic structure equals `spec`'s: the result simulates exactly like
+/// `net` and can be trained further. `None` if the dynamic structures differ.
+pub fn embed_hysteresis(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<LocalModelNetwork> {
+    if net.spec.na != spec.na || net.spec.nb != spec.nb || net.spec.nk != spec.nk || net.spec.partition != spec.partition {
+        return None;
+    }
+    let mut out = net.clone();
+    out.spec = spec.clone();
+    out.beta = vec![0.0; spec.n_hysteresis()];
+    Some(out)
+}
+
 /// Fit a linear output-error model (one leaf, plus any hysteresis columns of
 /// `spec`): ARX least squares, two pseudo-linear-regression passes with
 /// simulated output lags (instrumental-variable style), stabilisation, then

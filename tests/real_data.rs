@@ -1,0 +1,57 @@
+//! Diagnoses on the real benchmark data in `../shared/data` (or
+//! `$GREYBOX_DATA`). Skipped with a notice when the folder is absent.
+use gb_core::{CsvTable, DataSet};
+use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions};
+use std::path::PathBuf;
+
+fn data_dir() -> Option<PathBuf> {
+    let d = std::env::var_os("GREYBOX_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    if d.is_dir() {
+        Some(d)
+    } else {
+        eprintln!("real-data test skipped: {} not found (set GREYBOX_DATA)", d.display());
+        None
+    }
+}
+
+fn load(p: PathBuf) -> DataSet {
+    let t = CsvTable::read(&p).expect("read");
+    DataSet::from_table(&t, &["u".into()], Some("y")).expect("columns")
+}
+
+/// Bouc-Wen: the hysteretic benchmark must be diagnosed as `hysteresis`.
+#[test]
+fn bouc_wen_benchmark_is_hysteresis() {
+    let Some(dir) = data_dir() else { return };
+    let train = load(dir.join("bouc_wen/train_multisine_forgione.csv"));
+    // drop the first period (transient) and keep two periods to bound the run time
+    let train = train.slice(8192..8192 * 3);
+    let val = load(dir.join("bouc_wen/test_multisine.csv"));
+    let data = DiagnoseData::with_validation(train, val).unwrap();
+    let d = diagnose(&data, &DiagnoseOptions { max_steps: 2, ..Default::default() }, None).unwrap();
+    eprintln!(
+        "Bouc-Wen: causes {:?}, NRMSE {:.4} -> {:.4}",
+        d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
+    );
+    assert_eq!(d.report.causes.first().map(String::as_str), Some("hysteresis"));
+    assert!(d.report.final_model.nrmse < 0.5 * d.report.baseline.nrmse);
+}
+
+/// Silverbox: the electronic Duffing oscillator must be diagnosed as `nonlinearity`.
+#[test]
+fn silverbox_is_nonlinearity() {
+    let Some(dir) = data_dir() else { return };
+    let train = load(dir.join("silverbox/train_multisine.csv"));
+    let train = train.slice(0..20000);
+    let val = load(dir.join("silverbox/test_multisine.csv"));
+    let data = DiagnoseData::with_validation(train, val).unwrap();
+    let d = diagnose(&data, &DiagnoseOptions { max_steps: 2, ..Default::default() }, None).unwrap();
+    eprintln!(
+        "Silverbox: causes {:?}, NRMSE {:.4} -> {:.4}",
+        d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
+    );
+    assert_eq!(d.report.causes.first().map(String::as_str), Some("nonlinearity"));
+    assert!(d.report.final_model.nrmse < 0.5 * d.report.baseline.nrmse);
+}
