@@ -15,7 +15,7 @@
 use crate::error::{Result, SmcError};
 use crate::model::{Observations, StateSpaceModel, StateVector};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{domain, stream, SmcRng, CHUNK};
+use crate::rng::{domain, stream, SmcRng, CHUNK, PAR_MIN, PAR_MIN_LIGHT};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -359,7 +359,7 @@ fn kernel<S, F>(
         }
         chunk_exp(lc, wc, max, bad)
     };
-    if parallel && x.len() > CHUNK {
+    if parallel && x.len() >= PAR_MIN {
         x.par_chunks_mut(CHUNK)
             .zip(lw.par_chunks_mut(CHUNK))
             .zip(w.par_chunks_mut(CHUNK))
@@ -388,7 +388,7 @@ fn normalise(parallel: bool, w: &mut [f64], stats: &[ChunkStat], norm: Norm) {
         };
         wc.iter_mut().for_each(|x| *x *= f);
     };
-    if parallel && w.len() > 4 * CHUNK {
+    if parallel && w.len() >= PAR_MIN_LIGHT {
         w.par_chunks_mut(CHUNK).zip(stats.par_iter()).for_each(body);
     } else {
         w.chunks_mut(CHUNK).zip(stats.iter()).for_each(body);
@@ -477,7 +477,7 @@ fn normalise_systematic(
             *a = acc;
         }
     };
-    if parallel && n > CHUNK {
+    if parallel && n >= PAR_MIN_LIGHT {
         w.par_chunks_mut(CHUNK)
             .zip(stats.par_iter())
             .enumerate()
@@ -696,7 +696,7 @@ impl ParticleFilter {
                 // log η_t(x_{t-1}^i)
                 let (x, aux) = (&ws.x, &mut ws.aux);
                 let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
-                if par && n > CHUNK {
+                if par && n >= PAR_MIN {
                     aux.par_iter_mut().zip(x.par_iter()).for_each(map);
                 } else {
                     aux.iter_mut().zip(x.iter()).for_each(map);
