@@ -10,7 +10,10 @@
 //! staircase (see [`crate::Preisach`]), so any Everett function, parametric or
 //! tabulated, defines a model.
 
-use crate::special::{cauchy_cdf, cauchy_pdf, normal_cdf_fast, normal_pdf};
+use crate::special::{
+    cauchy_cdf, cauchy_pdf, normal_cdf_at, normal_pdf, phi_table, PhiTable, PHI_T_OFFSET,
+    PHI_T_SCALE,
+};
 use crate::PreisachError;
 use serde::{Deserialize, Serialize};
 use std::fmt::Debug;
@@ -85,13 +88,6 @@ pub enum DensityShape {
 }
 
 impl DensityShape {
-    #[inline(always)]
-    fn cdf(self, z: f64) -> f64 {
-        match self {
-            DensityShape::Gaussian => normal_cdf_fast(z),
-            DensityShape::Lorentzian => cauchy_cdf(z),
-        }
-    }
     #[inline]
     fn pdf(self, z: f64) -> f64 {
         match self {
@@ -123,6 +119,7 @@ impl DensityShape {
 /// assert_eq!(f.everett(0.2, 0.2), 0.0);
 /// ```
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(try_from = "ParametricEverettData")]
 pub struct ParametricEverett {
     shape: DensityShape,
     mass: f64,
@@ -130,6 +127,79 @@ pub struct ParametricEverett {
     up_width: f64,
     down_center: f64,
     down_width: f64,
+    #[serde(skip)]
+    fast: FastCdf,
+}
+
+/// Precomputed affine maps x ↦ k·x + c to the argument of the distribution
+/// functions (table coordinate for Gaussian, z for Lorentzian) and the Φ
+/// table; derived from the parameters, so ignored by `==` and serde.
+#[derive(Clone, Copy)]
+struct FastCdf {
+    table: &'static PhiTable,
+    ka: f64,
+    ca: f64,
+    kb: f64,
+    cb: f64,
+}
+
+impl FastCdf {
+    fn new(shape: DensityShape, a: f64, wa: f64, b: f64, wb: f64) -> Self {
+        let (scale, offset) = match shape {
+            DensityShape::Gaussian => (PHI_T_SCALE, PHI_T_OFFSET),
+            DensityShape::Lorentzian => (1.0, 0.0),
+        };
+        Self {
+            table: phi_table(),
+            ka: scale / wa,
+            ca: offset - a * scale / wa,
+            kb: scale / wb,
+            cb: offset - b * scale / wb,
+        }
+    }
+}
+
+impl Default for FastCdf {
+    fn default() -> Self {
+        Self::new(DensityShape::Gaussian, 0.0, 1.0, 0.0, 1.0)
+    }
+}
+
+impl PartialEq for FastCdf {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
+}
+
+impl std::fmt::Debug for FastCdf {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("..")
+    }
+}
+
+/// Serialised form of a [`ParametricEverett`] (validated on load).
+#[derive(Deserialize)]
+struct ParametricEverettData {
+    shape: DensityShape,
+    mass: f64,
+    up_center: f64,
+    up_width: f64,
+    down_center: f64,
+    down_width: f64,
+}
+
+impl TryFrom<ParametricEverettData> for ParametricEverett {
+    type Error = PreisachError;
+    fn try_from(d: ParametricEverettData) -> Result<Self, PreisachError> {
+        ParametricEverett::new(
+            d.shape,
+            d.mass,
+            d.up_center,
+            d.up_width,
+            d.down_center,
+            d.down_width,
+        )
+    }
 }
 
 /// Node of a [`ParametricEverett`]: the point and its two distribution
@@ -166,6 +236,7 @@ impl ParametricEverett {
             up_width,
             down_center,
             down_width,
+            fast: FastCdf::new(shape, up_center, up_width, down_center, down_width),
         })
     }
 
@@ -237,11 +308,13 @@ impl Everett for ParametricEverett {
 
     #[inline(always)]
     fn node(&self, x: f64) -> ParametricNode {
-        ParametricNode {
-            x,
-            p: self.shape.cdf((x - self.up_center) / self.up_width),
-            q: self.shape.cdf((x - self.down_center) / self.down_width),
-        }
+        let f = &self.fast;
+        let (ta, tb) = (f.ka * x + f.ca, f.kb * x + f.cb);
+        let (p, q) = match self.shape {
+            DensityShape::Gaussian => (normal_cdf_at(f.table, ta), normal_cdf_at(f.table, tb)),
+            DensityShape::Lorentzian => (cauchy_cdf(ta), cauchy_cdf(tb)),
+        };
+        ParametricNode { x, p, q }
     }
 
     #[inline]

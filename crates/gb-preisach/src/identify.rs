@@ -12,6 +12,8 @@
 //! The penalties are scaled by tr(ΦᵀΦ)/p so that λ is dimensionless.
 
 use crate::everett::{cell_index, GridEverett};
+use crate::pi::PrandtlIshlinskii;
+use crate::play::PlayOperatorBank;
 use crate::preisach::{check_finite, Preisach};
 use crate::regressor::{GridPreisachRegressor, HysteresisRegressor};
 use crate::PreisachError;
@@ -105,7 +107,7 @@ pub fn fit_grid_preisach(
     }
     let (_, _, n) = reg.grid();
     let free: Vec<bool> = (0..q).map(|i| i >= p || !opts.nonnegative).collect();
-    let w = regularised_least_squares(gram, rhs, n, opts, &free)?;
+    let w = regularised_least_squares(gram, rhs, p, Some(n), opts, &free)?;
     let bias = if opts.bias { w[p] } else { 0.0 };
     let model = reg.model(w.rows(0, p).iter().copied().collect())?;
     let fitted: Vec<f64> = model
@@ -128,14 +130,91 @@ pub fn fit_grid_preisach(
     })
 }
 
-/// Solve the penalised normal equations (ΦᵀΦ + penalties) w = Φᵀy for a grid
-/// with `n` intervals (the first n(n+1)/2 unknowns are cell masses, further
-/// ones are extra regressors), with non-negativity on the unknowns not marked
-/// `free`.
+/// Result of [`fit_prandtl_ishlinskii`].
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PrandtlIshlinskiiFit {
+    /// The identified model.
+    pub model: PrandtlIshlinskii,
+    /// Additive constant (0 unless [`FitOptions::bias`]).
+    pub bias: f64,
+    /// Root mean square error of the fit.
+    pub rmse: f64,
+}
+
+/// Fit a Prandtl–Ishlinskii model y ≈ a₀ x + Σ aᵢ p_{rᵢ}[x] (+ b) with the
+/// given thresholds by linear least squares on the play-operator columns
+/// (plays relaxed at `x[0]`). With [`FitOptions::nonnegative`] all weights
+/// including a₀ are ≥ 0, which makes the model invertible when a₀ > 0;
+/// `ridge` acts on the play weights, `smoothness` is ignored.
+///
+/// ```
+/// use gb_preisach::{fit_prandtl_ishlinskii, FitOptions, PrandtlIshlinskii};
+/// let truth = PrandtlIshlinskii::new(0.5, vec![0.1, 0.3], vec![0.4, 0.2]).unwrap();
+/// let x: Vec<f64> = (0..300).map(|k| (k as f64 * 0.05).sin() * (1.0 + k as f64 / 300.0)).collect();
+/// let y = truth.apply(&x).unwrap();
+/// let fit = fit_prandtl_ishlinskii(&x, &y, vec![0.1, 0.3], &FitOptions::default()).unwrap();
+/// assert!((fit.model.weights()[0] - 0.4).abs() < 1e-6);
+/// ```
+pub fn fit_prandtl_ishlinskii(
+    x: &[f64],
+    y: &[f64],
+    thresholds: Vec<f64>,
+    opts: &FitOptions,
+) -> Result<PrandtlIshlinskiiFit, PreisachError> {
+    check_finite(x)?;
+    check_finite(y)?;
+    if x.len() != y.len() {
+        return Err(PreisachError::DimensionMismatch {
+            expected: x.len(),
+            got: y.len(),
+        });
+    }
+    if x.is_empty() {
+        return Err(PreisachError::InvalidArgument("no data".into()));
+    }
+    let bank = PlayOperatorBank::new(thresholds.clone())?;
+    let m = bank.len();
+    // Unknowns: play weights (0..m), a₀ (m), bias (m + 1).
+    let q = m + 1 + usize::from(opts.bias);
+    let mut gram = DMatrix::<f64>::zeros(q, q);
+    let mut rhs = DVector::<f64>::zeros(q);
+    let mut state = bank.initial_state(x[0]);
+    let mut moving = vec![false; m];
+    let mut full = DVector::<f64>::zeros(q);
+    for (&xt, &yt) in x.iter().zip(y) {
+        bank.step(&mut state, xt, &mut moving);
+        full.rows_mut(0, m).copy_from_slice(&state);
+        full[m] = xt;
+        if opts.bias {
+            full[m + 1] = 1.0;
+        }
+        gram.ger(1.0, &full, &full, 1.0);
+        rhs.axpy(yt, &full, 1.0);
+    }
+    let free: Vec<bool> = (0..q).map(|i| i > m || !opts.nonnegative).collect();
+    let w = regularised_least_squares(gram, rhs, m, None, opts, &free)?;
+    let model = PrandtlIshlinskii::new(w[m], thresholds, w.rows(0, m).iter().copied().collect())?;
+    let bias = if opts.bias { w[m + 1] } else { 0.0 };
+    let fitted: Vec<f64> = model.apply(x)?;
+    let rmse = (fitted
+        .iter()
+        .zip(y)
+        .map(|(a, b)| (a + bias - b) * (a + bias - b))
+        .sum::<f64>()
+        / y.len() as f64)
+        .sqrt();
+    Ok(PrandtlIshlinskiiFit { model, bias, rmse })
+}
+
+/// Solve the penalised normal equations (ΦᵀΦ + penalties) w = Φᵀy: ridge on
+/// the first `p` unknowns, smoothness on the cells of a grid with `grid`
+/// intervals (the first n(n+1)/2 unknowns), non-negativity on the unknowns
+/// not marked `free`.
 fn regularised_least_squares(
     mut gram: DMatrix<f64>,
     rhs: DVector<f64>,
-    n: usize,
+    p: usize,
+    grid: Option<usize>,
     opts: &FitOptions,
     free: &[bool],
 ) -> Result<DVector<f64>, PreisachError> {
@@ -150,13 +229,12 @@ fn regularised_least_squares(
         )));
     }
     let q = gram.nrows();
-    let p = GridEverett::parameter_count(n);
     let scale = (gram.trace() / q as f64).max(f64::MIN_POSITIVE);
     let ridge = opts.ridge * scale;
     for i in 0..p {
         gram[(i, i)] += ridge;
     }
-    if opts.smoothness > 0.0 {
+    if let (Some(n), true) = (grid, opts.smoothness > 0.0) {
         let s = opts.smoothness * scale;
         let mut pair = |a: usize, b: usize| {
             gram[(a, a)] += s;

@@ -35,7 +35,9 @@ mod special;
 pub use everett::{
     DensityCell, DensityShape, Everett, GridEverett, GridNode, ParametricEverett, ParametricNode,
 };
-pub use identify::{fit_grid_preisach, FitOptions, PreisachFit};
+pub use identify::{
+    fit_grid_preisach, fit_prandtl_ishlinskii, FitOptions, PrandtlIshlinskiiFit, PreisachFit,
+};
 pub use pi::{Envelope, GeneralizedPlay, PrandtlIshlinskii, StopOperator, StopOperatorBank};
 pub use play::{PlayOperator, PlayOperatorBank};
 pub use preisach::{InitialState, Preisach, PreisachState};

@@ -55,7 +55,7 @@ pub(crate) struct Corner<N> {
 /// Caller-owned memory of a [`Preisach`] operator: a fixed-capacity stack of
 /// alternating dominant extrema (the staircase corners) plus the current
 /// input. Created by [`Preisach::state`]; with a memory cap (≤ 64) the stack
-/// is allocated once and steps never allocate (otherwise it doubles, rarely,
+/// is allocated once and steps never allocate (otherwise it grows, amortised and rarely,
 /// when the memory gets deeper than ever before).
 #[derive(Debug, Clone)]
 pub struct PreisachState<N> {
@@ -270,27 +270,30 @@ pub(crate) fn check_finite(x: &[f64]) -> Result<(), PreisachError> {
 #[inline]
 pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
     let mut n = st.n;
-    let mut asc = n & 1 == 1;
-    if (asc && x < st.run_x) || (!asc && x > st.run_x) {
-        if n >= st.cap {
-            n -= 1;
-        } else {
-            if n >= st.buf.len() {
-                // Unbounded memory deeper than ever before: double the slots.
-                let fill = st.buf[0];
-                let extra = st.buf.len();
-                st.buf.resize(2 * extra, fill);
-            }
-            let prefix = st.buf[n - 1].prefix + st.run_term;
-            st.buf[n] = Corner {
-                x: st.run_x,
-                node: st.run_node,
-                prefix,
-            };
-            n += 1;
-        }
-        asc = !asc;
+    let asc = n & 1 == 1;
+    let rev = (asc & (x < st.run_x)) | (!asc & (x > st.run_x));
+    // Candidate corner: the previous input, stored unconditionally in the
+    // free slot; a reversal then only moves the stack length.
+    if n < st.buf.len() {
+        let prefix = st.buf[n - 1].prefix + st.run_term;
+        st.buf[n] = Corner {
+            x: st.run_x,
+            node: st.run_node,
+            prefix,
+        };
+    } else if rev && n < st.cap {
+        let prefix = st.buf[n - 1].prefix + st.run_term;
+        let c = Corner {
+            x: st.run_x,
+            node: st.run_node,
+            prefix,
+        };
+        st.buf.push(c);
     }
+    let inc = usize::from(rev);
+    let full = usize::from(n >= st.cap);
+    n = n + inc - 2 * (inc & full);
+    let asc = asc ^ rev;
     if asc {
         while n >= 3 && x >= st.buf[n - 2].x {
             n -= 2;

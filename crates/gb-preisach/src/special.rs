@@ -160,14 +160,14 @@ const PHI_INV_H: f64 = 8.0;
 const PHI_CELLS: usize = 144;
 const PHI_DEG: usize = 10;
 
-type PhiTable = Vec<[f64; PHI_DEG]>;
+pub(crate) type PhiTable = Vec<[f64; PHI_DEG]>;
 static PHI_TABLE: std::sync::OnceLock<PhiTable> = std::sync::OnceLock::new();
 
 /// Piecewise polynomial table of Φ on [−9, 9]: 144 cells of width 1/8, each
 /// the degree-9 Chebyshev interpolant of Φ (from [`erfc`]) written in
 /// monomials of the local variable u ∈ [−1, 1].
 #[allow(clippy::needless_range_loop)]
-fn phi_table() -> &'static PhiTable {
+pub(crate) fn phi_table() -> &'static PhiTable {
     PHI_TABLE.get_or_init(|| {
         let k = PHI_DEG;
         let nodes: Vec<f64> = (0..k)
@@ -213,18 +213,22 @@ fn phi_table() -> &'static PhiTable {
     })
 }
 
-/// Fast standard normal distribution function: the [`phi_table`]
-/// interpolant on [−9, 9] (absolute error below 5e-15), [`normal_cdf`]
-/// outside.
+/// Cell coordinate t = (z − z_lo)·8 of the [`phi_table`] for z: Φ(z) is
+/// [`normal_cdf_at`]`(table, z·8 + 72)`.
+pub(crate) const PHI_T_SCALE: f64 = PHI_INV_H;
+/// Offset of the cell coordinate (−z_lo·8).
+pub(crate) const PHI_T_OFFSET: f64 = -PHI_LO * PHI_INV_H;
+
+/// Φ at the table coordinate `t` = (z − z_lo)·8, from the table (absolute
+/// error below 5e-15) or, outside [−9, 9], from [`normal_cdf`].
 #[inline(always)]
-pub fn normal_cdf_fast(z: f64) -> f64 {
-    let t = (z - PHI_LO) * PHI_INV_H;
+pub(crate) fn normal_cdf_at(table: &PhiTable, t: f64) -> f64 {
     if !(t >= 0.0 && t < PHI_CELLS as f64) {
-        return normal_cdf(z);
+        return normal_cdf((t - PHI_T_OFFSET) / PHI_T_SCALE);
     }
     let i = t as usize;
     let u = 2.0 * (t - i as f64) - 1.0;
-    let c = &phi_table()[i];
+    let c = &table[i];
     // Estrin's scheme (short dependency chains).
     let u2 = u * u;
     let u4 = u2 * u2;
@@ -232,6 +236,14 @@ pub fn normal_cdf_fast(z: f64) -> f64 {
     let q0 = (c[0] + c[1] * u) + (c[2] + c[3] * u) * u2;
     let q1 = (c[4] + c[5] * u) + (c[6] + c[7] * u) * u2;
     (q0 + q1 * u4) + (c[8] + c[9] * u) * u8
+}
+
+/// Fast standard normal distribution function: the [`phi_table`]
+/// interpolant on [−9, 9] (absolute error below 5e-15), [`normal_cdf`]
+/// outside.
+#[cfg(test)]
+pub fn normal_cdf_fast(z: f64) -> f64 {
+    normal_cdf_at(phi_table(), (z - PHI_LO) * PHI_INV_H)
 }
 
 /// Standard normal density φ(z).

@@ -148,3 +148,52 @@ fn stop_bank_is_input_minus_play_and_generalized_play_reduces_to_play() {
     )
     .is_err());
 }
+
+#[test]
+fn pi_identified_from_noisy_data_and_inverse_compensates() {
+    use gb_preisach::{fit_prandtl_ishlinskii, FitOptions};
+    use rand_distr::{Distribution, Normal};
+    // (r = 0 would be collinear with a₀ x.)
+    let thresholds = vec![0.05, 0.1, 0.2, 0.35, 0.5, 0.7];
+    let truth = PrandtlIshlinskii::new(
+        0.6,
+        thresholds.clone(),
+        vec![0.3, 0.25, 0.0, 0.2, 0.1, 0.05],
+    )
+    .unwrap();
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(8);
+    let mut x = vec![0.0];
+    for _ in 0..3000 {
+        let last: f64 = *x.last().unwrap();
+        x.push((last + rng.random_range(-0.15..0.15)).clamp(-1.5, 1.5));
+    }
+    let noise = Normal::new(0.0, 0.005).unwrap();
+    let y: Vec<f64> = truth
+        .apply(&x)
+        .unwrap()
+        .into_iter()
+        .map(|v| v + noise.sample(&mut rng))
+        .collect();
+    let fit = fit_prandtl_ishlinskii(&x, &y, thresholds, &FitOptions::default()).unwrap();
+    assert!(
+        (fit.model.linear_gain() - 0.6).abs() < 0.03,
+        "{}",
+        fit.model.linear_gain()
+    );
+    for (a, b) in fit.model.weights().iter().zip(truth.weights()) {
+        assert!(*a >= 0.0 && (a - b).abs() < 0.03, "{a} vs {b}");
+    }
+    assert!(fit.rmse < 0.006);
+    // Compensation: drive the true system with the identified inverse.
+    let inv = fit.model.inverse().unwrap();
+    let target: Vec<f64> = (0..500).map(|k| (k as f64 * 0.03).sin()).collect();
+    let mut ist = inv.initial_state(target[0]);
+    let u: Vec<f64> = target.iter().map(|&t| inv.step(&mut ist, t)).collect();
+    let out = truth.apply(&u).unwrap();
+    let err = out
+        .iter()
+        .zip(&target)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(err < 0.05, "compensation error {err}");
+}

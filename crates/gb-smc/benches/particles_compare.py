@@ -13,8 +13,11 @@ import statistics
 import sys
 import time
 
+import importlib.metadata
+
 import numpy as np
 import particles
+from particles import distributions as dists
 from particles import state_space_models as ssm
 
 N = 10_000
@@ -22,7 +25,24 @@ T = 1000
 REPS = int(sys.argv[1]) if len(sys.argv) > 1 else 7
 
 phi, sx, sy = 0.9, 1.0, 0.5
-model = ssm.LinearGauss(rho=phi, sigmaX=sx, sigmaY=sy, sigma0=sx / np.sqrt(1 - phi**2))
+
+
+class AR1(ssm.StateSpaceModel):
+    """x_0 ~ N(0, sx^2 / (1 - phi^2)), x_t = phi x_{t-1} + N(0, sx^2), y_t = x_t + N(0, sy^2)."""
+
+    default_params = {"phi": phi, "sx": sx, "sy": sy}
+
+    def PX0(self):
+        return dists.Normal(loc=0.0, scale=self.sx / np.sqrt(1.0 - self.phi**2))
+
+    def PX(self, t, xp):
+        return dists.Normal(loc=self.phi * xp, scale=self.sx)
+
+    def PY(self, t, xp, x):
+        return dists.Normal(loc=x, scale=self.sy)
+
+
+model = AR1()
 np.random.seed(1)
 _, y = model.simulate(T)
 
@@ -39,7 +59,7 @@ for r in range(REPS):
     ll = alg.logLt
 
 med = statistics.median(times)
-print(f"particles {getattr(particles, '__version__', '?')}: bootstrap_ar1/{N}, T={T}")
+print(f"particles {importlib.metadata.version('particles')}: bootstrap_ar1/{N}, T={T}")
 print(f"median time per run: {med * 1e3:.1f} ms over {REPS} runs (min {min(times) * 1e3:.1f} ms)")
 print(f"throughput: {N * T / med / 1e6:.2f} M particle-steps/s")
 print(f"log-likelihood (last run): {ll:.3f}")

@@ -17,7 +17,7 @@ use crate::error::{Result, SmcError};
 use crate::filter::{FilterConfig, FilterKind, FilterWorkspace, ParticleFilter};
 use crate::model::{Observations, StateSpaceModel};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{derive_seed, domain, stream, SmcRng, CHUNK};
+use crate::rng::{derive_seed, domain, stream, SmcRng, CHUNK, PAR_MIN};
 use rand::Rng;
 use rand_distr::StandardNormal;
 use rayon::prelude::*;
@@ -625,7 +625,7 @@ impl If2 {
                     }
                     (max, s, bad)
                 };
-                if cfg.parallel && n > CHUNK {
+                if cfg.parallel && n >= PAR_MIN {
                     x_new
                         .par_chunks_mut(CHUNK)
                         .zip(th_new.par_chunks_mut(CHUNK * d))

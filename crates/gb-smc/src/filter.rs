@@ -15,7 +15,8 @@
 use crate::error::{Result, SmcError};
 use crate::model::{Observations, StateSpaceModel, StateVector};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{domain, stream, SmcRng, CHUNK};
+use crate::rng::{domain, stream, SmcRng, CHUNK, PAR_MIN, PAR_MIN_LIGHT};
+use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -195,6 +196,8 @@ pub struct FilterWorkspace<S> {
     aux: Vec<f64>,
     stats: Vec<ChunkStat>,
     counts: Vec<u32>,
+    anc_next: Vec<usize>,
+    bounds: Vec<(f64, usize)>,
 }
 
 impl<S> FilterWorkspace<S> {
@@ -210,6 +213,8 @@ impl<S> FilterWorkspace<S> {
             aux: Vec::new(),
             stats: Vec::new(),
             counts: Vec::new(),
+            anc_next: Vec::new(),
+            bounds: Vec::new(),
         }
     }
 }
@@ -253,25 +258,74 @@ fn combine(stats: &[ChunkStat], t: usize) -> Result<Norm> {
 }
 
 /// Exp-normalises a chunk of log-weights: `w_i = exp(lw_i − max_chunk)`.
+/// The exponentials vectorise; the sums use four fixed lanes (deterministic order).
 #[inline]
 fn chunk_exp(lw: &[f64], w: &mut [f64], max: f64, bad: bool) -> ChunkStat {
-    let (mut s, mut s2) = (0.0, 0.0);
-    if max > f64::NEG_INFINITY && !bad {
-        for (wi, &l) in w.iter_mut().zip(lw) {
-            let e = exp_nonpos(l - max);
-            *wi = e;
-            s += e;
-            s2 += e * e;
-        }
-    } else {
+    if max == f64::NEG_INFINITY || bad {
         w.iter_mut().for_each(|x| *x = 0.0);
+        return ChunkStat {
+            max,
+            sum: 0.0,
+            sum2: 0.0,
+            bad,
+        };
     }
+    exp_shifted(lw, w, max);
+    let (s, s2) = lane_sums(w);
     ChunkStat {
         max,
         sum: s,
         sum2: s2,
         bad,
     }
+}
+
+#[inline(always)]
+fn exp_shifted_generic(lw: &[f64], w: &mut [f64], max: f64) {
+    for (wi, &l) in w.iter_mut().zip(lw) {
+        *wi = exp_nonpos(l - max);
+    }
+}
+
+/// The same code compiled for AVX2 (4 lanes). No FMA contraction happens, so
+/// the results are bit-identical to the baseline (SSE2) build.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn exp_shifted_avx2(lw: &[f64], w: &mut [f64], max: f64) {
+    exp_shifted_generic(lw, w, max)
+}
+
+/// `w_i = exp(lw_i − max)`, with runtime dispatch to AVX2 where available.
+#[inline]
+pub(crate) fn exp_shifted(lw: &[f64], w: &mut [f64], max: f64) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU supports AVX2 (checked above).
+            unsafe { exp_shifted_avx2(lw, w, max) };
+            return;
+        }
+    }
+    exp_shifted_generic(lw, w, max)
+}
+
+/// `(Σ w, Σ w²)` with four independent accumulators in a fixed order.
+#[inline]
+pub(crate) fn lane_sums(w: &[f64]) -> (f64, f64) {
+    let mut a = [0.0f64; 4];
+    let mut b = [0.0f64; 4];
+    let mut it = w.chunks_exact(4);
+    for c in &mut it {
+        for k in 0..4 {
+            a[k] += c[k];
+            b[k] += c[k] * c[k];
+        }
+    }
+    for (k, &x) in it.remainder().iter().enumerate() {
+        a[k] += x;
+        b[k] += x * x;
+    }
+    ((a[0] + a[1]) + (a[2] + a[3]), (b[0] + b[1]) + (b[2] + b[3]))
 }
 
 type ChunkItem<'a, S> = (usize, ((&'a mut [S], &'a mut [f64]), &'a mut [f64]));
@@ -305,7 +359,7 @@ fn kernel<S, F>(
         }
         chunk_exp(lc, wc, max, bad)
     };
-    if parallel && x.len() > CHUNK {
+    if parallel && x.len() >= PAR_MIN {
         x.par_chunks_mut(CHUNK)
             .zip(lw.par_chunks_mut(CHUNK))
             .zip(w.par_chunks_mut(CHUNK))
@@ -334,10 +388,105 @@ fn normalise(parallel: bool, w: &mut [f64], stats: &[ChunkStat], norm: Norm) {
         };
         wc.iter_mut().for_each(|x| *x *= f);
     };
-    if parallel && w.len() > 4 * CHUNK {
+    if parallel && w.len() >= PAR_MIN_LIGHT {
         w.par_chunks_mut(CHUNK).zip(stats.par_iter()).for_each(body);
     } else {
         w.chunks_mut(CHUNK).zip(stats.iter()).for_each(body);
+    }
+}
+
+/// Raw pointer to the ancestor buffer, shared by chunks writing disjoint ranges.
+#[derive(Clone, Copy)]
+struct AncPtr(*mut usize);
+// SAFETY: only used to write pairwise disjoint index ranges from different chunks.
+unsafe impl Send for AncPtr {}
+unsafe impl Sync for AncPtr {}
+
+/// Normalises the weights and draws systematic-resampling ancestors in the same
+/// pass, chunk-parallel. Chunk `k` holds normalised mass `μ_k` starting at
+/// cumulative offset `o_k` (computed sequentially over chunks, so the result does
+/// not depend on scheduling); it owns the outputs `j ∈ [b_k, b_{k+1})` with
+/// `b_k = #{j : (j + v)/N ≤ o_k}` and sets `a_j = i_0 + #{i in chunk : k_i ≤ j}`
+/// where `k_i = #{j : (j + v)/N ≤ C_i}`. O(N) work, no data-dependent branches.
+#[allow(clippy::too_many_arguments)]
+fn normalise_systematic(
+    parallel: bool,
+    w: &mut [f64],
+    stats: &[ChunkStat],
+    norm: Norm,
+    v: f64,
+    anc: &mut [usize],
+    bounds: &mut Vec<(f64, usize)>,
+) {
+    let n = w.len();
+    debug_assert_eq!(anc.len(), n);
+    let factor = |s: &ChunkStat| {
+        if s.max > f64::NEG_INFINITY {
+            (s.max - norm.max).exp() / norm.sum
+        } else {
+            0.0
+        }
+    };
+    // offsets o_k and output boundaries b_k
+    bounds.clear();
+    let mut off = 0.0;
+    for s in stats {
+        bounds.push((off, 0));
+        off += s.sum * factor(s);
+    }
+    let total = off;
+    let scale = n as f64 / total;
+    let shift = 1.0 - v;
+    let kc = stats.len();
+    let mut prev = 0usize;
+    for (k, b) in bounds.iter_mut().enumerate() {
+        let x = if k == 0 {
+            0
+        } else {
+            (((b.0 * scale + shift) as usize).min(n)).max(prev)
+        };
+        b.1 = x;
+        prev = x;
+    }
+    let ptr = AncPtr(anc.as_mut_ptr());
+    let bounds_ref = &bounds[..];
+    let body = |(k, (wc, s)): (usize, (&mut [f64], &ChunkStat))| {
+        let f = factor(s);
+        wc.iter_mut().for_each(|x| *x *= f);
+        let (o, start) = bounds_ref[k];
+        let end = if k + 1 < kc { bounds_ref[k + 1].1 } else { n };
+        if end == start {
+            return;
+        }
+        let p = ptr;
+        // SAFETY: the ranges [b_k, b_{k+1}) are disjoint for different k and lie in 0..n.
+        let out = unsafe { std::slice::from_raw_parts_mut(p.0.add(start), end - start) };
+        out.iter_mut().for_each(|a| *a = 0);
+        let last = wc.iter().rposition(|&x| x > 0.0).unwrap_or(0);
+        let mut c = o;
+        for &wi in &wc[..last] {
+            c += wi;
+            let kk = ((c * scale + shift) as usize).clamp(start, end);
+            if kk < end {
+                out[kk - start] += 1;
+            }
+        }
+        let mut acc = k * CHUNK;
+        for a in out.iter_mut() {
+            acc += *a;
+            *a = acc;
+        }
+    };
+    if parallel && n >= PAR_MIN_LIGHT {
+        w.par_chunks_mut(CHUNK)
+            .zip(stats.par_iter())
+            .enumerate()
+            .for_each(body);
+    } else {
+        w.chunks_mut(CHUNK)
+            .zip(stats.iter())
+            .enumerate()
+            .for_each(body);
     }
 }
 
@@ -451,6 +600,9 @@ impl ParticleFilter {
         ws.w.resize(n, 0.0);
         ws.anc.clear();
         ws.anc.extend(0..n);
+        ws.anc_next.resize(n, 0);
+        let fused = kind != FilterKind::Auxiliary && cfg.resampling == Resampling::Systematic;
+        let mut next_ready = false;
         if kind == FilterKind::Auxiliary {
             ws.aux.resize(n, 0.0);
         }
@@ -499,9 +651,23 @@ impl ParticleFilter {
             }
         }
         let mut norm = combine(&ws.stats, 0)?;
-        normalise(par, &mut ws.w, &ws.stats, norm);
-        let mut inc = norm.max + norm.sum.ln() - ln_n;
         let mut ess = norm.sum * norm.sum / norm.sum2;
+        if fused && tt > 1 && (always || ess < cfg.ess_threshold * n as f64) {
+            let v: f64 = stream(seed, domain::RESAMPLE, 1, 0).random();
+            normalise_systematic(
+                par,
+                &mut ws.w,
+                &ws.stats,
+                norm,
+                v,
+                &mut ws.anc_next,
+                &mut ws.bounds,
+            );
+            next_ready = true;
+        } else {
+            normalise(par, &mut ws.w, &ws.stats, norm);
+        }
+        let mut inc = norm.max + norm.sum.ln() - ln_n;
         let mut loglik = inc;
         incs.push(inc);
         ess_hist.push(ess);
@@ -530,7 +696,7 @@ impl ParticleFilter {
                 // log η_t(x_{t-1}^i)
                 let (x, aux) = (&ws.x, &mut ws.aux);
                 let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
-                if par && n > CHUNK {
+                if par && n >= PAR_MIN {
                     aux.par_iter_mut().zip(x.par_iter()).for_each(map);
                 } else {
                     aux.iter_mut().zip(x.iter()).for_each(map);
@@ -577,7 +743,9 @@ impl ParticleFilter {
                 rs
             } else {
                 let rs = always || ess < cfg.ess_threshold * n as f64;
-                if rs {
+                if rs && next_ready {
+                    std::mem::swap(&mut ws.anc, &mut ws.anc_next);
+                } else if rs {
                     resample_unchecked(
                         cfg.resampling,
                         &ws.w,
@@ -643,10 +811,25 @@ impl ParticleFilter {
             norm = combine(&ws.stats, t)?;
             std::mem::swap(&mut ws.x, &mut ws.x_new);
             std::mem::swap(&mut ws.lw, &mut ws.lw_new);
-            normalise(par, &mut ws.w, &ws.stats, norm);
+            ess = norm.sum * norm.sum / norm.sum2;
+            next_ready = false;
+            if fused && t + 1 < tt && (always || ess < cfg.ess_threshold * n as f64) {
+                let v: f64 = stream(seed, domain::RESAMPLE, t as u64 + 1, 0).random();
+                normalise_systematic(
+                    par,
+                    &mut ws.w,
+                    &ws.stats,
+                    norm,
+                    v,
+                    &mut ws.anc_next,
+                    &mut ws.bounds,
+                );
+                next_ready = true;
+            } else {
+                normalise(par, &mut ws.w, &ws.stats, norm);
+            }
             inc = norm.max + norm.sum.ln() - prev_ln + extra;
             loglik += inc;
-            ess = norm.sum * norm.sum / norm.sum2;
             incs.push(inc);
             ess_hist.push(ess);
             rs_hist.push(resampled);
@@ -740,7 +923,8 @@ pub fn weighted_quantiles(sample: &mut [(f64, f64)], probs: &[f64]) -> Vec<f64> 
 
 /// `exp(x)` for `x ≤ 0` (exp-normalised weights), branch-free and vectorisable:
 /// `x = k ln 2 + r`, `|r| ≤ ln 2 / 2`, degree-13 Taylor polynomial for `e^r`
-/// (relative error < 1e-15), `2^k` by exponent bits; `0` below `−708`.
+/// (relative error < 4e-16 · few), `2^k` built from the bits of `k + 1.5·2^52`;
+/// `0` below `−708`. Portable and bit-reproducible (no libm).
 #[inline(always)]
 pub(crate) fn exp_nonpos(x: f64) -> f64 {
     const LOG2E: f64 = std::f64::consts::LOG2_E;
@@ -748,7 +932,8 @@ pub(crate) fn exp_nonpos(x: f64) -> f64 {
     const LN2_LO: f64 = 1.908_214_929_270_587_7e-10;
     const ROUND: f64 = 6_755_399_441_055_744.0; // 1.5 · 2^52
     let xc = if x < -708.0 { -708.0 } else { x };
-    let kf = (xc * LOG2E + ROUND) - ROUND;
+    let t = xc * LOG2E + ROUND;
+    let kf = t - ROUND;
     let r = (xc - kf * LN2_HI) - kf * LN2_LO;
     let mut p = 1.0 / 6_227_020_800.0;
     p = p * r + 1.0 / 479_001_600.0;
@@ -764,7 +949,9 @@ pub(crate) fn exp_nonpos(x: f64) -> f64 {
     p = p * r + 0.5;
     p = p * r + 1.0;
     p = p * r + 1.0;
-    let scale = f64::from_bits(((kf as i64 + 1023) as u64) << 52);
+    // k = bits(t) − bits(ROUND) (t lies in the binade of ROUND, ulp 1)
+    let k = t.to_bits().wrapping_sub(ROUND.to_bits());
+    let scale = f64::from_bits(k.wrapping_add(1023) << 52);
     let e = p * scale;
     if x < -708.0 {
         0.0
@@ -776,6 +963,16 @@ pub(crate) fn exp_nonpos(x: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::exp_nonpos;
+
+    #[test]
+    fn exp_dispatch_matches_scalar() {
+        let lw: Vec<f64> = (0..1001).map(|i| -(i as f64) * 0.731).collect();
+        let mut w = vec![0.0; lw.len()];
+        super::exp_shifted(&lw, &mut w, 0.0);
+        for (a, &l) in w.iter().zip(&lw) {
+            assert_eq!(a.to_bits(), exp_nonpos(l).to_bits());
+        }
+    }
 
     #[test]
     fn exp_nonpos_is_accurate() {

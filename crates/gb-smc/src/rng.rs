@@ -15,6 +15,15 @@ pub type SmcRng = Xoshiro256PlusPlus;
 /// do not depend on the thread count).
 pub const CHUNK: usize = 512;
 
+/// Smallest particle count for which rayon is used (below it the thread
+/// hand-off costs more than it saves; results are identical either way).
+pub const PAR_MIN: usize = 4096;
+
+/// Smallest particle count for which the light O(N) passes (normalisation,
+/// resampling; ~1 ns per particle) are split over threads: one fork-join per
+/// step fewer matters more than the pass itself below this size.
+pub const PAR_MIN_LIGHT: usize = 65_536;
+
 #[inline]
 fn mix(mut z: u64) -> u64 {
     z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);

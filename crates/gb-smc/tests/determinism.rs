@@ -53,3 +53,20 @@ fn filter_is_thread_count_invariant() {
         }
     }
 }
+
+#[test]
+fn large_n_parallel_passes_are_thread_count_invariant() {
+    // N above PAR_MIN_LIGHT: normalisation and resampling also run in parallel.
+    let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+    let (_, y) = model.simulate(12, 6);
+    let obs = Observations::new(&y);
+    let pf = FilterConfig::new(70_000)
+        .ess_threshold(1.0)
+        .seed(2)
+        .build()
+        .unwrap();
+    let a = pool(1).install(|| pf.run(&model, &obs).unwrap());
+    let b = pool(2).install(|| pf.run(&model, &obs).unwrap());
+    assert_eq!(a.log_likelihood.to_bits(), b.log_likelihood.to_bits());
+    assert_eq!(a.ess, b.ess);
+}

@@ -67,3 +67,41 @@ fn invalid_weights_are_rejected() {
         assert!(resample(Resampling::Systematic, &w, &mut rng, &mut a).is_err());
     }
 }
+
+#[test]
+fn filter_systematic_offspring_counts_are_floor_or_ceil() {
+    // The filter's chunk-parallel systematic resampling (fused with normalisation)
+    // must give every particle ⌊N W_i⌋ or ⌈N W_i⌉ children, never a zero-weight one.
+    use gb_smc::{FilterConfig, LinearGaussian, Observations};
+    let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+    let (_, y) = model.simulate(40, 3);
+    for n in [7usize, 512, 3000, 5121] {
+        let pf = FilterConfig::new(n)
+            .ess_threshold(1.0)
+            .store_history(true)
+            .build()
+            .unwrap();
+        let h = pf
+            .run(&model, &Observations::new(&y))
+            .unwrap()
+            .history
+            .unwrap();
+        for t in 1..y.len() {
+            let w = h.weights_at(t - 1);
+            let mut c = vec![0usize; n];
+            for &a in h.ancestors_at(t) {
+                c[a] += 1;
+            }
+            for (i, &ci) in c.iter().enumerate() {
+                let e = n as f64 * w[i];
+                assert!(
+                    ci as f64 >= e.floor() - 1e-6 && ci as f64 <= e.ceil() + 1e-6,
+                    "n = {n}, t = {t}, i = {i}: {ci} children for N W = {e}"
+                );
+                if w[i] == 0.0 {
+                    assert_eq!(ci, 0);
+                }
+            }
+        }
+    }
+}

@@ -12,11 +12,12 @@ import pywt
 N = 1 << 20
 
 
-def bench(label, fn, repeat=15):
+def bench(label, fn, repeat=40):
     fn()  # warm up
     times = timeit.repeat(fn, number=1, repeat=repeat)
     t = float(np.median(times))
-    print(f"{label:28s} {t * 1e3:9.3f} ms  {N / t / 1e6:9.1f} Msamples/s")
+    print(f"{label:28s} median {t * 1e3:8.3f} ms  min {min(times) * 1e3:8.3f} ms"
+          f"  {N / t / 1e6:8.1f} Msamples/s (median)")
 
 
 def main():

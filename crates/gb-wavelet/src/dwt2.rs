@@ -246,6 +246,11 @@ pub fn wavedec2(
 ) -> Result<Coefficients2D> {
     let level =
         level.unwrap_or_else(|| max_level(image.rows.min(image.cols), wavelet.filter_len()));
+    if level > crate::multilevel::MAX_LEVEL {
+        return Err(WaveletError::InvalidParameter(format!(
+            "level {level} too large"
+        )));
+    }
     let mut approx = image.clone();
     let mut details = Vec::with_capacity(level);
     for _ in 0..level {

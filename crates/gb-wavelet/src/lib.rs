@@ -1,8 +1,24 @@
 //! # gb-wavelet
 //!
-//! Fast wavelet transforms for greybox: planned two-channel filter banks
-//! ([`Wavelet`]), single-level and multilevel transforms with PyWavelets'
-//! coefficient layout and extension modes ([`Mode`]).
+//! Fast wavelet transforms for greybox, with PyWavelets' coefficient layout
+//! and extension modes as the reference:
+//!
+//! * [`Wavelet`]: a planned two-channel filter bank (`haar`, `db1`–`db38`,
+//!   `sym2`–`sym20`, `coif1`–`coif17`, `bior*`, `rbio*`, `cdf53`, `cdf97`);
+//!   [`Mode`]: `zero`, `constant`, `symmetric`, `periodic`, `periodization`.
+//! * One level: [`dwt`]/[`idwt`] and the allocation-free
+//!   [`Wavelet::dwt_into`]/[`Wavelet::idwt_into`]; multilevel: [`wavedec`],
+//!   [`waverec`] and the planned [`DecompositionPlan`] (caller-supplied
+//!   buffers and scratch, RustFFT style).
+//! * 2-D: [`dwt2`], [`idwt2`], [`wavedec2`], [`waverec2`]; packets:
+//!   [`WaveletPacket`] with [`WaveletPacket::best_basis`].
+//! * Thresholding: [`ThresholdFunction`] (hard, soft, garrote) and
+//!   [`ThresholdRule`] (universal, SURE, BayesShrink, empirical Bayes);
+//!   [`denoise`], [`denoise_with`].
+//! * Sparse storage: [`SparseCoefficients`], [`best_n_term`],
+//!   [`coefficient_rows`].
+//! * Point evaluation: [`wavefun`] (cascade), [`RefinableFunctions`] (exact
+//!   dyadic values of φ, ψ), [`WaveletExpansion`] (n-D tensor products).
 //!
 //! ```
 //! use gb_wavelet::{wavedec, waverec, Mode, Wavelet};
@@ -33,10 +49,11 @@ mod wavelet;
 pub use dwt2::{dwt2, idwt2, wavedec2, waverec2, Array2D, Coefficients2D, Details2D};
 pub use error::{Result, WaveletError};
 pub use mode::Mode;
-pub use multilevel::{wavedec, waverec, DecompositionPlan};
-pub use packet::{EntropyCost, PacketNode, WaveletPacket};
+pub use multilevel::{wavedec, waverec, DecompositionPlan, MAX_LEVEL};
+pub use packet::{EntropyCost, PacketNode, WaveletPacket, MAX_PACKET_LEVEL};
 pub use refinable::{
     wavefun, Atom, AtomKind, ExpansionTerm, RefinableFunctions, WaveletExpansion, WaveletFunctions,
+    MAX_RESOLUTION,
 };
 pub use sparse::{best_n_term, coefficient_rows, NTermApproximation, SparseCoefficients};
 pub use special::{mills_ratio, norm_cdf, norm_pdf, norm_quantile, upper_tail};

@@ -11,6 +11,9 @@ use crate::mode::Mode;
 use crate::transform::{analysis, synthesis};
 use crate::wavelet::Wavelet;
 
+/// Largest decomposition level accepted (1-D and 2-D).
+pub const MAX_LEVEL: usize = 64;
+
 /// A planned multilevel transform of signals of a fixed length: coefficient
 /// layout, buffer sizes, and the filter bank. Reuse it across calls; the
 /// `decompose`/`reconstruct` methods do not allocate.
@@ -61,6 +64,11 @@ impl DecompositionPlan {
         }
         let f = wavelet.filter_len();
         let level = level.unwrap_or_else(|| wavelet.max_level(signal_len));
+        if level > MAX_LEVEL {
+            return Err(WaveletError::InvalidParameter(format!(
+                "level {level} > {MAX_LEVEL}"
+            )));
+        }
         let mut approx_lens = vec![signal_len];
         for _ in 0..level {
             let prev = approx_lens[approx_lens.len() - 1];

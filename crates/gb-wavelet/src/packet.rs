@@ -119,6 +119,9 @@ impl fmt::Display for EntropyCost {
     }
 }
 
+/// Deepest packet tree accepted (`2^20` leaves).
+pub const MAX_PACKET_LEVEL: usize = 20;
+
 /// The full wavelet packet tree of a signal, like `pywt.WaveletPacket`.
 ///
 /// ```
@@ -152,6 +155,11 @@ impl WaveletPacket {
             return Err(WaveletError::EmptyInput("signal"));
         }
         let max_level = max_level.unwrap_or_else(|| wavelet.max_level(signal.len()));
+        if max_level > MAX_PACKET_LEVEL {
+            return Err(WaveletError::InvalidParameter(format!(
+                "packet depth {max_level} > {MAX_PACKET_LEVEL}"
+            )));
+        }
         let mut nodes = vec![vec![signal.to_vec()]];
         for level in 0..max_level {
             let mut next = Vec::with_capacity(2 << level);

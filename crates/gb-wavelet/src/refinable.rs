@@ -15,6 +15,9 @@ use serde::{Deserialize, Serialize};
 use crate::error::{Result, WaveletError};
 use crate::wavelet::Wavelet;
 
+/// Finest dyadic resolution tabulated (`(F−1)·2^16 + 1` samples per function).
+pub const MAX_RESOLUTION: usize = 16;
+
 /// Full upsampled convolution `y[k] = Σ_i x[i] f[k−2i]` (length `2N+F−2`).
 fn upsample_convolve(x: &[f64], f: &[f64]) -> Vec<f64> {
     let mut y = vec![0.0; 2 * x.len() + f.len() - 2];
@@ -52,9 +55,9 @@ pub struct WaveletFunctions {
 /// # Ok::<(), gb_wavelet::WaveletError>(())
 /// ```
 pub fn wavefun(wavelet: &Wavelet, level: usize) -> Result<WaveletFunctions> {
-    if level == 0 || level > 20 {
+    if level == 0 || level > MAX_RESOLUTION {
         return Err(WaveletError::InvalidParameter(format!(
-            "cascade level {level} not in 1..=20"
+            "cascade level {level} not in 1..={MAX_RESOLUTION}"
         )));
     }
     let p = (1usize << level) as f64;
@@ -132,12 +135,12 @@ pub struct RefinableFunctions {
 
 impl RefinableFunctions {
     /// Tabulates φ and ψ of `wavelet` at the points `m/2^resolution`
-    /// (`resolution ≤ 20`). Fails when the cascade does not converge (e.g. the
+    /// (`resolution ≤ MAX_RESOLUTION`). Fails when the cascade does not converge (e.g. the
     /// synthesis functions of some `rbio` wavelets are not continuous).
     pub fn new(wavelet: &Wavelet, resolution: usize) -> Result<Self> {
-        if resolution > 20 {
+        if resolution > MAX_RESOLUTION {
             return Err(WaveletError::InvalidParameter(format!(
-                "resolution {resolution} > 20"
+                "resolution {resolution} > {MAX_RESOLUTION}"
             )));
         }
         let h = wavelet.rec_lo();

@@ -89,8 +89,8 @@ fn madd(a: f64, b: f64, c: f64) -> f64 {
 
 /// Outputs per block of the vectorised kernels.
 const BLOCK: usize = 8;
-/// Largest half filter length with a specialised kernel (`F ≤ 40`).
-const MAX_HALF: usize = 20;
+/// Largest half filter length with a specialised portable kernel (`F ≤ 12`).
+const MAX_HALF: usize = 6;
 
 /// Interior analysis kernel, half filter length `H` known at compile time:
 /// `a[i] = Σ_t lo[2t] x[2i+2t] + lo[2t+1] x[2i+2t+1]` (polyphase form),
@@ -167,7 +167,8 @@ fn analysis_interior_generic(x: &[f64], lo: &[f64], hi: &[f64], a: &mut [f64], d
             }
         };
     }
-    dispatch!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20);
+    // Longer filters: the blocked kernel spills registers; the plain loop is faster.
+    dispatch!(1 2 3 4 5 6);
 }
 
 /// `a[i] = Σ_j lo[j] x[2i+j]` for the whole of `a` (needs `x.len() ≥ 2(len−1)+F`).
@@ -314,7 +315,8 @@ fn synthesis_pairs_generic(a: &[f64], d: &[f64], poly: &[Vec<f64>; 4], out: &mut
             }
         };
     }
-    dispatch!(1 2 3 4 5 6 7 8 9 10 11 12 13 14 15 16 17 18 19 20);
+    // Longer filters: the blocked kernel spills registers; the plain loop is faster.
+    dispatch!(1 2 3 4 5 6);
 }
 
 /// `out[2u] = a[u..u+H]·lo_even + d[u..u+H]·hi_even`, `out[2u+1]` likewise with
