@@ -2,7 +2,7 @@
 //! and not to invent one in clean data.
 //!
 //! Every system is generated with two seeds; the seed also varies the
-//! physical parameters (±15 %) and the SNR (30–36 dB). For each case:
+//! physical parameters (±15 %) and the SNR (30–33 dB). For each case:
 //! - the first named cause is the hidden one (`[]` for clean data);
 //! - causes that would be a misdiagnosis never appear (e.g. `hysteresis`
 //!   for a static saturation);

@@ -378,21 +378,33 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
     let last_structural = causes.iter().rev().find(|c| *c == "nonlinearity" || *c == "hysteresis");
     if let Some(c) = last_structural {
         if cur.detail < 2 {
-            let s = Structure { detail: cur.detail + 1, ..cur };
+            // more local models / operators, and one more lag of every
+            // regressor: a nonlinear force inside continuous dynamics reaches
+            // the sampled output through more lags than the linear part needs
+            let s = Structure {
+                detail: cur.detail + 1,
+                order: (cur.order + 1).min(MAX_ORDER),
+                ..cur
+            };
             let cause = if c == "nonlinearity" { "nonlinearity" } else { "hysteresis" };
             v.push(Candidate {
                 cause,
                 structure: s,
                 extension: if s.network && cause == "nonlinearity" {
-                    format!("more capacity for the named nonlinearity: up to {} local models", s.max_leaves())
+                    format!(
+                        "more capacity for the named nonlinearity: up to {} local models, regressor lags {}",
+                        s.max_leaves(),
+                        s.order
+                    )
                 } else {
                     format!(
-                        "more capacity for the named hysteresis: {} play operators and {} relays on the output",
+                        "more capacity for the named hysteresis: {} play operators and {} relays on the output, regressor lags {}",
                         6 * (1 + s.detail as usize),
                         {
                             let l = 6 + 2 * s.detail as usize;
                             l * (l + 1) / 2
-                        }
+                        },
+                        s.order
                     )
                 },
                 refine: true,
@@ -411,7 +423,7 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
         v.push(Candidate {
             cause: "hysteresis",
             structure: Structure { hysteresis: true, ..cur },
-            extension: "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 4 play operators per input, at lags 1..n, weights linear, trained output-error".into(),
+            extension: "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input, at lags 1..n+1, weights linear, trained output-error".into(),
             refine: false,
         });
     }

@@ -101,13 +101,13 @@ impl Structure {
         if self.hysteresis {
             // thresholds in normalised (unit-variance) output units
             let d = 1 + self.detail as usize;
-            let (no, ni) = (6 * d, 4 * d);
+            let (no, ni) = (6 * d, 8 * d);
             spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
             spec.output_relays = 6 + 2 * self.detail as usize;
             // lags 1..n+1: the hysteretic force acts inside n-th order
             // continuous dynamics and varies between samples
             spec.hysteresis_lags = self.order + 1;
-            spec.input_play = vec![(1..=ni).map(|i| 2.1 * i as f64 / ni as f64).collect(); n_inputs];
+            spec.input_play = vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
         }
         spec
     }
@@ -154,9 +154,6 @@ impl GreyBoxModel {
         let network = if structure.network {
             let mut lopts = opts.lolimot.clone();
             lopts.max_leaves = lopts.max_leaves.max(structure.max_leaves());
-            if structure.detail > 0 {
-                lopts.criterion = gb_lmn::TerminationCriterion::MaxLeaves;
-            }
             fit_lmn_oe(&spec, &data.inputs, &data.output, yreg, &lopts, &fopts)?
         } else {
             fit_linear_oe_warm(&spec, &data.inputs, &data.output, &fopts, warm.map(|w| &w.network))?

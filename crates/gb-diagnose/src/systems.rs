@@ -64,7 +64,7 @@ pub struct Generated {
     pub noise_std: f64,
     /// NRMSE a perfect model reaches on the validation data: noise std / std(y).
     pub noise_floor_nrmse: f64,
-    /// Signal-to-noise ratio in dB.
+    /// Signal-to-noise ratio in dB (30–33 dB, drawn per seed).
     pub snr_db: f64,
     /// Sample time in seconds.
     pub ts: f64,
@@ -118,8 +118,8 @@ fn base_params(system: &str, r: &mut impl Rng) -> Result<Params, CoreError> {
     match system {
         "linear" | "msd-linear" => {}
         "duffing" | "msd-nonlinear" => {
-            // cubic force equals the linear one at about 3 x rms displacement
-            p.k3 = v(1.0) * k / (0.03f64).powi(2);
+            // cubic force equals the linear one at about 4 x rms displacement
+            p.k3 = v(1.0) * k / (0.04f64).powi(2);
         }
         "saturation" => p.sat = v(0.9) * p.u_rms,
         "deadzone" => p.dead = v(0.6) * p.u_rms,
@@ -315,7 +315,7 @@ pub fn generate(system: &str, seed: u64, n_train: usize, n_validate: usize) -> R
     let mut r = rng::stream(seed, 0);
     let p = base_params(system, &mut r)?;
     let ts = 0.01;
-    let snr_db = 30.0 + 6.0 * r.random::<f64>();
+    let snr_db = 30.0 + 3.0 * r.random::<f64>();
     let u_tr = random_input(n_train, p.u_rms, seed.wrapping_mul(2).wrapping_add(11));
     let u_va = random_input(n_validate, p.u_rms, seed.wrapping_mul(2).wrapping_add(12));
     let y_tr = simulate(&p, &u_tr, ts);
