@@ -240,7 +240,7 @@ impl GeneralizedPlay {
 /// let x = [0.0, 0.8, -0.3, 0.4];
 /// let mut st = pi.initial_state(x[0]);
 /// let inv = pi.inverse().unwrap();
-/// let mut ist = pi.inverse_state(&st);
+/// let mut ist = pi.inverse_state(&st).unwrap();
 /// for &v in &x {
 ///     let y = pi.step(&mut st, v);
 ///     assert!((inv.step(&mut ist, y) - v).abs() < 1e-12);
@@ -371,8 +371,14 @@ impl PrandtlIshlinskii {
 
     /// Play states of [`inverse`](Self::inverse) matching this model's
     /// `state`: p̂ᵢ = Cᵢ pᵢ + Σ_{j>i} a_j p_j.
-    pub fn inverse_state(&self, state: &[f64]) -> Vec<f64> {
+    pub fn inverse_state(&self, state: &[f64]) -> Result<Vec<f64>, PreisachError> {
         let n = self.weights.len();
+        if state.len() != n {
+            return Err(PreisachError::DimensionMismatch {
+                expected: n,
+                got: state.len(),
+            });
+        }
         let mut out = vec![0.0; n];
         let mut tail = 0.0; // Σ_{j>i} a_j p_j
         let total: f64 = self.a0 + self.weights.iter().sum::<f64>();
@@ -382,6 +388,6 @@ impl PrandtlIshlinskii {
             tail += self.weights[i] * state[i];
             c -= self.weights[i];
         }
-        out
+        Ok(out)
     }
 }

@@ -40,7 +40,8 @@ pub trait HysteresisRegressor {
     fn start(&self, x0: f64) -> Result<Self::State, PreisachError>;
 
     /// Advance with input `x`; writes the regressor row φ(t) into `row` and
-    /// ∂φ(t)/∂x(t) into `d_row` (both of length [`n_columns`](Self::n_columns)).
+    /// ∂φ(t)/∂x(t) into `d_row` (both of length [`n_columns`](Self::n_columns);
+    /// shorter slices are a programming error and may panic).
     fn step(&self, state: &mut Self::State, x: f64, row: &mut [f64], d_row: &mut [f64]);
 
     /// Columns and derivatives for a whole signal.
