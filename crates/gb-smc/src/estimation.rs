@@ -166,10 +166,14 @@ impl PmmhResult {
     }
 }
 
-/// Summaries of the rows `burn_in..` of a row-major `n × d` chain.
+/// Summaries of the rows `burn_in..` of a row-major `n × d` chain (all rows if
+/// `burn_in ≥ n`; empty for an empty chain).
 pub fn posterior_summary(chain: &[f64], dim: usize, burn_in: usize) -> Vec<ParamSummary> {
     let rows = chain.len() / dim.max(1);
-    let start = burn_in.min(rows.saturating_sub(1));
+    if rows == 0 {
+        return Vec::new();
+    }
+    let start = burn_in.min(rows - 1);
     (0..dim)
         .map(|j| {
             let mut v: Vec<f64> = (start..rows).map(|k| chain[k * dim + j]).collect();

@@ -71,9 +71,19 @@ struct Zig {
     f: [f64; 257],
 }
 
+#[inline(always)]
 fn zig_tables() -> &'static Zig {
     static TABLES: std::sync::OnceLock<Zig> = std::sync::OnceLock::new();
-    TABLES.get_or_init(|| {
+    match TABLES.get() {
+        Some(t) => t,
+        None => zig_init(&TABLES),
+    }
+}
+
+#[cold]
+#[inline(never)]
+fn zig_init(tables: &'static std::sync::OnceLock<Zig>) -> &'static Zig {
+    tables.get_or_init(|| {
         // Marsaglia & Tsang (2000): R = right-most layer edge, V = layer area.
         const R: f64 = 3.654_152_885_361_009;
         const V: f64 = 0.004_928_673_233_99;
