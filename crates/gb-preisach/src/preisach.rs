@@ -214,11 +214,12 @@ impl<E: Everett> Preisach<E> {
     pub fn step(&self, st: &mut PreisachState<E::Node>, x: f64) -> f64 {
         let (lo, hi) = self.everett.support();
         let x = x.max(lo).min(hi);
-        advance(st, x);
         let node = self.everett.node(x);
+        advance(st, x);
         st.run_node = node;
-        let last = &st.buf[st.n - 1];
-        let asc = st.n & 1 == 1;
+        let n = st.n;
+        let last = &st.buf[n - 1];
+        let asc = n & 1 == 1;
         let (a, b) = if asc {
             (&node, &last.node)
         } else {
@@ -269,40 +270,37 @@ pub(crate) fn check_finite(x: &[f64]) -> Result<(), PreisachError> {
 /// Memory update: reversal detection, memory cap, wiping out.
 #[inline]
 pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
+    // Work on locals: stores into the slot buffer cannot then force reloads
+    // of the state fields.
     let mut n = st.n;
+    let (run_x, cap) = (st.run_x, st.cap);
+    let buf = &mut st.buf;
     let asc = n & 1 == 1;
-    let rev = (asc & (x < st.run_x)) | (!asc & (x > st.run_x));
+    let rev = (asc & (x < run_x)) | (!asc & (x > run_x));
     // Candidate corner: the previous input, stored unconditionally in the
     // free slot; a reversal then only moves the stack length.
-    if n < st.buf.len() {
-        let prefix = st.buf[n - 1].prefix + st.run_term;
-        st.buf[n] = Corner {
-            x: st.run_x,
-            node: st.run_node,
-            prefix,
-        };
-    } else if rev && n < st.cap {
-        let prefix = st.buf[n - 1].prefix + st.run_term;
-        let c = Corner {
-            x: st.run_x,
-            node: st.run_node,
-            prefix,
-        };
-        st.buf.push(c);
+    let cand = Corner {
+        x: run_x,
+        node: st.run_node,
+        prefix: buf[n - 1].prefix + st.run_term,
+    };
+    if n < buf.len() {
+        buf[n] = cand;
+    } else if rev && n < cap {
+        buf.push(cand);
     }
     let inc = usize::from(rev);
-    let full = usize::from(n >= st.cap);
+    let full = usize::from(n >= cap);
     n = n + inc - 2 * (inc & full);
-    let asc = asc ^ rev;
-    if asc {
-        while n >= 3 && x >= st.buf[n - 2].x {
+    if asc ^ rev {
+        while n >= 3 && x >= buf[n - 2].x {
             n -= 2;
         }
     } else {
-        while n >= 4 && x <= st.buf[n - 2].x {
+        while n >= 4 && x <= buf[n - 2].x {
             n -= 2;
         }
-        if n == 2 && x <= st.buf[0].x {
+        if n == 2 && x <= buf[0].x {
             n = 1;
         }
     }
