@@ -70,3 +70,28 @@ fn large_n_parallel_passes_are_thread_count_invariant() {
     assert_eq!(a.log_likelihood.to_bits(), b.log_likelihood.to_bits());
     assert_eq!(a.ess, b.ess);
 }
+
+#[test]
+fn reused_workspace_gives_identical_results() {
+    use gb_smc::FilterWorkspace;
+    let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+    let (_, y) = model.simulate(30, 8);
+    let obs = Observations::new(&y);
+    let mut ws = FilterWorkspace::new();
+    for kind in [FilterKind::Bootstrap, FilterKind::Auxiliary] {
+        for seed in [1u64, 2] {
+            let pf = FilterConfig::new(700)
+                .kind(kind)
+                .seed(seed)
+                .build()
+                .unwrap();
+            let fresh = pf.run(&model, &obs).unwrap();
+            let reused = pf.run_with(&model, &obs, &mut ws, |_| {}).unwrap();
+            assert_eq!(
+                fresh.log_likelihood.to_bits(),
+                reused.log_likelihood.to_bits()
+            );
+            assert_eq!(fresh.ess, reused.ess);
+        }
+    }
+}
