@@ -95,3 +95,28 @@ fn reused_workspace_gives_identical_results() {
         }
     }
 }
+
+#[test]
+fn default_proposal_reduces_guided_and_auxiliary_to_bootstrap() {
+    use gb_smc::models::NonlinearGrowth;
+    let model = NonlinearGrowth::classic();
+    let (_, y) = model.simulate(40, 4);
+    let obs = Observations::new(&y);
+    let run = |kind| {
+        FilterConfig::new(600)
+            .kind(kind)
+            .ess_threshold(1.0)
+            .seed(12)
+            .build()
+            .unwrap()
+            .run(&model, &obs)
+            .unwrap()
+    };
+    let b = run(FilterKind::Bootstrap);
+    let g = run(FilterKind::Guided);
+    let a = run(FilterKind::Auxiliary);
+    assert_eq!(b.log_likelihood.to_bits(), g.log_likelihood.to_bits());
+    assert_eq!(b.ess, g.ess);
+    // η ≡ 1: the APF equals the bootstrap filter up to rounding of Σ W_i = 1
+    assert!((a.log_likelihood - b.log_likelihood).abs() < 1e-9);
+}
