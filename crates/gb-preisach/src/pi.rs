@@ -163,7 +163,7 @@ impl Envelope {
     }
 }
 
-/// Generalised play operator (Brokate & Sprekels 1996, §2.4): with
+/// Generalised play operator (Brokate & Sprekels 1996, ch. 2): with
 /// non-decreasing envelopes γ_a ≤ γ_d (ascending and descending branch),
 ///
 /// p(k) = max(γ_a(x(k)), min(γ_d(x(k)), p(k−1))).
@@ -229,7 +229,7 @@ impl GeneralizedPlay {
 /// a₀ > 0, aᵢ ≥ 0), which makes it invertible.
 ///
 /// The inverse is again Prandtl–Ishlinskii (Krasnosel'skii–Pokrovskii;
-/// Brokate & Sprekels 1996, Thm. 2.3.5), on the output y:
+/// Brokate & Sprekels 1996, ch. 2), on the output y:
 /// r̂ᵢ = a₀ rᵢ + Σ_{j<i} a_j (rᵢ − r_j), â₀ = 1/a₀,
 /// âᵢ = −aᵢ / (Cᵢ C_{i−1}) (C₀ = a₀), with play states
 /// p̂ᵢ = Cᵢ pᵢ + Σ_{j>i} a_j p_j.
