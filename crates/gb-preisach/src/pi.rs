@@ -9,7 +9,7 @@ use crate::PreisachError;
 use serde::{Deserialize, Serialize};
 
 /// The stop (elastic–plastic) operator of half-width r ≥ 0,
-/// s_r[x] = x − p_r[x], so |s| ≤ r and s follows input increments until it
+/// s_r\[x\] = x − p_r\[x\], so |s| ≤ r and s follows input increments until it
 /// saturates at ±r.
 ///
 /// ```
@@ -54,7 +54,7 @@ impl StopOperator {
     }
 }
 
-/// A bank of stop operators (regressor columns s_{r_i}[x]); the stop
+/// A bank of stop operators (regressor columns s_{r_i}\[x\]); the stop
 /// counterpart of [`PlayOperatorBank`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StopOperatorBank {
@@ -224,7 +224,7 @@ impl GeneralizedPlay {
     }
 }
 
-/// Prandtl–Ishlinskii model y = a₀ x + Σᵢ aᵢ p_{rᵢ}[x] with thresholds
+/// Prandtl–Ishlinskii model y = a₀ x + Σᵢ aᵢ p_{rᵢ}\[x\] with thresholds
 /// 0 ≤ r₁ < … < r_n and weights with Cᵢ = a₀ + Σ_{j≤i} a_j > 0 (e.g.
 /// a₀ > 0, aᵢ ≥ 0), which makes it invertible.
 ///
