@@ -141,7 +141,7 @@ pub struct PrandtlIshlinskiiFit {
     pub rmse: f64,
 }
 
-/// Fit a Prandtl–Ishlinskii model y ≈ a₀ x + Σ aᵢ p_{rᵢ}[x] (+ b) with the
+/// Fit a Prandtl–Ishlinskii model y ≈ a₀ x + Σ aᵢ p_{rᵢ}\[x\] (+ b) with the
 /// given thresholds by linear least squares on the play-operator columns
 /// (plays relaxed at `x[0]`). With [`FitOptions::nonnegative`] all weights
 /// including a₀ are ≥ 0, which makes the model invertible when a₀ > 0;

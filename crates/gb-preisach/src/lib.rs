@@ -14,6 +14,22 @@
 //! 2008 (the Everett/primitive-function trick making Preisach linear in its
 //! parameters).
 //!
+//! Tour:
+//! * [`Preisach`] with any [`Everett`] function — [`ParametricEverett`]
+//!   (Gaussian / Lorentzian closed forms) or [`GridEverett`] (triangular
+//!   grid, bilinear) — and caller-owned [`PreisachState`] memory of
+//!   alternating dominant extrema; [`InitialState`] for the start.
+//! * [`RelayGrid`]: the discrete relay model, a cross-check.
+//! * [`fit_grid_preisach`]: regularised / non-negative least squares for the
+//!   grid Everett function from any input/output record;
+//!   [`fit_prandtl_ishlinskii`] likewise for PI weights.
+//! * [`HysteresisRegressor`]: regressor columns and their derivatives
+//!   ([`GridPreisachRegressor`], [`PlayOperatorBank`], [`StopOperatorBank`]).
+//! * [`PlayOperator`], [`StopOperator`], [`GeneralizedPlay`],
+//!   [`PrandtlIshlinskii`] with [`PrandtlIshlinskii::inverse`].
+//!
+//! See `docs/preisach.md` for the mathematics, tests and benchmarks.
+//!
 //! ```
 //! use gb_preisach::PlayOperatorBank;
 //! let bank = PlayOperatorBank::new(vec![0.0, 0.5]).unwrap();

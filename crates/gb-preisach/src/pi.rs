@@ -9,7 +9,7 @@ use crate::PreisachError;
 use serde::{Deserialize, Serialize};
 
 /// The stop (elastic–plastic) operator of half-width r ≥ 0,
-/// s_r[x] = x − p_r[x], so |s| ≤ r and s follows input increments until it
+/// s_r\[x\] = x − p_r\[x\], so |s| ≤ r and s follows input increments until it
 /// saturates at ±r.
 ///
 /// ```
@@ -54,7 +54,7 @@ impl StopOperator {
     }
 }
 
-/// A bank of stop operators (regressor columns s_{r_i}[x]); the stop
+/// A bank of stop operators (regressor columns s_{r_i}\[x\]); the stop
 /// counterpart of [`PlayOperatorBank`].
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StopOperatorBank {
@@ -163,7 +163,7 @@ impl Envelope {
     }
 }
 
-/// Generalised play operator (Brokate & Sprekels 1996, §2.4): with
+/// Generalised play operator (Brokate & Sprekels 1996, ch. 2): with
 /// non-decreasing envelopes γ_a ≤ γ_d (ascending and descending branch),
 ///
 /// p(k) = max(γ_a(x(k)), min(γ_d(x(k)), p(k−1))).
@@ -224,12 +224,12 @@ impl GeneralizedPlay {
     }
 }
 
-/// Prandtl–Ishlinskii model y = a₀ x + Σᵢ aᵢ p_{rᵢ}[x] with thresholds
+/// Prandtl–Ishlinskii model y = a₀ x + Σᵢ aᵢ p_{rᵢ}\[x\] with thresholds
 /// 0 ≤ r₁ < … < r_n and weights with Cᵢ = a₀ + Σ_{j≤i} a_j > 0 (e.g.
 /// a₀ > 0, aᵢ ≥ 0), which makes it invertible.
 ///
 /// The inverse is again Prandtl–Ishlinskii (Krasnosel'skii–Pokrovskii;
-/// Brokate & Sprekels 1996, Thm. 2.3.5), on the output y:
+/// Brokate & Sprekels 1996, ch. 2), on the output y:
 /// r̂ᵢ = a₀ rᵢ + Σ_{j<i} a_j (rᵢ − r_j), â₀ = 1/a₀,
 /// âᵢ = −aᵢ / (Cᵢ C_{i−1}) (C₀ = a₀), with play states
 /// p̂ᵢ = Cᵢ pᵢ + Σ_{j>i} a_j p_j.
@@ -240,7 +240,7 @@ impl GeneralizedPlay {
 /// let x = [0.0, 0.8, -0.3, 0.4];
 /// let mut st = pi.initial_state(x[0]);
 /// let inv = pi.inverse().unwrap();
-/// let mut ist = pi.inverse_state(&st);
+/// let mut ist = pi.inverse_state(&st).unwrap();
 /// for &v in &x {
 ///     let y = pi.step(&mut st, v);
 ///     assert!((inv.step(&mut ist, y) - v).abs() < 1e-12);
@@ -371,8 +371,14 @@ impl PrandtlIshlinskii {
 
     /// Play states of [`inverse`](Self::inverse) matching this model's
     /// `state`: p̂ᵢ = Cᵢ pᵢ + Σ_{j>i} a_j p_j.
-    pub fn inverse_state(&self, state: &[f64]) -> Vec<f64> {
+    pub fn inverse_state(&self, state: &[f64]) -> Result<Vec<f64>, PreisachError> {
         let n = self.weights.len();
+        if state.len() != n {
+            return Err(PreisachError::DimensionMismatch {
+                expected: n,
+                got: state.len(),
+            });
+        }
         let mut out = vec![0.0; n];
         let mut tail = 0.0; // Σ_{j>i} a_j p_j
         let total: f64 = self.a0 + self.weights.iter().sum::<f64>();
@@ -382,6 +388,6 @@ impl PrandtlIshlinskii {
             tail += self.weights[i] * state[i];
             c -= self.weights[i];
         }
-        out
+        Ok(out)
     }
 }

@@ -50,6 +50,9 @@ pub(crate) struct Corner<N> {
     pub(crate) x: f64,
     pub(crate) node: N,
     pub(crate) prefix: f64,
+    /// Sample index of the extremum (steps since the state was created;
+    /// `u64::MAX` for corners of the initial state).
+    pub(crate) time: u64,
 }
 
 /// Caller-owned memory of a [`Preisach`] operator: a fixed-capacity stack of
@@ -65,6 +68,8 @@ pub struct PreisachState<N> {
     pub(crate) run_x: f64,
     pub(crate) run_node: N,
     pub(crate) run_term: f64,
+    /// Sample index the next step will get.
+    t: u64,
     offset: f64,
     cap: usize,
 }
@@ -80,6 +85,17 @@ impl<N: Copy> PreisachState<N> {
     /// lower support bound s₀ and without the current input).
     pub fn extrema(&self) -> Vec<f64> {
         self.corners()[1..].iter().map(|c| c.x).collect()
+    }
+
+    /// Sample indices of the stored extrema, aligned with
+    /// [`extrema`](Self::extrema): the index of the step (0 = first step
+    /// after [`Preisach::state`]) at which the extremum was the input, or
+    /// `None` for extrema that belong to the initial state.
+    pub fn extremum_times(&self) -> Vec<Option<usize>> {
+        self.corners()[1..]
+            .iter()
+            .map(|c| (c.time != u64::MAX).then_some(c.time as usize))
+            .collect()
     }
 
     /// Number of stored dominant extrema.
@@ -162,6 +178,7 @@ impl<E: Everett> Preisach<E> {
             x: lo,
             node: lo_node,
             prefix: 0.0,
+            time: u64::MAX,
         };
         let mut st = PreisachState {
             buf: vec![anchor; cap.min(65)],
@@ -169,6 +186,7 @@ impl<E: Everett> Preisach<E> {
             run_x: lo,
             run_node: lo_node,
             run_term: 0.0,
+            t: 0,
             offset: -self.everett.total(),
             cap,
         };
@@ -204,6 +222,11 @@ impl<E: Everett> Preisach<E> {
                 }
             }
         }
+        // The initial memory is data, not samples of the coming signal.
+        for c in st.buf.iter_mut() {
+            c.time = u64::MAX;
+        }
+        st.t = 0;
         Ok(st)
     }
 
@@ -214,11 +237,12 @@ impl<E: Everett> Preisach<E> {
     pub fn step(&self, st: &mut PreisachState<E::Node>, x: f64) -> f64 {
         let (lo, hi) = self.everett.support();
         let x = x.max(lo).min(hi);
-        advance(st, x);
         let node = self.everett.node(x);
+        advance(st, x);
         st.run_node = node;
-        let last = &st.buf[st.n - 1];
-        let asc = st.n & 1 == 1;
+        let n = st.n;
+        let last = &st.buf[n - 1];
+        let asc = n & 1 == 1;
         let (a, b) = if asc {
             (&node, &last.node)
         } else {
@@ -248,6 +272,31 @@ impl<E: Everett> Preisach<E> {
         (y, d)
     }
 
+    /// Sensitivities ∂y/∂s_j of the current output to the stored extrema
+    /// s_j, aligned with [`PreisachState::extrema`] (map them to samples with
+    /// [`PreisachState::extremum_times`]). With ∂y/∂x(t) from
+    /// [`step_with_derivative`](Self::step_with_derivative) they give the full
+    /// derivative of y(t) with respect to the input signal (for output-error
+    /// gradients when the input itself depends on parameters):
+    /// for a maximum, 2[∂_αF(s_j, s_{j−1}) − ∂_αF(s_j, s_{j+1})];
+    /// for a minimum, 2[∂_βF(s_{j+1}, s_j) − ∂_βF(s_{j−1}, s_j)]
+    /// (s_{K} = current input).
+    pub fn extremum_sensitivities(&self, st: &PreisachState<E::Node>) -> Vec<f64> {
+        let c = st.corners();
+        let k = c.len();
+        let node = |j: usize| if j < k { &c[j].node } else { &st.run_node };
+        (1..k)
+            .map(|j| {
+                let (prev, cur, next) = (node(j - 1), node(j), node(j + 1));
+                if j % 2 == 1 {
+                    2.0 * (self.everett.partials(cur, prev).0 - self.everett.partials(cur, next).0)
+                } else {
+                    2.0 * (self.everett.partials(next, cur).1 - self.everett.partials(prev, cur).1)
+                }
+            })
+            .collect()
+    }
+
     /// Output for the whole input `x` from the initial state `init`.
     pub fn simulate(&self, x: &[f64], init: &InitialState) -> Result<Vec<f64>, PreisachError> {
         check_finite(x)?;
@@ -269,45 +318,44 @@ pub(crate) fn check_finite(x: &[f64]) -> Result<(), PreisachError> {
 /// Memory update: reversal detection, memory cap, wiping out.
 #[inline]
 pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
+    // Work on locals: stores into the slot buffer cannot then force reloads
+    // of the state fields.
     let mut n = st.n;
+    let (run_x, cap) = (st.run_x, st.cap);
+    let buf = &mut st.buf;
     let asc = n & 1 == 1;
-    let rev = (asc & (x < st.run_x)) | (!asc & (x > st.run_x));
+    let rev = (asc & (x < run_x)) | (!asc & (x > run_x));
     // Candidate corner: the previous input, stored unconditionally in the
     // free slot; a reversal then only moves the stack length.
-    if n < st.buf.len() {
-        let prefix = st.buf[n - 1].prefix + st.run_term;
-        st.buf[n] = Corner {
-            x: st.run_x,
-            node: st.run_node,
-            prefix,
-        };
-    } else if rev && n < st.cap {
-        let prefix = st.buf[n - 1].prefix + st.run_term;
-        let c = Corner {
-            x: st.run_x,
-            node: st.run_node,
-            prefix,
-        };
-        st.buf.push(c);
+    let cand = Corner {
+        x: run_x,
+        node: st.run_node,
+        prefix: buf[n - 1].prefix + st.run_term,
+        time: st.t.wrapping_sub(1),
+    };
+    if n < buf.len() {
+        buf[n] = cand;
+    } else if rev && n < cap {
+        buf.push(cand);
     }
     let inc = usize::from(rev);
-    let full = usize::from(n >= st.cap);
+    let full = usize::from(n >= cap);
     n = n + inc - 2 * (inc & full);
-    let asc = asc ^ rev;
-    if asc {
-        while n >= 3 && x >= st.buf[n - 2].x {
+    if asc ^ rev {
+        while n >= 3 && x >= buf[n - 2].x {
             n -= 2;
         }
     } else {
-        while n >= 4 && x <= st.buf[n - 2].x {
+        while n >= 4 && x <= buf[n - 2].x {
             n -= 2;
         }
-        if n == 2 && x <= st.buf[0].x {
+        if n == 2 && x <= buf[0].x {
             n = 1;
         }
     }
     st.n = n;
     st.run_x = x;
+    st.t += 1;
 }
 
 #[cfg(test)]

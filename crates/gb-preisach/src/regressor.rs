@@ -40,7 +40,8 @@ pub trait HysteresisRegressor {
     fn start(&self, x0: f64) -> Result<Self::State, PreisachError>;
 
     /// Advance with input `x`; writes the regressor row φ(t) into `row` and
-    /// ∂φ(t)/∂x(t) into `d_row` (both of length [`n_columns`](Self::n_columns)).
+    /// ∂φ(t)/∂x(t) into `d_row` (both of length [`n_columns`](Self::n_columns);
+    /// shorter slices are a programming error and may panic).
     fn step(&self, state: &mut Self::State, x: f64, row: &mut [f64], d_row: &mut [f64]);
 
     /// Columns and derivatives for a whole signal.
@@ -154,6 +155,34 @@ impl GridPreisachRegressor {
     /// The memory cap.
     pub fn memory_cap(&self) -> Option<usize> {
         self.tracker.memory_cap()
+    }
+
+    /// Derivatives ∂φ(t)/∂s_j of the current regressor row with respect to
+    /// the stored extrema s_j (one row of length
+    /// [`n_columns`](HysteresisRegressor::n_columns) per extremum, aligned
+    /// with [`PreisachState::extrema`] and
+    /// [`PreisachState::extremum_times`]); the counterpart of
+    /// [`Preisach::extremum_sensitivities`].
+    pub fn extremum_derivatives(&self, st: &PreisachState<GridNode>) -> Vec<Vec<f64>> {
+        let g = self.tracker.everett();
+        let c = st.corners();
+        let k = c.len();
+        let p = GridEverett::parameter_count(g.intervals());
+        let node = |j: usize| if j < k { &c[j].node } else { &st.run_node };
+        (1..k)
+            .map(|j| {
+                let mut out = vec![0.0; p];
+                let (prev, cur, next) = (node(j - 1), node(j), node(j + 1));
+                if j % 2 == 1 {
+                    g.add_basis_derivative(cur, prev, 2.0, true, &mut out);
+                    g.add_basis_derivative(cur, next, -2.0, true, &mut out);
+                } else {
+                    g.add_basis_derivative(next, cur, 2.0, false, &mut out);
+                    g.add_basis_derivative(prev, cur, -2.0, false, &mut out);
+                }
+                out
+            })
+            .collect()
     }
 
     /// A Preisach model with these grid, memory cap and the given masses.

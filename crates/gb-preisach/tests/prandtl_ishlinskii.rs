@@ -41,7 +41,7 @@ fn pi_inverse_composed_with_pi_is_identity() {
         for _ in 0..20 {
             pi.step(&mut st, rng.random_range(-2.0..2.0));
         }
-        let mut ist = pi.inverse_state(&st);
+        let mut ist = pi.inverse_state(&st).unwrap();
         let mut x: f64 = 0.0;
         for _ in 0..2000 {
             x = (x + rng.random_range(-0.3..0.3)).clamp(-3.0, 3.0);
@@ -84,6 +84,8 @@ fn pi_rejects_bad_parameters_and_derivative_is_slope() {
     assert!(PrandtlIshlinskii::new(1.0, vec![0.2, 0.1], vec![1.0, 1.0]).is_err());
     assert!(PrandtlIshlinskii::new(1.0, vec![0.1, 0.2], vec![-0.6, -0.6]).is_err());
     assert!(PrandtlIshlinskii::new(1.0, vec![0.1], vec![1.0, 2.0]).is_err());
+    let ok = PrandtlIshlinskii::new(1.0, vec![0.1], vec![1.0]).unwrap();
+    assert!(ok.inverse_state(&[0.0, 1.0]).is_err());
     let pi = PrandtlIshlinskii::new(0.5, vec![0.0, 0.2, 0.4], vec![0.3, 0.2, 0.1]).unwrap();
     let mut st = pi.initial_state(0.0);
     let (_, d) = pi.step_with_derivative(&mut st, 0.3); // plays 0, 0.2 move

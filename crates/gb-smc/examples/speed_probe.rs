@@ -49,7 +49,15 @@ fn micro() {
         s += rng.sample::<f64, _>(StandardNormal);
     }
     println!(
-        "normal: {:.2} ns",
+        "rand_distr normal: {:.2} ns",
+        t0.elapsed().as_secs_f64() * 1e9 / n as f64
+    );
+    let t0 = Instant::now();
+    for _ in 0..n {
+        s += gb_smc::rng::standard_normal(&mut rng);
+    }
+    println!(
+        "gb_smc normal: {:.2} ns",
         t0.elapsed().as_secs_f64() * 1e9 / n as f64
     );
     let t0 = Instant::now();

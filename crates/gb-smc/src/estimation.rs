@@ -17,9 +17,9 @@ use crate::error::{Result, SmcError};
 use crate::filter::{FilterConfig, FilterKind, FilterWorkspace, ParticleFilter};
 use crate::model::{Observations, StateSpaceModel};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{derive_seed, domain, stream, SmcRng, CHUNK, PAR_MIN};
+use crate::rng::{derive_seed, domain, standard_normal, stream, SmcRng, CHUNK, PAR_MIN};
 use rand::Rng;
-use rand_distr::StandardNormal;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -166,10 +166,14 @@ impl PmmhResult {
     }
 }
 
-/// Summaries of the rows `burn_in..` of a row-major `n × d` chain.
+/// Summaries of the rows `burn_in..` of a row-major `n × d` chain (all rows if
+/// `burn_in ≥ n`; empty for an empty chain).
 pub fn posterior_summary(chain: &[f64], dim: usize, burn_in: usize) -> Vec<ParamSummary> {
     let rows = chain.len() / dim.max(1);
-    let start = burn_in.min(rows.saturating_sub(1));
+    if rows == 0 {
+        return Vec::new();
+    }
+    let start = burn_in.min(rows - 1);
     (0..dim)
         .map(|j| {
             let mut v: Vec<f64> = (start..rows).map(|k| chain[k * dim + j]).collect();
@@ -340,7 +344,7 @@ impl Pmmh {
         let d = state.theta.len();
         let it = state.iter + 1;
         let mut rng = stream(self.config.seed, domain::PMMH_MH, it as u64, 0);
-        let z: Vec<f64> = (0..d).map(|_| rng.sample(StandardNormal)).collect();
+        let z: Vec<f64> = (0..d).map(|_| standard_normal(&mut rng)).collect();
         let prop: Vec<f64> = (0..d)
             .map(|i| {
                 state.theta[i]
@@ -594,7 +598,7 @@ impl If2 {
                         let a = if t == 0 { i } else { anc_ref[i] };
                         let ti = &mut tc[j * d..(j + 1) * d];
                         for q in 0..d {
-                            let z: f64 = rng.sample(StandardNormal);
+                            let z = standard_normal(&mut rng);
                             ti[q] = th_old[a * d + q] + scale * rw[q] * z;
                         }
                         let l = match problem.build(ti) {

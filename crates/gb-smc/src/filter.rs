@@ -406,7 +406,7 @@ unsafe impl Sync for AncPtr {}
 /// pass, chunk-parallel. Chunk `k` holds normalised mass `μ_k` starting at
 /// cumulative offset `o_k` (computed sequentially over chunks, so the result does
 /// not depend on scheduling); it owns the outputs `j ∈ [b_k, b_{k+1})` with
-/// `b_k = #{j : (j + v)/N ≤ o_k}` and sets `a_j = i_0 + #{i in chunk : k_i ≤ j}`
+/// `b_k = #{j : (j + v)/N ≤ o_k}` and sets `a_j = min{i : k_i > j}` (store `i` at `k_{i-1}`, then a running maximum)
 /// where `k_i = #{j : (j + v)/N ≤ C_i}`. O(N) work, no data-dependent branches.
 #[allow(clippy::too_many_arguments)]
 fn normalise_systematic(
@@ -461,19 +461,43 @@ fn normalise_systematic(
         let p = ptr;
         // SAFETY: the ranges [b_k, b_{k+1}) are disjoint for different k and lie in 0..n.
         let out = unsafe { std::slice::from_raw_parts_mut(p.0.add(start), end - start) };
-        out.iter_mut().for_each(|a| *a = 0);
+        // Particle i's first child sits at k_{i-1}: store i there (the last writer
+        // for a position is the first particle with k_i > j), then fill forward.
+        let i0 = k * CHUNK;
+        out.iter_mut().for_each(|a| *a = i0);
         let last = wc.iter().rposition(|&x| x > 0.0).unwrap_or(0);
         let mut c = o;
-        for &wi in &wc[..last] {
-            c += wi;
-            let kk = ((c * scale + shift) as usize).clamp(start, end);
-            if kk < end {
-                out[kk - start] += 1;
+        let mut prev = start;
+        let kof = |c: f64| ((c * scale + shift) as usize).clamp(start, end);
+        // pairs: the cumulative sum's dependency chain advances once per two particles
+        let mut pairs = wc[..last].chunks_exact(2);
+        let mut i = 0;
+        for p in &mut pairs {
+            if prev < end {
+                out[prev - start] = i0 + i;
             }
+            let ka = kof(c + p[0]);
+            c += p[0] + p[1];
+            if ka < end {
+                out[ka - start] = i0 + i + 1;
+            }
+            prev = kof(c);
+            i += 2;
         }
-        let mut acc = k * CHUNK;
+        for &wi in pairs.remainder() {
+            if prev < end {
+                out[prev - start] = i0 + i;
+            }
+            c += wi;
+            prev = kof(c);
+            i += 1;
+        }
+        if prev < end {
+            out[prev - start] = i0 + last;
+        }
+        let mut acc = i0;
         for a in out.iter_mut() {
-            acc += *a;
+            acc = acc.max(*a);
             *a = acc;
         }
     };

@@ -2,9 +2,7 @@
 //! (the reference against which the particle methods are tested).
 use crate::error::{check, Result, SmcError};
 use crate::model::{StateSpaceModel, TransitionDensity};
-use crate::rng::{stream, SmcRng};
-use rand::Rng;
-use rand_distr::StandardNormal;
+use crate::rng::{standard_normal, stream, SmcRng};
 use serde::{Deserialize, Serialize};
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
@@ -139,7 +137,7 @@ impl LinearGaussian {
             } else {
                 self.sample_transition(k, &xs[k - 1], &[], &mut rng)
             };
-            let e: f64 = rng.sample(StandardNormal);
+            let e = standard_normal(&mut rng);
             ys.push(self.c * x + self.r.sqrt() * e);
             xs.push(x);
         }
@@ -164,11 +162,11 @@ impl StateSpaceModel for LinearGaussian {
     type Obs = f64;
     #[inline]
     fn sample_initial(&self, _u: &[f64], rng: &mut SmcRng) -> f64 {
-        self.m0 + self.sd_p0 * rng.sample::<f64, _>(StandardNormal)
+        self.m0 + self.sd_p0 * standard_normal(rng)
     }
     #[inline]
     fn sample_transition(&self, _t: usize, prev: &f64, u: &[f64], rng: &mut SmcRng) -> f64 {
-        self.a * prev + self.b * Self::u0(u) + self.sd_q * rng.sample::<f64, _>(StandardNormal)
+        self.a * prev + self.b * Self::u0(u) + self.sd_q * standard_normal(rng)
     }
     #[inline]
     fn log_observation(&self, _t: usize, x: &f64, y: &f64, u: &[f64]) -> f64 {
@@ -177,7 +175,7 @@ impl StateSpaceModel for LinearGaussian {
     }
     fn sample_initial_proposal(&self, y: &f64, u: &[f64], rng: &mut SmcRng) -> f64 {
         let (m, v, _) = self.posterior(self.m0, self.p0, *y, Self::u0(u));
-        m + v.sqrt() * rng.sample::<f64, _>(StandardNormal)
+        m + v.sqrt() * standard_normal(rng)
     }
     fn log_initial_proposal_ratio(&self, x: &f64, y: &f64, u: &[f64]) -> f64 {
         let (m, v, _) = self.posterior(self.m0, self.p0, *y, Self::u0(u));
@@ -186,7 +184,7 @@ impl StateSpaceModel for LinearGaussian {
     fn sample_proposal(&self, _t: usize, prev: &f64, y: &f64, u: &[f64], rng: &mut SmcRng) -> f64 {
         let u0 = Self::u0(u);
         let (m, v, _) = self.posterior(self.a * prev + self.b * u0, self.q, *y, u0);
-        m + v.sqrt() * rng.sample::<f64, _>(StandardNormal)
+        m + v.sqrt() * standard_normal(rng)
     }
     fn log_proposal_ratio(&self, _t: usize, prev: &f64, x: &f64, y: &f64, u: &[f64]) -> f64 {
         let u0 = Self::u0(u);

@@ -19,19 +19,17 @@ use crate::rng::SmcRng;
 /// that is the fast path.
 ///
 /// ```
-/// use gb_smc::{StateSpaceModel, SmcRng};
-/// use rand::Rng;
-/// use rand_distr::StandardNormal;
+/// use gb_smc::{rng::standard_normal, StateSpaceModel, SmcRng};
 /// /// x_t = 0.9 x_{t-1} + v_t,  y_t = x_t + 0.5 e_t.
 /// struct Ar1;
 /// impl StateSpaceModel for Ar1 {
 ///     type State = f64;
 ///     type Obs = f64;
 ///     fn sample_initial(&self, _u: &[f64], rng: &mut SmcRng) -> f64 {
-///         rng.sample::<f64, _>(StandardNormal) * 2.29
+///         standard_normal(rng) * 2.29
 ///     }
 ///     fn sample_transition(&self, _t: usize, x: &f64, _u: &[f64], rng: &mut SmcRng) -> f64 {
-///         0.9 * x + rng.sample::<f64, _>(StandardNormal)
+///         0.9 * x + standard_normal(rng)
 ///     }
 ///     fn log_observation(&self, _t: usize, x: &f64, y: &f64, _u: &[f64]) -> f64 {
 ///         let e = (y - x) / 0.5;

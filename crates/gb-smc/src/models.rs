@@ -5,8 +5,6 @@ use crate::kalman::log_normal;
 use crate::model::{StateSpaceModel, TransitionDensity};
 use crate::noise::Noise;
 use crate::rng::SmcRng;
-use rand::Rng;
-use rand_distr::StandardNormal;
 
 /// Stochastic volatility model
 ///
@@ -92,10 +90,10 @@ impl StateSpaceModel for StochasticVolatility {
     type Obs = f64;
     fn sample_initial(&self, _u: &[f64], rng: &mut SmcRng) -> f64 {
         let sd = self.sigma / (1.0 - self.phi * self.phi).sqrt();
-        self.mu + sd * rng.sample::<f64, _>(StandardNormal)
+        self.mu + sd * crate::rng::standard_normal(rng)
     }
     fn sample_transition(&self, _t: usize, x: &f64, _u: &[f64], rng: &mut SmcRng) -> f64 {
-        self.mu + self.phi * (x - self.mu) + self.sigma * rng.sample::<f64, _>(StandardNormal)
+        self.mu + self.phi * (x - self.mu) + self.sigma * crate::rng::standard_normal(rng)
     }
     fn log_observation(&self, _t: usize, x: &f64, y: &f64, _u: &[f64]) -> f64 {
         self.obs_noise.log_pdf(y * (-0.5 * x).exp()) - 0.5 * x
@@ -169,7 +167,7 @@ impl StateSpaceModel for NonlinearGrowth {
     type State = f64;
     type Obs = f64;
     fn sample_initial(&self, _u: &[f64], rng: &mut SmcRng) -> f64 {
-        5f64.sqrt() * rng.sample::<f64, _>(StandardNormal)
+        5f64.sqrt() * crate::rng::standard_normal(rng)
     }
     fn sample_transition(&self, t: usize, x: &f64, _u: &[f64], rng: &mut SmcRng) -> f64 {
         Self::drift(t, *x) + self.state_noise.sample(rng)

@@ -3,7 +3,7 @@
 use crate::error::{check, Result, SmcError};
 use crate::rng::SmcRng;
 use rand::Rng;
-use rand_distr::{Distribution, StandardNormal};
+use rand_distr::Distribution;
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
 
@@ -161,10 +161,10 @@ impl Noise {
     /// Draws one value.
     pub fn sample(&self, rng: &mut SmcRng) -> f64 {
         match self {
-            Self::Gaussian { mean, sd } => mean + sd * rng.sample::<f64, _>(StandardNormal),
+            Self::Gaussian { mean, sd } => mean + sd * crate::rng::standard_normal(rng),
             Self::StudentT { nu, loc, scale, .. } => {
                 // z / sqrt(V / ν), V ~ χ²_ν = 2 Gamma(ν/2)
-                let z: f64 = rng.sample(StandardNormal);
+                let z = crate::rng::standard_normal(rng);
                 let g = rand_distr::Gamma::new(0.5 * nu, 2.0).map_or(f64::NAN, |d| d.sample(rng));
                 loc + scale * z / (g / nu).sqrt()
             }

@@ -77,7 +77,8 @@ fn pmmh_observer_and_determinism() {
     let truth = LinearGaussian::ar1(TRUTH[0], TRUTH[1], 0.5).unwrap();
     let (_, y) = truth.simulate(50, 1);
     let obs = Observations::new(&y);
-    let mut cfg = PmmhConfig::new(1200, 25, vec![0.05, 0.08]);
+    // 5000 particles: above PAR_MIN, so the inner filter runs in parallel
+    let mut cfg = PmmhConfig::new(5000, 25, vec![0.05, 0.08]);
     cfg.adapt_start = 10;
     cfg.seed = 3;
     let pmmh = Pmmh::new(cfg).unwrap();
@@ -162,6 +163,7 @@ fn if2_finds_the_kalman_mle() {
     let obs = Observations::new(&y[..60]);
     let mut short = cfg;
     short.n_iter = 3;
+    short.n_particles = 5000; // above PAR_MIN: the parallel path runs
     let if2 = If2::new(short).unwrap();
     let a = pool(1).install(|| {
         if2.run(&Ar1Params, &obs, &[0.5, 1.5], &mut NoObserver)

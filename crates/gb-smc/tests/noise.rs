@@ -75,3 +75,29 @@ fn constructors_validate() {
     assert!(Noise::mixture(vec![(0.0, Noise::gaussian(0.0, 1.0).unwrap())]).is_err());
     assert_eq!(Noise::student_t(1.0, 0.0, 1.0).unwrap().mean(), None);
 }
+
+#[test]
+fn ziggurat_standard_normal_matches_the_normal_cdf() {
+    // Φ at a few points (including the tail beyond the ziggurat edge R ≈ 3.654)
+    let pts = [
+        (-3.9, 4.809_634_5e-5),
+        (-3.0, 1.349_898e-3),
+        (-2.0, 2.275_013e-2),
+        (-1.0, 0.158_655_25),
+        (0.0, 0.5),
+        (0.5, 0.691_462_46),
+        (1.5, 0.933_192_8),
+        (2.5, 0.993_790_3),
+        (3.8, 0.999_927_65),
+    ];
+    let n = 400_000;
+    let mut rng = stream(5, 1, 2, 3);
+    let xs: Vec<f64> = (0..n)
+        .map(|_| gb_smc::rng::standard_normal(&mut rng))
+        .collect();
+    for (x0, f) in pts {
+        let emp = xs.iter().filter(|&&x| x < x0).count() as f64 / n as f64;
+        let se = (f * (1.0 - f) / n as f64).sqrt();
+        assert!((emp - f).abs() < 4.5 * se, "Φ({x0}): {emp} vs {f}");
+    }
+}
