@@ -24,10 +24,17 @@ fn check(system: &str, forbidden: &[&str]) {
         eprintln!("{summary}");
         match &expected {
             None => assert!(r.causes.is_empty(), "false cause named: {summary}"),
-            Some(c) => assert_eq!(r.causes.first(), Some(c), "wrong or missed cause: {summary}"),
+            Some(c) => assert_eq!(
+                r.causes.first(),
+                Some(c),
+                "wrong or missed cause: {summary}"
+            ),
         }
         for f in forbidden {
-            assert!(!r.causes.iter().any(|c| c == f), "misdiagnosis '{f}': {summary}");
+            assert!(
+                !r.causes.iter().any(|c| c == f),
+                "misdiagnosis '{f}': {summary}"
+            );
         }
         assert!(
             r.final_model.nrmse <= 2.0 * floor,
@@ -39,7 +46,10 @@ fn check(system: &str, forbidden: &[&str]) {
 
 #[test]
 fn clean_linear_system_gets_no_cause() {
-    check("linear", &["nonlinearity", "hysteresis", "dynamics", "noise"]);
+    check(
+        "linear",
+        &["nonlinearity", "hysteresis", "dynamics", "noise"],
+    );
 }
 
 #[test]

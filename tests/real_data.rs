@@ -11,7 +11,10 @@ fn data_dir() -> Option<PathBuf> {
     if d.is_dir() {
         Some(d)
     } else {
-        eprintln!("real-data test skipped: {} not found (set GREYBOX_DATA)", d.display());
+        eprintln!(
+            "real-data test skipped: {} not found (set GREYBOX_DATA)",
+            d.display()
+        );
         None
     }
 }
@@ -30,12 +33,23 @@ fn bouc_wen_benchmark_is_hysteresis() {
     let train = train.slice(8192..8192 * 3);
     let val = load(dir.join("bouc_wen/test_multisine.csv"));
     let data = DiagnoseData::with_validation(train, val).unwrap();
-    let d = diagnose(&data, &DiagnoseOptions { max_steps: 2, ..Default::default() }, None).unwrap();
+    let d = diagnose(
+        &data,
+        &DiagnoseOptions {
+            max_steps: 2,
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
     eprintln!(
         "Bouc-Wen: causes {:?}, NRMSE {:.4} -> {:.4}",
         d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
     );
-    assert_eq!(d.report.causes.first().map(String::as_str), Some("hysteresis"));
+    assert_eq!(
+        d.report.causes.first().map(String::as_str),
+        Some("hysteresis")
+    );
     assert!(d.report.final_model.nrmse < 0.5 * d.report.baseline.nrmse);
 }
 
@@ -47,11 +61,22 @@ fn silverbox_is_nonlinearity() {
     let train = train.slice(0..20000);
     let val = load(dir.join("silverbox/test_multisine.csv"));
     let data = DiagnoseData::with_validation(train, val).unwrap();
-    let d = diagnose(&data, &DiagnoseOptions { max_steps: 2, ..Default::default() }, None).unwrap();
+    let d = diagnose(
+        &data,
+        &DiagnoseOptions {
+            max_steps: 2,
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
     eprintln!(
         "Silverbox: causes {:?}, NRMSE {:.4} -> {:.4}",
         d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
     );
-    assert_eq!(d.report.causes.first().map(String::as_str), Some("nonlinearity"));
+    assert_eq!(
+        d.report.causes.first().map(String::as_str),
+        Some("nonlinearity")
+    );
     assert!(d.report.final_model.nrmse < 0.5 * d.report.baseline.nrmse);
 }

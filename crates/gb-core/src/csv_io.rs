@@ -165,9 +165,9 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<(), CoreErro
         .parent()
         .filter(|p| !p.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
-    let name = path
-        .file_name()
-        .ok_or_else(|| CoreError::InvalidArgument(format!("{}: not a file name", path.display())))?;
+    let name = path.file_name().ok_or_else(|| {
+        CoreError::InvalidArgument(format!("{}: not a file name", path.display()))
+    })?;
     let tmp = dir.join(format!(
         ".{}.tmp-{}",
         name.to_string_lossy(),

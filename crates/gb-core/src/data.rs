@@ -44,7 +44,11 @@ impl DataSet {
                 inputs.len()
             )));
         }
-        if let Some((j, u)) = inputs.iter().enumerate().find(|(_, u)| u.len() != output.len()) {
+        if let Some((j, u)) = inputs
+            .iter()
+            .enumerate()
+            .find(|(_, u)| u.len() != output.len())
+        {
             return Err(CoreError::Dimension(format!(
                 "input '{}' has {} samples, output has {}",
                 input_names[j],
@@ -52,8 +56,14 @@ impl DataSet {
                 output.len()
             )));
         }
-        if output.iter().chain(inputs.iter().flatten()).any(|v| !v.is_finite()) {
-            return Err(CoreError::InvalidArgument("signals contain NaN or infinity".into()));
+        if output
+            .iter()
+            .chain(inputs.iter().flatten())
+            .any(|v| !v.is_finite())
+        {
+            return Err(CoreError::InvalidArgument(
+                "signals contain NaN or infinity".into(),
+            ));
         }
         Ok(Self {
             input_names,
@@ -73,18 +83,18 @@ impl DataSet {
     ) -> Result<Self, CoreError> {
         let output_name = match output {
             Some(o) => o.to_string(),
-            None => table
-                .names
-                .last()
-                .cloned()
-                .ok_or(CoreError::Empty { path: table.path.clone() })?,
+            None => table.names.last().cloned().ok_or(CoreError::Empty {
+                path: table.path.clone(),
+            })?,
         };
         let y = table.column(&output_name)?.to_vec();
         let input_names: Vec<String> = if inputs.is_empty() {
             table
                 .names
                 .iter()
-                .filter(|n| **n != output_name && !INDEX_COLUMNS.contains(&n.to_lowercase().as_str()))
+                .filter(|n| {
+                    **n != output_name && !INDEX_COLUMNS.contains(&n.to_lowercase().as_str())
+                })
                 .cloned()
                 .collect()
         } else {
@@ -130,7 +140,11 @@ impl DataSet {
         Self {
             input_names: self.input_names.clone(),
             output_name: self.output_name.clone(),
-            inputs: self.inputs.iter().map(|u| u[range.clone()].to_vec()).collect(),
+            inputs: self
+                .inputs
+                .iter()
+                .map(|u| u[range.clone()].to_vec())
+                .collect(),
             output: self.output[range].to_vec(),
         }
     }
@@ -174,7 +188,8 @@ impl DataSet {
     pub fn split_blocks(&self, fit: f64, select: f64) -> BlockSplit {
         let n = self.len();
         let fit_end = ((n as f64) * fit.clamp(0.0, 1.0)).round() as usize;
-        let select_end = (((n as f64) * (fit + select).clamp(0.0, 1.0)).round() as usize).max(fit_end);
+        let select_end =
+            (((n as f64) * (fit + select).clamp(0.0, 1.0)).round() as usize).max(fit_end);
         BlockSplit {
             fit_end,
             select_end: select_end.min(n),

@@ -14,6 +14,8 @@
 //! assert!(e > 0.0 && e < 0.5);
 //! ```
 #![warn(missing_docs)]
+// Index loops mirror the subscripts of the formulas they implement.
+#![allow(clippy::needless_range_loop)]
 
 mod csv_io;
 mod data;

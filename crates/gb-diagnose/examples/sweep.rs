@@ -39,10 +39,22 @@ fn main() {
                     for st in &rep.steps {
                         println!(
                             "      it{} {:12} sel {:+.3} [{:+.3},{:+.3}] rep {:+.3} {} {}",
-                            st.iteration, st.cause, st.gain_select, st.gain_ci[0], st.gain_ci[1], st.gain, st.gain_metric, if st.accepted { "ACCEPT" } else { "" }
+                            st.iteration,
+                            st.cause,
+                            st.gain_select,
+                            st.gain_ci[0],
+                            st.gain_ci[1],
+                            st.gain,
+                            st.gain_metric,
+                            if st.accepted { "ACCEPT" } else { "" }
                         );
                     }
-                    println!("      mem F {:.1} p {:.1e}; static F {:.1}", rep.evidence.memory.0, rep.evidence.memory.1, rep.evidence.static_nonlinearity.0);
+                    println!(
+                        "      mem F {:.1} p {:.1e}; static F {:.1}",
+                        rep.evidence.memory.0,
+                        rep.evidence.memory.1,
+                        rep.evidence.static_nonlinearity.0
+                    );
                 }
                 Err(e) => println!("{s} seed {seed}: error {e}"),
             }

@@ -9,9 +9,10 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
 
-/// Samples skipped at the start of every evaluated simulation (room for the
-/// largest model's initial conditions, taken from measurements).
-pub const EVAL_SKIP: usize = 10;
+/// Samples at the start of every evaluated record that form the init
+/// window: the initial state is estimated from them by least squares, and
+/// they are not scored (the benchmark convention).
+pub const EVAL_SKIP: usize = 50;
 
 /// The fixed vocabulary of causes.
 pub const CAUSES: [&str; 4] = ["nonlinearity", "hysteresis", "dynamics", "noise"];
@@ -69,14 +70,20 @@ impl DiagnoseOptions {
     pub fn check(&self) -> Result<(), DiagnoseError> {
         if let OrderChoice::Fixed(n) = self.order {
             if n == 0 || n > MAX_ORDER {
-                return Err(DiagnoseError::InvalidArgument(format!("order must be in 1..={MAX_ORDER}, got {n}")));
+                return Err(DiagnoseError::InvalidArgument(format!(
+                    "order must be in 1..={MAX_ORDER}, got {n}"
+                )));
             }
         }
         if self.max_steps > 4 {
-            return Err(DiagnoseError::InvalidArgument("at most 4 extension steps".into()));
+            return Err(DiagnoseError::InvalidArgument(
+                "at most 4 extension steps".into(),
+            ));
         }
         if !(0.0..1.0).contains(&self.min_gain) || self.bootstrap < 50 {
-            return Err(DiagnoseError::InvalidArgument("min_gain in [0,1), bootstrap >= 50".into()));
+            return Err(DiagnoseError::InvalidArgument(
+                "min_gain in [0,1), bootstrap >= 50".into(),
+            ));
         }
         Ok(())
     }
@@ -155,11 +162,15 @@ fn check_same_signals(a: &DataSet, b: &DataSet) -> Result<(), DiagnoseError> {
 
 /// Residuals and simulated output of `model` on `range` of `data`,
 /// simulating from the record's start (initialised with measured outputs).
-pub fn residuals_on(model: &GreyBoxModel, data: &DataSet, range: &Range<usize>) -> Result<(Vec<f64>, Vec<f64>), DiagnoseError> {
+pub fn residuals_on(
+    model: &GreyBoxModel,
+    data: &DataSet,
+    range: &Range<usize>,
+) -> Result<(Vec<f64>, Vec<f64>), DiagnoseError> {
     let end = range.end;
     let inputs: Vec<Vec<f64>> = data.inputs.iter().map(|u| u[..end].to_vec()).collect();
-    let k0 = model.max_lag().min(end);
-    let sim = model.simulate(&inputs, &data.output[..k0])?;
+    // initial state estimated from the first EVAL_SKIP measured outputs
+    let sim = model.simulate_init_window(&inputs, &data.output[..EVAL_SKIP.min(end)])?;
     let start = range.start.max(EVAL_SKIP);
     let e = (start..end).map(|k| data.output[k] - sim[k]).collect();
     Ok((e, sim[start..end].to_vec()))
@@ -200,7 +211,9 @@ fn evaluate(model: GreyBoxModel, d: &DiagnoseData) -> Result<Evaluated, Diagnose
         nll: noise.mean_nll(&er),
     };
     if !(scores.nrmse.is_finite() && scores.nrmse_select.is_finite() && scores.nll.is_finite()) {
-        return Err(DiagnoseError::Lmn(gb_lmn::LmnError::Unstable("non-finite score".into())));
+        return Err(DiagnoseError::Lmn(gb_lmn::LmnError::Unstable(
+            "non-finite score".into(),
+        )));
     }
     Ok(Evaluated {
         model,
@@ -331,7 +344,10 @@ fn fit_combined(
     o: &ModelFitOptions,
 ) -> Result<GreyBoxModel, DiagnoseError> {
     let spec = both.network_spec(fit.n_inputs());
-    let mut best = GreyBoxModel { structure: both, ..hyst.clone() };
+    let mut best = GreyBoxModel {
+        structure: both,
+        ..hyst.clone()
+    };
     let res = |m: &GreyBoxModel| -> f64 {
         m.network
             .simulation_residuals(&fit.inputs, &fit.output)
@@ -339,8 +355,13 @@ fn fit_combined(
     };
     let mut best_cost = res(&best);
     if let Some(start) = gb_lmn::embed_hysteresis(&lmn.network, &spec) {
-        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &o.fit) {
-            let cand = GreyBoxModel { network: net, structure: both, ..lmn.clone() };
+        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &o.fit)
+        {
+            let cand = GreyBoxModel {
+                network: net,
+                structure: both,
+                ..lmn.clone()
+            };
             let c = res(&cand);
             if c < best_cost {
                 best_cost = c;
@@ -375,7 +396,10 @@ struct Candidate {
 fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candidate> {
     let mut v = vec![];
     // "more of what we have": a new cause must beat it
-    let last_structural = causes.iter().rev().find(|c| *c == "nonlinearity" || *c == "hysteresis");
+    let last_structural = causes
+        .iter()
+        .rev()
+        .find(|c| *c == "nonlinearity" || *c == "hysteresis");
     if let Some(c) = last_structural {
         if cur.detail < 2 {
             // more local models / operators, and one more lag of every
@@ -386,7 +410,11 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
                 order: (cur.order + 1).min(MAX_ORDER),
                 ..cur
             };
-            let cause = if c == "nonlinearity" { "nonlinearity" } else { "hysteresis" };
+            let cause = if c == "nonlinearity" {
+                "nonlinearity"
+            } else {
+                "hysteresis"
+            };
             v.push(Candidate {
                 cause,
                 structure: s,
@@ -431,7 +459,10 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
         if cur.order + add <= MAX_ORDER {
             v.push(Candidate {
                 cause: "dynamics",
-                structure: Structure { order: cur.order + add, ..cur },
+                structure: Structure {
+                    order: cur.order + add,
+                    ..cur
+                },
                 extension: format!("order {} -> {}", cur.order, cur.order + add),
                 refine: false,
             });
@@ -440,7 +471,10 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
     if !cur.robust_noise && !tried_noise {
         v.push(Candidate {
             cause: "noise",
-            structure: Structure { robust_noise: true, ..cur },
+            structure: Structure {
+                robust_noise: true,
+                ..cur
+            },
             extension: "Student-t noise model, robust (IRLS) output-error fit".into(),
             refine: false,
         });
@@ -448,7 +482,13 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
     v
 }
 
-fn relative_gain_ci(before: &[f64], after: &[f64], block: usize, reps: usize, seed: u64) -> (f64, [f64; 2]) {
+fn relative_gain_ci(
+    before: &[f64],
+    after: &[f64],
+    block: usize,
+    reps: usize,
+    seed: u64,
+) -> (f64, [f64; 2]) {
     let sb: f64 = before.iter().map(|v| v * v).sum();
     let sa: f64 = after.iter().map(|v| v * v).sum();
     let g = 1.0 - (sa / sb.max(1e-300)).sqrt();
@@ -466,12 +506,18 @@ fn relative_gain_ci(before: &[f64], after: &[f64], block: usize, reps: usize, se
 fn nll_gain_ci(nb: &[f64], na: &[f64], block: usize, reps: usize, seed: u64) -> (f64, [f64; 2]) {
     let d: Vec<f64> = nb.iter().zip(na).map(|(a, b)| a - b).collect();
     let g = metrics::mean(&d);
-    let (lo, hi) = stats::block_bootstrap(d.len(), block, reps, seed, |idx| idx.iter().map(|&i| d[i]).sum::<f64>() / idx.len() as f64);
+    let (lo, hi) = stats::block_bootstrap(d.len(), block, reps, seed, |idx| {
+        idx.iter().map(|&i| d[i]).sum::<f64>() / idx.len() as f64
+    });
     (g, [lo, hi])
 }
 
 /// Run the diagnosis.
-pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Observer>) -> Result<Diagnosis, DiagnoseError> {
+pub fn diagnose(
+    d: &DiagnoseData,
+    opts: &DiagnoseOptions,
+    obs: Option<&dyn Observer>,
+) -> Result<Diagnosis, DiagnoseError> {
     opts.check()?;
     d.check(60)?;
     let fit = d.train.slice(d.fit.clone());
@@ -489,10 +535,17 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
                 .into_par_iter()
                 .filter_map(|n| fit_eval(Structure::linear(n), d, &fit, None, None, &opts.fit).ok())
                 .collect();
-            let best = fits.iter().map(|e| e.scores.nrmse_select).fold(f64::INFINITY, f64::min);
+            let best = fits
+                .iter()
+                .map(|e| e.scores.nrmse_select)
+                .fold(f64::INFINITY, f64::min);
             fits.into_iter()
                 .find(|e| e.scores.nrmse_select <= best * 1.02 + 1e-12)
-                .ok_or_else(|| DiagnoseError::Lmn(gb_lmn::LmnError::Unstable("no order gave a stable model".into())))?
+                .ok_or_else(|| {
+                    DiagnoseError::Lmn(gb_lmn::LmnError::Unstable(
+                        "no order gave a stable model".into(),
+                    ))
+                })?
         }
     };
     let baseline_summary = summary(&base);
@@ -504,17 +557,37 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
     let block = (n_sel / 40).clamp(25, 200);
     let mut tried_noise = false;
     for it in 1..=opts.max_steps {
-        progress(it, total, &format!("step {it}: fitting candidate extensions"));
+        progress(
+            it,
+            total,
+            &format!("step {it}: fitting candidate extensions"),
+        );
         let ev = Evidence::compute(&cur.e_select, &cur.yhat_select, &select_inputs(d));
         let cands = candidates(cur.model.structure, &causes, tried_noise);
         if cands.is_empty() {
             break;
         }
         // simulated output of the current model on the fit block: output lags for LOLIMOT
-        let yreg = cur.model.simulate(&fit.inputs, &fit.output[..cur.model.max_lag().min(fit.len())]).ok();
+        let yreg = cur
+            .model
+            .simulate(
+                &fit.inputs,
+                &fit.output[..cur.model.max_lag().min(fit.len())],
+            )
+            .ok();
         let fitted: Vec<Option<Evaluated>> = cands
             .par_iter()
-            .map(|c| fit_eval(c.structure, d, &fit, yreg.as_deref(), Some(&cur.model), &opts.fit).ok())
+            .map(|c| {
+                fit_eval(
+                    c.structure,
+                    d,
+                    &fit,
+                    yreg.as_deref(),
+                    Some(&cur.model),
+                    &opts.fit,
+                )
+                .ok()
+            })
             .collect();
         // score each candidate on the select block
         #[derive(Clone, Copy)]
@@ -529,28 +602,52 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
             let Some(f) = f else { continue };
             let seed = opts.seed.wrapping_add(1000 * it as u64 + i as u64);
             let (gain, ci, pays) = if c.cause == "noise" {
-                let nb: Vec<f64> = cur.e_select.iter().map(|&e| cur.model.network.noise.nll(e)).collect();
-                let na: Vec<f64> = f.e_select.iter().map(|&e| f.model.network.noise.nll(e)).collect();
+                let nb: Vec<f64> = cur
+                    .e_select
+                    .iter()
+                    .map(|&e| cur.model.network.noise.nll(e))
+                    .collect();
+                let na: Vec<f64> = f
+                    .e_select
+                    .iter()
+                    .map(|&e| f.model.network.noise.nll(e))
+                    .collect();
                 let (g, ci) = nll_gain_ci(&nb, &na, block, opts.bootstrap, seed);
                 let heavy = ev.normality.3 < 1e-3 && ev.normality.1 > 0.5;
                 let nrmse_ok = f.scores.nrmse_select <= cur.scores.nrmse_select * 1.02;
-                (g, ci, heavy && nrmse_ok && ci[0] > 0.0 && g >= opts.min_nll_gain)
+                (
+                    g,
+                    ci,
+                    heavy && nrmse_ok && ci[0] > 0.0 && g >= opts.min_nll_gain,
+                )
             } else {
-                let (g, ci) = relative_gain_ci(&cur.e_select, &f.e_select, block, opts.bootstrap, seed);
+                let (g, ci) =
+                    relative_gain_ci(&cur.e_select, &f.e_select, block, opts.bootstrap, seed);
                 (g, ci, ci[0] > 0.0 && g >= opts.min_gain)
             };
-            scored.push(Scored { idx: i, gain, ci, pays });
+            scored.push(Scored {
+                idx: i,
+                gain,
+                ci,
+                pays,
+            });
         }
         // a new structural cause must also beat "more of what we have"
-        let refine = scored.iter().find(|s| s.pays && cands[s.idx].refine).map(|s| s.idx);
+        let refine = scored
+            .iter()
+            .find(|s| s.pays && cands[s.idx].refine)
+            .map(|s| s.idx);
         if let Some(r) = refine {
             let rf = fitted[r].as_ref().expect("scored candidates were fitted");
             for s in scored.iter_mut() {
                 let c = &cands[s.idx];
                 if s.pays && !c.refine && c.cause != "noise" {
-                    let f = fitted[s.idx].as_ref().expect("scored candidates were fitted");
+                    let f = fitted[s.idx]
+                        .as_ref()
+                        .expect("scored candidates were fitted");
                     let seed = opts.seed.wrapping_add(5000 + s.idx as u64);
-                    let (g, ci) = relative_gain_ci(&rf.e_select, &f.e_select, block, opts.bootstrap, seed);
+                    let (g, ci) =
+                        relative_gain_ci(&rf.e_select, &f.e_select, block, opts.bootstrap, seed);
                     s.pays = ci[0] > 0.0 && g >= opts.min_gain;
                 }
             }
@@ -573,14 +670,30 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
                 "hysteresis" => "nonlinearity",
                 _ => "",
             };
-            if let Some(o) = scored.iter().find(|s| s.pays && !cands[s.idx].refine && cands[s.idx].cause == other) {
-                let best = scored.iter().find(|s| s.idx == ci).map_or([0.0, 0.0], |s| s.ci);
+            if let Some(o) = scored
+                .iter()
+                .find(|s| s.pays && !cands[s.idx].refine && cands[s.idx].cause == other)
+            {
+                let best = scored
+                    .iter()
+                    .find(|s| s.idx == ci)
+                    .map_or([0.0, 0.0], |s| s.ci);
                 if o.ci[1] >= best[0] && best[1] >= o.ci[0] {
-                    let (ni, hi) = if cands[ci].cause == "nonlinearity" { (ci, o.idx) } else { (o.idx, ci) };
-                    let both = Structure { network: true, hysteresis: true, ..cur.model.structure };
+                    let (ni, hi) = if cands[ci].cause == "nonlinearity" {
+                        (ci, o.idx)
+                    } else {
+                        (o.idx, ci)
+                    };
+                    let both = Structure {
+                        network: true,
+                        hysteresis: true,
+                        ..cur.model.structure
+                    };
                     let lmn = &fitted[ni].as_ref().expect("fitted").model;
                     let hyst = &fitted[hi].as_ref().expect("fitted").model;
-                    if let Ok(comb) = fit_combined(both, lmn, hyst, &fit, &opts.fit).and_then(|m| evaluate(m, d)) {
+                    if let Ok(comb) =
+                        fit_combined(both, lmn, hyst, &fit, &opts.fit).and_then(|m| evaluate(m, d))
+                    {
                         let en = &fitted[ni].as_ref().expect("fitted").e_select;
                         let eh = &fitted[hi].as_ref().expect("fitted").e_select;
                         let (g_h, _) = relative_gain_ci(en, &comb.e_select, block, 50, 0);
@@ -599,7 +712,10 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
             chosen = refine;
         }
         if chosen.is_none() {
-            chosen = scored.iter().find(|s| s.pays && cands[s.idx].cause == "noise").map(|s| s.idx);
+            chosen = scored
+                .iter()
+                .find(|s| s.pays && cands[s.idx].cause == "noise")
+                .map(|s| s.idx);
         }
         if scored.iter().any(|s| cands[s.idx].cause == "noise") {
             tried_noise = true;
@@ -616,7 +732,9 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
             if c.cause == "dynamics" && Some(s.idx) != best_dyn && Some(s.idx) != chosen {
                 continue;
             }
-            let f = fitted[s.idx].as_ref().expect("scored candidates were fitted");
+            let f = fitted[s.idx]
+                .as_ref()
+                .expect("scored candidates were fitted");
             let (gain, metric) = if c.cause == "noise" {
                 (cur.scores.nll - f.scores.nll, "nll")
             } else {
@@ -626,9 +744,9 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
                 format!("the named {} pays further with more capacity", c.cause)
             } else {
                 match c.cause {
-                "nonlinearity" => ev.nonlinearity_text(),
-                "hysteresis" => ev.hysteresis_text(),
-                "dynamics" => ev.dynamics_text(),
+                    "nonlinearity" => ev.nonlinearity_text(),
+                    "hysteresis" => ev.hysteresis_text(),
+                    "dynamics" => ev.dynamics_text(),
                     _ => ev.noise_text(),
                 }
             };
@@ -667,15 +785,29 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
     }
     progress(total, total, "done");
     let final_evidence = Evidence::compute(&cur.e_select, &cur.yhat_select, &select_inputs(d));
-    let split = if std::ptr::eq(&d.train, &d.report) || d.report_range.start > 0 && d.report.len() == d.train.len() && d.report.output == d.train.output {
+    let split = if std::ptr::eq(&d.train, &d.report)
+        || d.report_range.start > 0
+            && d.report.len() == d.train.len()
+            && d.report.output == d.train.output
+    {
         format!(
             "one record split into contiguous blocks: fit {}..{}, select {}..{}, report {}..{}",
-            d.fit.start, d.fit.end, d.select.start, d.select.end, d.report_range.start, d.report_range.end
+            d.fit.start,
+            d.fit.end,
+            d.select.start,
+            d.select.end,
+            d.report_range.start,
+            d.report_range.end
         )
     } else {
         format!(
             "training record: fit {}..{}, select {}..{}; validation record: report {}..{}",
-            d.fit.start, d.fit.end, d.select.start, d.select.end, d.report_range.start, d.report_range.end
+            d.fit.start,
+            d.fit.end,
+            d.select.start,
+            d.select.end,
+            d.report_range.start,
+            d.report_range.end
         )
     };
     let report = Report {
@@ -695,10 +827,17 @@ pub fn diagnose(d: &DiagnoseData, opts: &DiagnoseOptions, obs: Option<&dyn Obser
         evidence: baseline_evidence,
         final_evidence,
     };
-    Ok(Diagnosis { report, model: cur.model })
+    Ok(Diagnosis {
+        report,
+        model: cur.model,
+    })
 }
 
 fn select_inputs(d: &DiagnoseData) -> Vec<Vec<f64>> {
     let start = d.select.start.max(EVAL_SKIP);
-    d.train.inputs.iter().map(|u| u[start..d.select.end].to_vec()).collect()
+    d.train
+        .inputs
+        .iter()
+        .map(|u| u[start..d.select.end].to_vec())
+        .collect()
 }

@@ -160,10 +160,19 @@ fn memory_tests(e: &[f64], yhat: &[f64], u: &[Vec<f64>]) -> ((f64, f64), (f64, f
     let yn = norm(yhat);
     // direction of motion of the simulated output
     let s: Vec<f64> = (0..n)
-        .map(|k| if k == 0 { 0.0 } else { (yhat[k] - yhat[k - 1]).signum() })
+        .map(|k| {
+            if k == 0 {
+                0.0
+            } else {
+                (yhat[k] - yhat[k - 1]).signum()
+            }
+        })
         .collect();
     let mut base: Vec<Vec<f64>> = vec![vec![1.0; n], yn.clone()];
-    let mut nl: Vec<Vec<f64>> = vec![yn.iter().map(|v| v * v).collect(), yn.iter().map(|v| v * v * v).collect()];
+    let mut nl: Vec<Vec<f64>> = vec![
+        yn.iter().map(|v| v * v).collect(),
+        yn.iter().map(|v| v * v * v).collect(),
+    ];
     for uj in u {
         let un = norm(uj);
         base.push(un.clone());

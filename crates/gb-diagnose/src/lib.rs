@@ -16,6 +16,8 @@
 //! assert_eq!(d.report.causes, ["hysteresis"]);
 //! ```
 #![warn(missing_docs)]
+// Index loops mirror the subscripts of the formulas they implement.
+#![allow(clippy::needless_range_loop)]
 
 mod diagnose;
 pub mod evidence;
@@ -24,8 +26,8 @@ pub mod stats;
 pub mod systems;
 
 pub use diagnose::{
-    diagnose, residuals_on, DataSummary, DiagnoseData, DiagnoseOptions, Diagnosis, ModelSummary, Observer, OrderChoice,
-    Report, Scores, Step, CAUSES, EVAL_SKIP,
+    diagnose, residuals_on, DataSummary, DiagnoseData, DiagnoseOptions, Diagnosis, ModelSummary,
+    Observer, OrderChoice, Report, Scores, Step, CAUSES, EVAL_SKIP,
 };
 pub use evidence::Evidence;
 pub use model::{GreyBoxModel, ModelFitOptions, Structure, MAX_ORDER, MODEL_FORMAT_VERSION};

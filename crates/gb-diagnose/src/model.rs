@@ -3,7 +3,9 @@
 //! hysteresis columns and a Student-t noise model.
 use crate::DiagnoseError;
 use gb_core::{CoreError, DataSet, Model, Simulate};
-use gb_lmn::{fit_linear_oe_warm, fit_lmn_oe, FitOptions, LocalModelNetwork, LolimotOptions, NetworkSpec};
+use gb_lmn::{
+    fit_linear_oe_warm, fit_lmn_oe, FitOptions, LocalModelNetwork, LolimotOptions, NetworkSpec,
+};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -107,7 +109,8 @@ impl Structure {
             // lags 1..n+1: the hysteretic force acts inside n-th order
             // continuous dynamics and varies between samples
             spec.hysteresis_lags = self.order + 1;
-            spec.input_play = vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+            spec.input_play =
+                vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
         }
         spec
     }
@@ -156,7 +159,13 @@ impl GreyBoxModel {
             lopts.max_leaves = lopts.max_leaves.max(structure.max_leaves());
             fit_lmn_oe(&spec, &data.inputs, &data.output, yreg, &lopts, &fopts)?
         } else {
-            fit_linear_oe_warm(&spec, &data.inputs, &data.output, &fopts, warm.map(|w| &w.network))?
+            fit_linear_oe_warm(
+                &spec,
+                &data.inputs,
+                &data.output,
+                &fopts,
+                warm.map(|w| &w.network),
+            )?
         };
         Ok(Self {
             format_version: MODEL_FORMAT_VERSION,
@@ -165,6 +174,17 @@ impl GreyBoxModel {
             structure,
             network,
         })
+    }
+
+    /// Free-run simulation whose initial state is estimated by least squares
+    /// from the measured outputs `y_window` (see
+    /// `LocalModelNetwork::simulate_with_init_window`).
+    pub fn simulate_init_window(
+        &self,
+        inputs: &[Vec<f64>],
+        y_window: &[f64],
+    ) -> Result<Vec<f64>, DiagnoseError> {
+        Ok(self.network.simulate_with_init_window(inputs, y_window)?)
     }
 
     /// Number of initial samples the simulation takes from measurements.
@@ -176,7 +196,8 @@ impl GreyBoxModel {
     pub fn to_bytes(&self) -> Result<Vec<u8>, DiagnoseError> {
         let mut out = MAGIC.to_vec();
         out.extend_from_slice(&MODEL_FORMAT_VERSION.to_le_bytes());
-        let body = postcard::to_allocvec(self).map_err(|e| DiagnoseError::ModelFile(format!("cannot encode model: {e}")))?;
+        let body = postcard::to_allocvec(self)
+            .map_err(|e| DiagnoseError::ModelFile(format!("cannot encode model: {e}")))?;
         out.extend_from_slice(&body);
         Ok(out)
     }
@@ -184,7 +205,9 @@ impl GreyBoxModel {
     /// Deserialise from [`to_bytes`](Self::to_bytes) output; `name` labels errors.
     pub fn from_bytes(bytes: &[u8], name: &str) -> Result<Self, DiagnoseError> {
         if bytes.len() < 8 || &bytes[..4] != MAGIC {
-            return Err(DiagnoseError::ModelFile(format!("{name}: not a greybox model file")));
+            return Err(DiagnoseError::ModelFile(format!(
+                "{name}: not a greybox model file"
+            )));
         }
         let v = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]);
         if v != MODEL_FORMAT_VERSION {
@@ -192,17 +215,23 @@ impl GreyBoxModel {
                 "{name}: model format version {v}, this greybox reads version {MODEL_FORMAT_VERSION}"
             )));
         }
-        let m: Self = postcard::from_bytes(&bytes[8..])
-            .map_err(|e| DiagnoseError::ModelFile(format!("{name}: truncated or corrupt model file ({e})")))?;
+        let m: Self = postcard::from_bytes(&bytes[8..]).map_err(|e| {
+            DiagnoseError::ModelFile(format!("{name}: truncated or corrupt model file ({e})"))
+        })?;
         m.network
             .spec
             .check(m.input_names.len())
             .map_err(|e| DiagnoseError::ModelFile(format!("{name}: inconsistent model ({e})")))?;
-        if m.network.leaves.iter().any(|l| l.theta.len() != 1 + m.network.spec.n_dynamic())
+        if m.network
+            .leaves
+            .iter()
+            .any(|l| l.theta.len() != 1 + m.network.spec.n_dynamic())
             || m.network.beta.len() != m.network.spec.n_hysteresis()
             || m.network.input_scaling.len() != m.input_names.len()
         {
-            return Err(DiagnoseError::ModelFile(format!("{name}: inconsistent model parameters")));
+            return Err(DiagnoseError::ModelFile(format!(
+                "{name}: inconsistent model parameters"
+            )));
         }
         Ok(m)
     }

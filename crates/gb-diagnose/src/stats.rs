@@ -196,7 +196,13 @@ pub fn f_sf(f: f64, d1: f64, d2: f64) -> f64 {
 /// Moving-block bootstrap percentile interval of a statistic of paired
 /// per-sample series: `stat` maps resampled index lists to a value.
 /// Returns (2.5 %, 97.5 %) quantiles over `reps` replicates.
-pub fn block_bootstrap<F: Fn(&[usize]) -> f64>(n: usize, block: usize, reps: usize, seed: u64, stat: F) -> (f64, f64) {
+pub fn block_bootstrap<F: Fn(&[usize]) -> f64>(
+    n: usize,
+    block: usize,
+    reps: usize,
+    seed: u64,
+    stat: F,
+) -> (f64, f64) {
     let block = block.clamp(1, n.max(1));
     let mut r = gb_core::rng::stream(seed, 77);
     let mut vals = Vec::with_capacity(reps);
@@ -245,9 +251,34 @@ mod tests {
     }
 
     #[test]
-    fn bootstrap_interval_covers_mean() {
-        let x: Vec<f64> = (0..1000).map(|k| (k % 10) as f64).collect();
-        let (lo, hi) = block_bootstrap(x.len(), 20, 300, 1, |idx| idx.iter().map(|&i| x[i]).sum::<f64>() / idx.len() as f64);
-        assert!(lo < 4.5 && hi > 4.5 && hi - lo < 1.0, "{lo} {hi}");
+    fn bootstrap_interval_covers_mean_and_widens_with_correlation() {
+        use rand_distr::{Distribution, StandardNormal};
+        let mut r = gb_core::rng::seeded(3);
+        let white: Vec<f64> = (0..2000).map(|_| StandardNormal.sample(&mut r)).collect();
+        // AR(1) with coefficient 0.9: the same marginal scale, far fewer independent samples
+        let mut ar = vec![0.0; 2000];
+        for k in 1..2000 {
+            ar[k] = 0.9 * ar[k - 1] + (1.0f64 - 0.81).sqrt() * white[k];
+        }
+        let mean =
+            |x: &[f64], idx: &[usize]| idx.iter().map(|&i| x[i]).sum::<f64>() / idx.len() as f64;
+        let (lw, hw) = block_bootstrap(2000, 50, 400, 1, |idx| mean(&white, idx));
+        let (la, ha) = block_bootstrap(2000, 50, 400, 1, |idx| mean(&ar, idx));
+        let mw = gb_core::metrics::mean(&white);
+        let ma = gb_core::metrics::mean(&ar);
+        assert!(lw < mw && mw < hw, "{lw} {mw} {hw}");
+        assert!(la < ma && ma < ha, "{la} {ma} {ha}");
+        // white: half-width ≈ 1.96/√2000 = 0.044; AR(1) 0.9: ≈ √19 times wider
+        assert!(
+            (hw - lw) > 0.05 && (hw - lw) < 0.13,
+            "white width {}",
+            hw - lw
+        );
+        assert!(
+            (ha - la) > 2.5 * (hw - lw),
+            "AR width {} vs white {}",
+            ha - la,
+            hw - lw
+        );
     }
 }

@@ -128,7 +128,7 @@ fn base_params(system: &str, r: &mut impl Rng) -> Result<Params, CoreError> {
             // hysteretic force of the order of the linear spring force
             let alpha = v(if system == "shock-absorber" { 1.2 } else { 0.8 }) * k;
             let zmax = v(0.8) * k * 0.01; // saturation level of z
-            // for n = 1, z saturates at alpha / (beta + gamma)
+                                          // for n = 1, z saturates at alpha / (beta + gamma)
             let bg = alpha / zmax;
             p.bw = (alpha, 0.6 * bg, 0.4 * bg, 1.0);
             if system == "shock-absorber" {
@@ -172,7 +172,8 @@ impl RelayGrid {
                 let a = -half_range + 2.0 * half_range * (i as f64 + 0.5) / n as f64;
                 let b = -half_range + 2.0 * half_range * (j as f64 + 0.5) / n as f64;
                 // density: Gaussian in the interaction (α−β) and bias (α+β)/2 coordinates
-                let w = (-((a - b) / (0.6 * half_range)).powi(2)).exp() * (-(0.5 * (a + b) / half_range).powi(2)).exp();
+                let w = (-((a - b) / (0.6 * half_range)).powi(2)).exp()
+                    * (-(0.5 * (a + b) / half_range).powi(2)).exp();
                 alpha.push(a);
                 beta.push(b);
                 weight.push(w);
@@ -181,12 +182,21 @@ impl RelayGrid {
         let s: f64 = weight.iter().sum();
         weight.iter_mut().for_each(|w| *w /= s);
         let state = vec![-1.0; weight.len()];
-        Self { alpha, beta, weight, state }
+        Self {
+            alpha,
+            beta,
+            weight,
+            state,
+        }
     }
     fn demagnetise(&mut self) {
         // relays below the diagonal anti-diagonal split: α+β>0 → −1 else +1
         for i in 0..self.state.len() {
-            self.state[i] = if self.alpha[i] + self.beta[i] > 0.0 { -1.0 } else { 1.0 };
+            self.state[i] = if self.alpha[i] + self.beta[i] > 0.0 {
+                -1.0
+            } else {
+                1.0
+            };
         }
     }
     fn step(&mut self, x: f64) -> f64 {
@@ -267,7 +277,9 @@ fn simulate(p: &Params, u: &[f64], ts: f64) -> Vec<f64> {
                 let mut dz = 0.0;
                 if p.bw.0 > 0.0 {
                     let (al, be, ga, nn) = p.bw;
-                    dz = al * v - be * v.abs() * z.abs().powf(nn - 1.0) * z - ga * v * z.abs().powf(nn);
+                    dz = al * v
+                        - be * v.abs() * z.abs().powf(nn - 1.0) * z
+                        - ga * v * z.abs().powf(nn);
                 }
                 let (mut dx2, mut dv2) = (0.0, 0.0);
                 if p.m2 > 0.0 {
@@ -308,9 +320,16 @@ fn simulate(p: &Params, u: &[f64], ts: f64) -> Vec<f64> {
 /// assert_eq!(g.train.len(), 2000);
 /// assert!(g.noise_floor_nrmse > 0.0 && g.noise_floor_nrmse < 0.1);
 /// ```
-pub fn generate(system: &str, seed: u64, n_train: usize, n_validate: usize) -> Result<Generated, CoreError> {
+pub fn generate(
+    system: &str,
+    seed: u64,
+    n_train: usize,
+    n_validate: usize,
+) -> Result<Generated, CoreError> {
     if n_train < 100 || n_validate < 100 {
-        return Err(CoreError::InvalidArgument("at least 100 samples per data set".into()));
+        return Err(CoreError::InvalidArgument(
+            "at least 100 samples per data set".into(),
+        ));
     }
     let mut r = rng::stream(seed, 0);
     let p = base_params(system, &mut r)?;
@@ -321,7 +340,9 @@ pub fn generate(system: &str, seed: u64, n_train: usize, n_validate: usize) -> R
     let y_tr = simulate(&p, &u_tr, ts);
     let y_va = simulate(&p, &u_va, ts);
     if y_tr.iter().chain(&y_va).any(|v| !v.is_finite()) {
-        return Err(CoreError::InvalidArgument(format!("simulation of '{system}' diverged")));
+        return Err(CoreError::InvalidArgument(format!(
+            "simulation of '{system}' diverged"
+        )));
     }
     let noise_std = gb_core::metrics::std(&y_tr) * 10f64.powf(-snr_db / 20.0);
     let mut rn = rng::stream(seed, 2);

@@ -23,11 +23,13 @@
 //! let mut y = vec![0.0; 400];
 //! for k in 1..400 { y[k] = 0.5 * y[k - 1] + u[k - 1]; }
 //! let spec = NetworkSpec::linear(1, &[1]);
-//! let model = fit_linear_oe(&spec, &[u.clone()], &y, &FitOptions::default()).unwrap();
+//! let model = fit_linear_oe(&spec, std::slice::from_ref(&u), &y, &FitOptions::default()).unwrap();
 //! let sim = model.simulate_signals(&[u], &y[..1]).unwrap();
 //! assert!(gb_core::metrics::nrmse(&y, &sim).unwrap() < 1e-6);
 //! ```
 #![warn(missing_docs)]
+// Index loops mirror the subscripts of the formulas they implement.
+#![allow(clippy::needless_range_loop)]
 
 mod lolimot;
 mod network;
@@ -38,8 +40,11 @@ mod spec;
 
 pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
 pub use network::{Leaf, LocalModelNetwork};
+pub use noe::{
+    embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
+    FitOptions, NoiseFit, TrainReport,
+};
 pub use relay::RelayGrid;
-pub use noe::{embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error, FitOptions, NoiseFit, TrainReport};
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
 

@@ -240,7 +240,9 @@ pub fn fit_lolimot(
                 })
                 .collect(),
         ));
-        if cells.len() >= opts.max_leaves || (worse_in_row >= 2 && opts.criterion != TerminationCriterion::MaxLeaves) {
+        if cells.len() >= opts.max_leaves
+            || (worse_in_row >= 2 && opts.criterion != TerminationCriterion::MaxLeaves)
+        {
             break;
         }
         // worst splittable leaf
@@ -431,10 +433,11 @@ mod tests {
             *v += 0.01 * e;
         }
         let spec = NetworkSpec::order(1, 1);
-        let lin = crate::fit_linear_oe(&spec, &[u.clone()], &y, &FitOptions::default()).unwrap();
+        let lin = crate::fit_linear_oe(&spec, std::slice::from_ref(&u), &y, &FitOptions::default())
+            .unwrap();
         let lmn = fit_lmn_oe(
             &spec,
-            &[u.clone()],
+            std::slice::from_ref(&u),
             &y,
             None,
             &LolimotOptions::default(),
@@ -442,7 +445,10 @@ mod tests {
         )
         .unwrap();
         assert!(lmn.n_leaves() > 2, "leaves {}", lmn.n_leaves());
-        let el = gb_core::metrics::rms(&lin.simulation_residuals(&[u.clone()], &y).unwrap());
+        let el = gb_core::metrics::rms(
+            &lin.simulation_residuals(std::slice::from_ref(&u), &y)
+                .unwrap(),
+        );
         let en = gb_core::metrics::rms(&lmn.simulation_residuals(&[u], &y).unwrap());
         assert!(en < 0.3 * el, "lmn {en} vs linear {el}");
         assert!(en < 0.03, "lmn rms {en}");
@@ -460,7 +466,7 @@ mod tests {
         let spec = NetworkSpec::order(1, 1);
         let m = fit_lmn_oe(
             &spec,
-            &[u.clone()],
+            std::slice::from_ref(&u),
             &y,
             None,
             &LolimotOptions::default(),
@@ -471,7 +477,8 @@ mod tests {
         let back: LocalModelNetwork = postcard::from_bytes(&bytes).unwrap();
         assert_eq!(m, back);
         assert_eq!(
-            m.simulate_signals(&[u.clone()], &y[..1]).unwrap(),
+            m.simulate_signals(std::slice::from_ref(&u), &y[..1])
+                .unwrap(),
             back.simulate_signals(&[u], &y[..1]).unwrap()
         );
     }

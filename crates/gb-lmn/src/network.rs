@@ -263,7 +263,8 @@ impl LocalModelNetwork {
 
     /// Relay grid on the output, if any.
     pub(crate) fn relay_grid(&self) -> Option<crate::relay::RelayGrid> {
-        (self.spec.output_relays > 0).then(|| crate::relay::RelayGrid::new(self.spec.output_relays, 2.5))
+        (self.spec.output_relays > 0)
+            .then(|| crate::relay::RelayGrid::new(self.spec.output_relays, 2.5))
     }
 
     /// Spectral radius of each leaf's autoregressive part, without and with all

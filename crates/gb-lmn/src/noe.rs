@@ -282,8 +282,14 @@ impl LocalModelNetwork {
     /// Output-side hysteresis state: play outputs and relay states, and a ring
     /// of the last `hysteresis_lags` blocks of them.
     fn output_hysteresis_init(&self, y0: f64) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
-        let oplay = self.output_bank().ok().flatten().map_or_else(Vec::new, |b| b.initial_state(y0));
-        let relays = self.relay_grid().map_or_else(Vec::new, |g| g.initial_state(y0));
+        let oplay = self
+            .output_bank()
+            .ok()
+            .flatten()
+            .map_or_else(Vec::new, |b| b.initial_state(y0));
+        let relays = self
+            .relay_grid()
+            .map_or_else(Vec::new, |g| g.initial_state(y0));
         let mut block = oplay.clone();
         block.extend_from_slice(&relays);
         let ring = block.repeat(self.spec.hysteresis_lags);
@@ -365,6 +371,92 @@ impl LocalModelNetwork {
             .collect())
     }
 
+    /// Simulate physical signals with the initial state estimated from a
+    /// window of measured outputs `y_window` (the benchmark "init window"):
+    /// the first `max_lag` output values that start the simulation are chosen
+    /// by (Gauss–Newton) least squares so that the free-run simulation fits
+    /// `y_window`, instead of copying noisy samples. Falls back to
+    /// [`simulate_signals`](Self::simulate_signals) when the window is not
+    /// longer than `max_lag`.
+    pub fn simulate_with_init_window(
+        &self,
+        inputs: &[Vec<f64>],
+        y_window: &[f64],
+    ) -> Result<Vec<f64>, LmnError> {
+        let k0 = self.spec.max_lag();
+        let n = inputs.first().map_or(0, Vec::len);
+        let w = y_window.len().min(n);
+        if w <= k0 + 1 {
+            return self.simulate_signals(inputs, y_window);
+        }
+        let p_full = self.prepare(inputs, &[])?;
+        let p_win = Prepared {
+            un: p_full.un.iter().map(|u| u[..w].to_vec()).collect(),
+            yn: vec![],
+            ucols: p_full
+                .ucols
+                .iter()
+                .map(|cs| cs.iter().map(|c| c[..w].to_vec()).collect())
+                .collect(),
+        };
+        let yw: Vec<f64> = y_window[..w]
+            .iter()
+            .map(|&v| self.output_scaling.to_norm(v))
+            .collect();
+        let mut init: Vec<f64> = yw[..k0].to_vec();
+        let mut buf = Vec::with_capacity(w);
+        let cost = |init: &[f64], buf: &mut Vec<f64>| -> Option<Vec<f64>> {
+            if !self.simulate_norm(&p_win, w, init, buf) {
+                return None;
+            }
+            Some((0..w).map(|k| yw[k] - buf[k]).collect())
+        };
+        for _ in 0..4 {
+            let Some(r0) = cost(&init, &mut buf) else {
+                break;
+            };
+            // Jacobian of the window residuals w.r.t. the initial values (finite differences)
+            let h = 1e-4;
+            let mut jac = DMatrix::<f64>::zeros(w, k0);
+            let mut ok = true;
+            for i in 0..k0 {
+                let mut t = init.clone();
+                t[i] += h;
+                match cost(&t, &mut buf) {
+                    Some(ri) => {
+                        for k in 0..w {
+                            jac[(k, i)] = (ri[k] - r0[k]) / h;
+                        }
+                    }
+                    None => ok = false,
+                }
+            }
+            if !ok {
+                break;
+            }
+            let jtj = jac.transpose() * &jac + DMatrix::<f64>::identity(k0, k0) * 1e-9;
+            let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+            let Some(ch) = jtj.cholesky() else { break };
+            let delta = ch.solve(&jtr);
+            let trial: Vec<f64> = init.iter().zip(delta.iter()).map(|(a, d)| a - d).collect();
+            let c0: f64 = r0.iter().map(|v| v * v).sum();
+            match cost(&trial, &mut buf) {
+                Some(rt) if rt.iter().map(|v| v * v).sum::<f64>() < c0 => init = trial,
+                _ => break,
+            }
+        }
+        let mut out = Vec::with_capacity(n);
+        if !self.simulate_norm(&p_full, n, &init, &mut out) {
+            return Err(LmnError::Unstable(
+                "the simulation diverged on these inputs".into(),
+            ));
+        }
+        Ok(out
+            .iter()
+            .map(|&v| self.output_scaling.from_norm(v))
+            .collect())
+    }
+
     /// Simulation with sensitivities: returns the weighted cost Σ w e² over
     /// samples k ≥ max_lag and accumulates JᵀWJ and JᵀWe. `None` if diverged.
     fn simulate_sens(
@@ -414,9 +506,7 @@ impl LocalModelNetwork {
                         let dst = cur + r * np;
                         if mv {
                             if k > k0 {
-                                for q in 0..np {
-                                    sp[dst + q] = sy[sy_prev + q];
-                                }
+                                sp[dst..dst + np].copy_from_slice(&sy[sy_prev..sy_prev + np]);
                             } else {
                                 sp[dst..dst + np].fill(0.0);
                             }
@@ -847,15 +937,13 @@ pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<Local
     let old = &net.leaves[0].theta;
     let mut th = vec![0.0; 1 + spec.n_dynamic()];
     th[0] = old[0];
-    for i in 0..spec.na.min(net.spec.na) {
-        th[1 + i] = old[1 + i];
-    }
+    let na = spec.na.min(net.spec.na);
+    th[1..=na].copy_from_slice(&old[1..=na]);
     let (mut oo, mut no) = (1 + net.spec.na, 1 + spec.na);
     for j in 0..spec.nb.len() {
         if spec.nk[j] == net.spec.nk[j] {
-            for i in 0..spec.nb[j].min(net.spec.nb[j]) {
-                th[no + i] = old[oo + i];
-            }
+            let nb = spec.nb[j].min(net.spec.nb[j]);
+            th[no..no + nb].copy_from_slice(&old[oo..oo + nb]);
         }
         oo += net.spec.nb[j];
         no += spec.nb[j];
@@ -876,7 +964,11 @@ pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<Local
 /// whose dynamic structure equals `spec`'s: the result simulates exactly like
 /// `net` and can be trained further. `None` if the dynamic structures differ.
 pub fn embed_hysteresis(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<LocalModelNetwork> {
-    if net.spec.na != spec.na || net.spec.nb != spec.nb || net.spec.nk != spec.nk || net.spec.partition != spec.partition {
+    if net.spec.na != spec.na
+        || net.spec.nb != spec.nb
+        || net.spec.nk != spec.nk
+        || net.spec.partition != spec.partition
+    {
         return None;
     }
     let mut out = net.clone();
@@ -886,10 +978,51 @@ pub fn embed_hysteresis(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<L
 }
 
 /// Fit a linear output-error model (one leaf, plus any hysteresis columns of
-/// `spec`): ARX least squares, two pseudo-linear-regression passes with
+/// `spec`): ARX least squares, pseudo-linear-regression passes with
 /// simulated output lags (instrumental-variable style), stabilisation, then
-/// Levenberg–Marquardt on the simulation error.
+/// Levenberg–Marquardt on the simulation error. For order n ≥ 2 (without
+/// hysteresis columns) the model of order n−1 is also fitted, embedded and
+/// trained further (staged start); the better of the two simulations wins.
 pub fn fit_linear_oe(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_cold(spec, inputs, y, opts);
+    if spec.na < 2 || spec.n_hysteresis() > 0 {
+        return cold;
+    }
+    // Staged start: the model one order lower, embedded and trained further.
+    // Output-error costs of high order have local minima that this avoids.
+    let mut lower = spec.clone();
+    lower.na -= 1;
+    for b in lower.nb.iter_mut() {
+        *b = b.saturating_sub(1).max(1);
+    }
+    lower.hysteresis_lags = lower.hysteresis_lags.saturating_sub(1).max(1);
+    let staged = fit_linear_oe(&lower, inputs, y, opts)
+        .ok()
+        .and_then(|w| embed_linear(&w, spec))
+        .and_then(|start| refine_output_error(&start, inputs, y, opts).ok())
+        .map(|(m, _)| m);
+    match (cold, staged) {
+        (Ok(c), Some(s)) => {
+            let ec = c
+                .simulation_residuals(inputs, y)
+                .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e));
+            let es = s
+                .simulation_residuals(inputs, y)
+                .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e));
+            Ok(if es < ec { s } else { c })
+        }
+        (Ok(c), None) => Ok(c),
+        (Err(_), Some(s)) => Ok(s),
+        (Err(e), None) => Err(e),
+    }
+}
+
+fn fit_linear_oe_cold(
     spec: &NetworkSpec,
     inputs: &[Vec<f64>],
     y: &[f64],
@@ -996,7 +1129,7 @@ mod tests {
         let u: Vec<f64> = (0..3000).map(|_| StandardNormal.sample(&mut r)).collect();
         let y = simulate_true(&u, 0.5, 2);
         let spec = NetworkSpec::order(2, 1);
-        let m = fit_linear_oe(&spec, &[u.clone()], &y, &FitOptions::default()).unwrap();
+        let m = fit_linear_oe(&spec, std::slice::from_ref(&u), &y, &FitOptions::default()).unwrap();
         // parameters in physical units: a1, a2 unaffected by scaling
         let th = &m.leaves[0].theta;
         assert!((th[1] - 1.5).abs() < 0.03, "a1 {}", th[1]);
@@ -1016,7 +1149,7 @@ mod tests {
         spec.output_play = vec![0.2, 0.6];
         spec.input_play = vec![vec![0.5]];
         spec.hysteresis_lags = 2;
-        let mut net = linear_network(&spec, &[u.clone()], &y);
+        let mut net = linear_network(&spec, std::slice::from_ref(&u), &y);
         // a two-leaf partition over y(k-1) to exercise the validity derivatives
         net.z_index = vec![0];
         net.z_lower = vec![-2.0];
@@ -1035,7 +1168,7 @@ mod tests {
             },
         ];
         net.beta = vec![0.05, -0.03, 0.02, -0.01, 0.04, 0.01];
-        let p = net.prepare(&[u.clone()], &y).unwrap();
+        let p = net.prepare(std::slice::from_ref(&u), &y).unwrap();
         let np = net.n_parameters();
         let mut jtj = DMatrix::zeros(np, np);
         let mut jtr = DVector::zeros(np);
@@ -1060,6 +1193,38 @@ mod tests {
                 "param {q}: fd {fd} analytic {an}"
             );
         }
+    }
+
+    #[test]
+    fn init_window_estimates_the_state_better_than_noisy_samples() {
+        let mut r = rand::rngs::SmallRng::seed_from_u64(11);
+        let u: Vec<f64> = (0..3000).map(|_| StandardNormal.sample(&mut r)).collect();
+        let y = simulate_true(&u, 0.3, 12);
+        let spec = NetworkSpec::order(2, 1);
+        let m = fit_linear_oe(&spec, std::slice::from_ref(&u), &y, &FitOptions::default()).unwrap();
+        // the noise-free response, and a record that starts far from rest
+        let y0 = simulate_true(&u, 0.0, 12);
+        let start = 500;
+        let uu = vec![u[start..].to_vec()];
+        let truth = &y0[start..];
+        let noisy = &y[start..];
+        let a = m.simulate_signals(&uu, &noisy[..2]).unwrap();
+        let b = m.simulate_with_init_window(&uu, &noisy[..50]).unwrap();
+        let err = |s: &[f64]| {
+            gb_core::metrics::rms(
+                &s[..100]
+                    .iter()
+                    .zip(truth)
+                    .map(|(p, q)| p - q)
+                    .collect::<Vec<_>>(),
+            )
+        };
+        assert!(
+            err(&b) < 0.5 * err(&a),
+            "window {} vs samples {}",
+            err(&b),
+            err(&a)
+        );
     }
 
     #[test]

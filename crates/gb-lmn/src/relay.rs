@@ -32,6 +32,11 @@ impl RelayGrid {
         self.alpha.len()
     }
 
+    /// True for a grid without relays (zero levels).
+    pub fn is_empty(&self) -> bool {
+        self.alpha.is_empty()
+    }
+
     /// Initial states for a start at `x0`: switched relays follow `x0`, the
     /// others take the demagnetised state (+1 below the line α + β = 2 x0).
     pub fn initial_state(&self, x0: f64) -> Vec<f64> {

@@ -107,7 +107,9 @@ impl NetworkSpec {
     /// Number of hysteresis columns.
     pub fn n_hysteresis(&self) -> usize {
         self.hysteresis_lags
-            * (self.output_play.len() + self.n_relays() + self.input_play.iter().map(Vec::len).sum::<usize>())
+            * (self.output_play.len()
+                + self.n_relays()
+                + self.input_play.iter().map(Vec::len).sum::<usize>())
     }
 
     /// Columns of one lag of the output-side hysteresis block.

@@ -1,13 +1,17 @@
 //! The `greybox` command-line tool.
 use clap::{Args, Parser, Subcommand};
 use gb_core::{CsvTable, DataSet, Model, Simulate};
-use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions, GreyBoxModel, ModelFitOptions, OrderChoice, Report, Structure};
+use gb_diagnose::{
+    diagnose, systems, DiagnoseData, DiagnoseOptions, GreyBoxModel, ModelFitOptions, OrderChoice,
+    Report, Structure,
+};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-const ABOUT: &str = "greybox: identify nonlinear dynamical systems and see what your model gets wrong";
+const ABOUT: &str =
+    "greybox: identify nonlinear dynamical systems and see what your model gets wrong";
 
 const LONG_ABOUT: &str = "\
 greybox identifies models of dynamical systems from measured data and tells
@@ -38,22 +42,34 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
-    #[command(after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json\n  greybox diagnose data.csv --order auto --save model.gbm")]
+    #[command(
+        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json\n  greybox diagnose data.csv --order auto --save model.gbm"
+    )]
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
-    #[command(after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model).\n\nExample:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm")]
+    #[command(
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model).\n\nExample:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm"
+    )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
-    #[command(after_help = "Example:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50")]
+    #[command(
+        after_help = "Example:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50"
+    )]
     Simulate(SimulateArgs),
     /// Write train.csv and validate.csv for a generated system (fixed seed = same files).
-    #[command(after_help = "Systems: linear, msd-linear, msd-nonlinear, duffing, saturation, deadzone, preisach, bouc-wen, backlash, two-mass, student-t, shock-absorber\n\nExample:\n  greybox generate duffing -o duffing/ --seed 3")]
+    #[command(
+        after_help = "Systems: linear, msd-linear, msd-nonlinear, duffing, saturation, deadzone, preisach, bouc-wen, backlash, two-mass, student-t, shock-absorber\n\nExample:\n  greybox generate duffing -o duffing/ --seed 3"
+    )]
     Generate(GenerateArgs),
     /// Denoise one column by wavelet thresholding (soft, all levels).
-    #[command(after_help = "Example:\n  greybox denoise data.csv --column y --wavelet db8 --threshold sure -o clean.csv\n\nThe output has every input column and the denoised column in place of the original.")]
+    #[command(
+        after_help = "Example:\n  greybox denoise data.csv --column y --wavelet db8 --threshold sure -o clean.csv\n\nThe output has every input column and the denoised column in place of the original."
+    )]
     Denoise(DenoiseArgs),
     /// Multilevel wavelet decomposition of one column, one row per coefficient.
-    #[command(after_help = "Example:\n  greybox wavelet data.csv --column y --wavelet db4 --level 5 --mode periodization -o coeffs.csv\n\nColumns: level,index,value; level 0 is the approximation, then details coarse to fine (PyWavelets' wavedec order).")]
+    #[command(
+        after_help = "Example:\n  greybox wavelet data.csv --column y --wavelet db4 --level 5 --mode periodization -o coeffs.csv\n\nColumns: level,index,value; level 0 is the approximation, then details coarse to fine (PyWavelets' wavedec order)."
+    )]
     Wavelet(WaveletArgs),
 }
 
@@ -162,7 +178,7 @@ struct SimulateArgs {
     /// Output CSV: the inputs, the measured output if present, and y_sim.
     #[arg(short = 'o', long = "out", value_name = "FILE")]
     out: PathBuf,
-    /// The first N measured outputs may initialise the state; errors are reported on samples N.. only.
+    /// The first N measured outputs initialise the state (estimated by least squares when N exceeds the model's lags); errors are reported on samples N.. only.
     #[arg(long, default_value_t = 0)]
     init_window: usize,
 }
@@ -252,7 +268,11 @@ fn run_diagnose(a: DiagnoseArgs, quiet: bool) -> Result<()> {
         return Err(format!("--max-steps must be 1..=4, got {}", a.max_steps));
     }
     let data = if let Some(ex) = &a.example {
-        let name = if ex == "shock-absorber" { "shock-absorber" } else { ex.as_str() };
+        let name = if ex == "shock-absorber" {
+            "shock-absorber"
+        } else {
+            ex.as_str()
+        };
         let g = systems::generate(name, 1, 8000, 4000).map_err(|e| e.to_string())?;
         println!(
             "example '{name}': generated {} training + {} validation samples (seed 1, SNR {:.1} dB, noise floor NRMSE {:.4})",
@@ -263,12 +283,16 @@ fn run_diagnose(a: DiagnoseArgs, quiet: bool) -> Result<()> {
         );
         DiagnoseData::with_validation(g.train, g.validate).map_err(|e| e.to_string())?
     } else {
-        let train_path = a.train.as_ref().ok_or("a training CSV or --example is needed")?;
+        let train_path = a
+            .train
+            .as_ref()
+            .ok_or("a training CSV or --example is needed")?;
         let train = load(train_path, &a.signals)?;
         match &a.validate {
             Some(v) => {
                 let val = load(v, &a.signals)?;
-                DiagnoseData::with_validation(train, val).map_err(|e| format!("{}: {e}", v.display()))?
+                DiagnoseData::with_validation(train, val)
+                    .map_err(|e| format!("{}: {e}", v.display()))?
             }
             None => {
                 let d = DiagnoseData::from_single(train);
@@ -328,7 +352,10 @@ fn print_report(r: &Report) {
         r.data.samples_select,
         r.data.samples_validate
     );
-    println!("baseline: {}  NRMSE {:.4}  nll {:.3}", r.baseline.model, r.baseline.nrmse, r.baseline.nll);
+    println!(
+        "baseline: {}  NRMSE {:.4}  nll {:.3}",
+        r.baseline.model, r.baseline.nrmse, r.baseline.nll
+    );
     println!();
     println!(
         "{:<4} {:<13} {:>8} {:>8} {:>8} {:>17} {:<8} extension / evidence",
@@ -363,7 +390,10 @@ fn print_report(r: &Report) {
     } else {
         println!("causes: {}", r.causes.join(", "));
     }
-    println!("final: {}  NRMSE {:.4}  nll {:.3}", r.final_model.model, r.final_model.nrmse, r.final_model.nll);
+    println!(
+        "final: {}  NRMSE {:.4}  nll {:.3}",
+        r.final_model.model, r.final_model.nrmse, r.final_model.nll
+    );
 }
 
 fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
@@ -372,14 +402,19 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     let min = 20 * (a.order + 1) * (data.n_inputs() + 1) + 50;
     data.check_identifiable(&a.train.display().to_string(), min)
         .map_err(|e| e.to_string())?;
-    let pb = spinner(quiet, &format!("fitting {} of order {}", structure.spec(), a.order));
-    let m = GreyBoxModel::fit(structure, &data, None, None, &ModelFitOptions::default()).map_err(|e| e.to_string())?;
+    let pb = spinner(
+        quiet,
+        &format!("fitting {} of order {}", structure.spec(), a.order),
+    );
+    let m = GreyBoxModel::fit(structure, &data, None, None, &ModelFitOptions::default())
+        .map_err(|e| e.to_string())?;
     pb.finish_and_clear();
     let sim = m
         .simulate(&data.inputs, &data.output[..m.max_lag().min(data.len())])
         .map_err(|e| e.to_string())?;
     let k0 = m.max_lag();
-    let nrmse = gb_core::metrics::nrmse(&data.output[k0..], &sim[k0..]).map_err(|e| e.to_string())?;
+    let nrmse =
+        gb_core::metrics::nrmse(&data.output[k0..], &sim[k0..]).map_err(|e| e.to_string())?;
     m.save(&a.out).map_err(|e| e.to_string())?;
     println!("model: {}", m.describe());
     println!("parameters: {}", m.n_parameters());
@@ -399,7 +434,12 @@ fn run_simulate(a: SimulateArgs) -> Result<()> {
         .map_err(|e| e.to_string())?;
     let y = t.column(&m.output_name).ok().map(<[f64]>::to_vec);
     if a.init_window > t.n_rows() {
-        return Err(format!("--init-window {} exceeds the {} samples of {}", a.init_window, t.n_rows(), a.data.display()));
+        return Err(format!(
+            "--init-window {} exceeds the {} samples of {}",
+            a.init_window,
+            t.n_rows(),
+            a.data.display()
+        ));
     }
     let init: Vec<f64> = match &y {
         Some(y) => y[..a.init_window.min(m.max_lag())].to_vec(),
@@ -412,7 +452,13 @@ fn run_simulate(a: SimulateArgs) -> Result<()> {
         }
         None => vec![],
     };
-    let sim = m.simulate(&inputs, &init).map_err(|e| e.to_string())?;
+    let sim = match &y {
+        Some(y) if a.init_window > m.max_lag() => {
+            m.simulate_init_window(&inputs, &y[..a.init_window])
+        }
+        _ => m.simulate(&inputs, &init).map_err(Into::into),
+    }
+    .map_err(|e| e.to_string())?;
     let mut names: Vec<&str> = m.input_names.iter().map(String::as_str).collect();
     let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
     if let Some(y) = &y {
@@ -438,12 +484,18 @@ fn run_simulate(a: SimulateArgs) -> Result<()> {
 }
 
 fn run_generate(a: GenerateArgs) -> Result<()> {
-    let g = systems::generate(&a.system, a.seed, a.samples, a.validate_samples).map_err(|e| e.to_string())?;
+    let g = systems::generate(&a.system, a.seed, a.samples, a.validate_samples)
+        .map_err(|e| e.to_string())?;
     std::fs::create_dir_all(&a.out).map_err(|e| format!("{}: {e}", a.out.display()))?;
     let t_tr: Vec<f64> = (0..g.train.len()).map(|k| k as f64 * g.ts).collect();
     let t_va: Vec<f64> = (0..g.validate.len()).map(|k| k as f64 * g.ts).collect();
     let w = |name: &str, t: &[f64], d: &DataSet| {
-        gb_core::write_csv_atomic(a.out.join(name), &["t", "u", "y"], &[t, &d.inputs[0], &d.output]).map_err(|e| e.to_string())
+        gb_core::write_csv_atomic(
+            a.out.join(name),
+            &["t", "u", "y"],
+            &[t, &d.inputs[0], &d.output],
+        )
+        .map_err(|e| e.to_string())
     };
     w("train.csv", &t_tr, &g.train)?;
     w("validate.csv", &t_va, &g.validate)?;
@@ -479,7 +531,10 @@ fn wavelet_setup(name: &str, mode: &str) -> Result<(gb_wavelet::Wavelet, gb_wave
 
 fn run_denoise(a: DenoiseArgs) -> Result<()> {
     let (w, mode) = wavelet_setup(&a.wavelet, &a.mode)?;
-    let rule: gb_wavelet::ThresholdRule = a.threshold.parse().map_err(|e| format!("--threshold: {e}"))?;
+    let rule: gb_wavelet::ThresholdRule = a
+        .threshold
+        .parse()
+        .map_err(|e| format!("--threshold: {e}"))?;
     let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
     let x = t.column(&a.column).map_err(|e| e.to_string())?;
     let d = gb_wavelet::denoise_with(x, &w, &gb_wavelet::DenoiseOptions::new(rule, mode))
@@ -489,10 +544,21 @@ fn run_denoise(a: DenoiseArgs) -> Result<()> {
         .names
         .iter()
         .zip(&t.columns)
-        .map(|(n, c)| if *n == a.column { d.signal.as_slice() } else { c.as_slice() })
+        .map(|(n, c)| {
+            if *n == a.column {
+                d.signal.as_slice()
+            } else {
+                c.as_slice()
+            }
+        })
         .collect();
     gb_core::write_csv_atomic(&a.out, &names, &cols).map_err(|e| e.to_string())?;
-    let removed = gb_core::metrics::rms(&x.iter().zip(&d.signal).map(|(p, q)| p - q).collect::<Vec<_>>());
+    let removed = gb_core::metrics::rms(
+        &x.iter()
+            .zip(&d.signal)
+            .map(|(p, q)| p - q)
+            .collect::<Vec<_>>(),
+    );
     println!(
         "{}: denoised '{}' with {} / {} thresholds (noise sigma {:.4e}, removed rms {:.4e}) -> {}",
         a.data.display(),
@@ -510,12 +576,18 @@ fn run_wavelet(a: WaveletArgs) -> Result<()> {
     let (w, mode) = wavelet_setup(&a.wavelet, &a.mode)?;
     let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
     let x = t.column(&a.column).map_err(|e| e.to_string())?;
-    let bands = gb_wavelet::wavedec(x, &w, mode, a.level).map_err(|e| format!("{}: column '{}': {e}", a.data.display(), a.column))?;
+    let bands = gb_wavelet::wavedec(x, &w, mode, a.level)
+        .map_err(|e| format!("{}: column '{}': {e}", a.data.display(), a.column))?;
     let rows = gb_wavelet::coefficient_rows(&bands);
     let level: Vec<f64> = rows.iter().map(|r| r.0 as f64).collect();
     let index: Vec<f64> = rows.iter().map(|r| r.1 as f64).collect();
     let value: Vec<f64> = rows.iter().map(|r| r.2).collect();
-    gb_core::write_csv_atomic(&a.out, &["level", "index", "value"], &[&level, &index, &value]).map_err(|e| e.to_string())?;
+    gb_core::write_csv_atomic(
+        &a.out,
+        &["level", "index", "value"],
+        &[&level, &index, &value],
+    )
+    .map_err(|e| e.to_string())?;
     println!(
         "{}: {} coefficients in {} bands ({} levels, {}, {}) -> {}",
         a.data.display(),

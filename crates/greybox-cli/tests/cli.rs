@@ -33,7 +33,10 @@ fn assert_bad(args: &[&str], needle: &str, out: &Path) {
     let e = stderr(&o);
     assert_eq!(o.status.code(), Some(2), "args {args:?}: stderr {e}");
     assert!(!e.contains("panicked"), "panic: {e}");
-    assert!(e.contains(needle), "args {args:?}: expected '{needle}' in: {e}");
+    assert!(
+        e.contains(needle),
+        "args {args:?}: expected '{needle}' in: {e}"
+    );
     assert_eq!(e.trim_end().lines().count(), 1, "not one line: {e}");
     assert!(!out.exists(), "partial output {} written", out.display());
 }
@@ -46,36 +49,100 @@ fn write(path: &Path, text: &str) {
 fn generate_fit_simulate_diagnose_round_trip() {
     let d = tmp("flow");
     let ds = d.to_str().unwrap();
-    let o = run(&["generate", "two-mass", "-o", ds, "--seed", "4", "--samples", "3000", "--validate-samples", "1500"]);
+    let o = run(&[
+        "generate",
+        "two-mass",
+        "-o",
+        ds,
+        "--seed",
+        "4",
+        "--samples",
+        "3000",
+        "--validate-samples",
+        "1500",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let train = d.join("train.csv");
     let val = d.join("validate.csv");
     assert!(train.exists() && val.exists() && d.join("truth.json").exists());
     // fit order 4 (the true order) and simulate on validation data
     let model = d.join("m.gbm");
-    let o = run(&["fit", train.to_str().unwrap(), "--model", "linear", "--order", "4", "--input", "u", "--output", "y", "-o", model.to_str().unwrap()]);
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model",
+        "linear",
+        "--order",
+        "4",
+        "--input",
+        "u",
+        "--output",
+        "y",
+        "-o",
+        model.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let sim = d.join("sim.csv");
-    let o = run(&["simulate", model.to_str().unwrap(), val.to_str().unwrap(), "-o", sim.to_str().unwrap(), "--init-window", "10"]);
+    let o = run(&[
+        "simulate",
+        model.to_str().unwrap(),
+        val.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+        "--init-window",
+        "50",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let text = std::fs::read_to_string(&sim).unwrap();
     assert!(text.starts_with("u,y,y_sim\n"), "{}", &text[..40]);
     let out = stdout(&o);
-    let nrmse: f64 = out.split("NRMSE ").nth(1).unwrap().split_whitespace().next().unwrap().parse().unwrap();
-    let truth: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(d.join("truth.json")).unwrap()).unwrap();
+    let nrmse: f64 = out
+        .split("NRMSE ")
+        .nth(1)
+        .unwrap()
+        .split_whitespace()
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("truth.json")).unwrap()).unwrap();
     let floor = truth["noise_floor_nrmse"].as_f64().unwrap();
-    assert!(nrmse < 2.0 * floor, "order-4 model NRMSE {nrmse} vs noise floor {floor}");
+    assert!(
+        nrmse < 2.0 * floor,
+        "order-4 model NRMSE {nrmse} vs noise floor {floor}"
+    );
     // diagnose with the engineer's order 2 finds the missing dynamics
     let json = d.join("report.json");
     let saved = d.join("final.gbm");
-    let o = run(&["diagnose", train.to_str().unwrap(), "--validate", val.to_str().unwrap(), "--json", json.to_str().unwrap(), "--save", saved.to_str().unwrap()]);
+    let o = run(&[
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+        "--save",
+        saved.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let r: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     assert_eq!(r["version"], 1);
     assert_eq!(r["data"]["inputs"][0], "u");
     assert_eq!(r["data"]["output"], "y");
     assert_eq!(r["causes"][0], "dynamics", "{r}");
-    for key in ["nrmse_before", "nrmse_after", "gain", "nll_before", "nll_after", "accepted", "cause", "evidence", "extension"] {
+    for key in [
+        "nrmse_before",
+        "nrmse_after",
+        "gain",
+        "nll_before",
+        "nll_after",
+        "accepted",
+        "cause",
+        "evidence",
+        "extension",
+    ] {
         assert!(r["steps"][0].get(key).is_some(), "step lacks {key}");
     }
     assert!(r["final"]["nrmse"].as_f64().unwrap() < r["baseline"]["nrmse"].as_f64().unwrap());
@@ -91,29 +158,57 @@ fn bad_input_is_one_line_exit_2_no_output() {
     let good = d.join("good.csv");
     let mut text = String::from("t,u,y\n");
     for k in 0..400 {
-        text.push_str(&format!("{k},{},{}\n", ((k * 37) % 11) as f64 - 5.0, ((k * 13) % 7) as f64));
+        text.push_str(&format!(
+            "{k},{},{}\n",
+            ((k * 37) % 11) as f64 - 5.0,
+            ((k * 13) % 7) as f64
+        ));
     }
     write(&good, &text);
     let g = good.to_str().unwrap();
     // missing file
-    assert_bad(&["fit", "/nonexistent/x.csv", "-o", o_s], "/nonexistent/x.csv", &out);
+    assert_bad(
+        &["fit", "/nonexistent/x.csv", "-o", o_s],
+        "/nonexistent/x.csv",
+        &out,
+    );
     // missing column
-    assert_bad(&["fit", g, "--input", "v", "-o", o_s], "no column named 'v'", &out);
+    assert_bad(
+        &["fit", g, "--input", "v", "-o", o_s],
+        "no column named 'v'",
+        &out,
+    );
     // NaN / inf
     let f = d.join("nan.csv");
     write(&f, "u,y\n1,2\n2,NaN\n");
-    assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "row 3, column 'y'", &out);
+    assert_bad(
+        &["fit", f.to_str().unwrap(), "-o", o_s],
+        "row 3, column 'y'",
+        &out,
+    );
     let f = d.join("inf.csv");
     write(&f, "u,y\n1,2\ninf,3\n");
-    assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "row 3, column 'u'", &out);
+    assert_bad(
+        &["fit", f.to_str().unwrap(), "-o", o_s],
+        "row 3, column 'u'",
+        &out,
+    );
     // ragged row
     let f = d.join("ragged.csv");
     write(&f, "u,y\n1,2\n3\n");
-    assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "row 3 has 1 fields", &out);
+    assert_bad(
+        &["fit", f.to_str().unwrap(), "-o", o_s],
+        "row 3 has 1 fields",
+        &out,
+    );
     // non-numeric cell
     let f = d.join("text.csv");
     write(&f, "u,y\n1,2\n3,abc\n");
-    assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "'abc' is not a number", &out);
+    assert_bad(
+        &["fit", f.to_str().unwrap(), "-o", o_s],
+        "'abc' is not a number",
+        &out,
+    );
     // empty file
     let f = d.join("empty.csv");
     write(&f, "");
@@ -129,36 +224,124 @@ fn bad_input_is_one_line_exit_2_no_output() {
         c.push_str(&format!("1.0,{}\n", (k % 5) as f64));
     }
     write(&f, &c);
-    assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "'u' is constant", &out);
+    assert_bad(
+        &["fit", f.to_str().unwrap(), "-o", o_s],
+        "'u' is constant",
+        &out,
+    );
     // unknown model spec, absurd flags
-    assert_bad(&["fit", g, "--model", "quantum", "-o", o_s], "unknown model spec 'quantum'", &out);
+    assert_bad(
+        &["fit", g, "--model", "quantum", "-o", o_s],
+        "unknown model spec 'quantum'",
+        &out,
+    );
     assert_bad(&["fit", g, "--order", "0", "-o", o_s], "order", &out);
     let rep = d.join("r.json");
-    assert_bad(&["diagnose", g, "--order", "99", "--json", rep.to_str().unwrap()], "--order", &rep);
-    assert_bad(&["diagnose", f.to_str().unwrap(), "--json", rep.to_str().unwrap()], "'u' is constant", &rep);
+    assert_bad(
+        &[
+            "diagnose",
+            g,
+            "--order",
+            "99",
+            "--json",
+            rep.to_str().unwrap(),
+        ],
+        "--order",
+        &rep,
+    );
+    assert_bad(
+        &[
+            "diagnose",
+            f.to_str().unwrap(),
+            "--json",
+            rep.to_str().unwrap(),
+        ],
+        "'u' is constant",
+        &rep,
+    );
     // model files: not a model, truncated
     let sim = d.join("sim.csv");
     let fake = d.join("fake.gbm");
     write(&fake, "hello");
-    assert_bad(&["simulate", fake.to_str().unwrap(), g, "-o", sim.to_str().unwrap()], "not a greybox model file", &sim);
+    assert_bad(
+        &[
+            "simulate",
+            fake.to_str().unwrap(),
+            g,
+            "-o",
+            sim.to_str().unwrap(),
+        ],
+        "not a greybox model file",
+        &sim,
+    );
     let o = run(&["fit", g, "-o", o_s]);
     assert!(o.status.success(), "{}", stderr(&o));
     let bytes = std::fs::read(&out).unwrap();
     let trunc = d.join("trunc.gbm");
     std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
-    assert_bad(&["simulate", trunc.to_str().unwrap(), g, "-o", sim.to_str().unwrap()], "truncated or corrupt", &sim);
+    assert_bad(
+        &[
+            "simulate",
+            trunc.to_str().unwrap(),
+            g,
+            "-o",
+            sim.to_str().unwrap(),
+        ],
+        "truncated or corrupt",
+        &sim,
+    );
     let mut other = bytes.clone();
     other[4] = 9;
     let ver = d.join("ver.gbm");
     std::fs::write(&ver, &other).unwrap();
-    assert_bad(&["simulate", ver.to_str().unwrap(), g, "-o", sim.to_str().unwrap()], "format version 9", &sim);
+    assert_bad(
+        &[
+            "simulate",
+            ver.to_str().unwrap(),
+            g,
+            "-o",
+            sim.to_str().unwrap(),
+        ],
+        "format version 9",
+        &sim,
+    );
     // unknown wavelet / rule
     let den = d.join("den.csv");
-    assert_bad(&["denoise", g, "--column", "y", "--wavelet", "db99x", "-o", den.to_str().unwrap()], "--wavelet", &den);
-    assert_bad(&["denoise", g, "--column", "y", "--threshold", "magic", "-o", den.to_str().unwrap()], "--threshold", &den);
+    assert_bad(
+        &[
+            "denoise",
+            g,
+            "--column",
+            "y",
+            "--wavelet",
+            "db99x",
+            "-o",
+            den.to_str().unwrap(),
+        ],
+        "--wavelet",
+        &den,
+    );
+    assert_bad(
+        &[
+            "denoise",
+            g,
+            "--column",
+            "y",
+            "--threshold",
+            "magic",
+            "-o",
+            den.to_str().unwrap(),
+        ],
+        "--threshold",
+        &den,
+    );
     // unknown system
     let gd = d.join("gen");
-    assert_bad(&["generate", "warp-drive", "-o", gd.to_str().unwrap()], "unknown system 'warp-drive'", &gd.join("train.csv"));
+    assert_bad(
+        &["generate", "warp-drive", "-o", gd.to_str().unwrap()],
+        "unknown system 'warp-drive'",
+        &gd.join("train.csv"),
+    );
 }
 
 #[test]
@@ -174,19 +357,45 @@ fn wavelet_coefficients_reconstruct_the_signal_energy() {
     }
     write(&f, &text);
     let out = d.join("c.csv");
-    let o = run(&["wavelet", f.to_str().unwrap(), "--column", "y", "--wavelet", "db4", "--level", "3", "--mode", "periodization", "-o", out.to_str().unwrap()]);
+    let o = run(&[
+        "wavelet",
+        f.to_str().unwrap(),
+        "--column",
+        "y",
+        "--wavelet",
+        "db4",
+        "--level",
+        "3",
+        "--mode",
+        "periodization",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let c = std::fs::read_to_string(&out).unwrap();
     let mut lines = c.lines();
     assert_eq!(lines.next(), Some("level,index,value"));
-    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
+        .collect();
     assert_eq!(rows.len(), 256);
     assert_eq!(rows.iter().filter(|r| r[0] == 0.0).count(), 32);
     // orthogonal transform with periodization preserves energy (Parseval)
     let e2: f64 = rows.iter().map(|r| r[2] * r[2]).sum();
     assert!((e2 - energy).abs() < 1e-9 * energy, "{e2} vs {energy}");
     let den = d.join("d.csv");
-    let o = run(&["denoise", f.to_str().unwrap(), "--column", "y", "--wavelet", "db8", "--threshold", "sure", "-o", den.to_str().unwrap()]);
+    let o = run(&[
+        "denoise",
+        f.to_str().unwrap(),
+        "--column",
+        "y",
+        "--wavelet",
+        "db8",
+        "--threshold",
+        "sure",
+        "-o",
+        den.to_str().unwrap(),
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(std::fs::read_to_string(&den).unwrap().starts_with("t,y\n"));
 }
@@ -197,10 +406,15 @@ fn help_teaches_the_workflow() {
     let s = stdout(&o);
     assert!(o.status.success());
     assert!(s.contains("greybox diagnose --example shock-absorber"));
-    for sub in ["diagnose", "fit", "simulate", "generate", "denoise", "wavelet"] {
+    for sub in [
+        "diagnose", "fit", "simulate", "generate", "denoise", "wavelet",
+    ] {
         assert!(s.contains(sub), "help lacks {sub}");
         let o = run(&[sub, "--help"]);
         assert!(o.status.success(), "{sub} --help");
-        assert!(stdout(&o).contains("Example"), "{sub} help lacks an example");
+        assert!(
+            stdout(&o).contains("Example"),
+            "{sub} help lacks an example"
+        );
     }
 }
