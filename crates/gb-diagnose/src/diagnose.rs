@@ -381,7 +381,16 @@ fn fit_eval(
     warm: Option<&GreyBoxModel>,
     o: &ModelFitOptions,
 ) -> Result<Evaluated, DiagnoseError> {
+    let t0 = std::time::Instant::now();
     let m = GreyBoxModel::fit(s, fit, yreg, warm, o)?;
+    if std::env::var_os("GREYBOX_TIMING").is_some() {
+        eprintln!(
+            "fit {} order {}: {:.2}s",
+            s.spec(),
+            s.order,
+            t0.elapsed().as_secs_f64()
+        );
+    }
     evaluate(m, d)
 }
 

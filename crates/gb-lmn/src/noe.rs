@@ -494,7 +494,11 @@ impl LocalModelNetwork {
         let mut snew = vec![0.0; np];
         let mut s: EvalScratch = self.scratch();
         let mut cost = 0.0;
-        let jtj_s = jtj.as_mut_slice();
+        // Sensitivity rows are gathered in blocks and JᵀWJ is updated with one
+        // matrix product per block (SIMD GEMM instead of rank-1 updates).
+        const BLOCK: usize = 64;
+        let mut sblk = DMatrix::<f64>::zeros(BLOCK, np);
+        let mut nblk = 0;
         for k in k0..n {
             if b > 0 {
                 if let Some(bk) = &obank {
@@ -557,23 +561,20 @@ impl LocalModelNetwork {
             let e = p.yn[k] - v;
             let w = weights.map_or(1.0, |w| w[k]);
             cost += w * e * e;
+            let sw = w.sqrt();
             for a in 0..np {
-                let wa = w * snew[a];
-                if wa == 0.0 {
-                    continue;
-                }
-                jtr[a] += wa * e;
-                // column-major: element (a, b) at b*np + a; fill upper triangle b >= a
-                for b in a..np {
-                    jtj_s[b * np + a] += wa * snew[b];
-                }
+                jtr[a] += w * snew[a] * e;
+                sblk[(nblk, a)] = sw * snew[a];
+            }
+            nblk += 1;
+            if nblk == BLOCK {
+                jtj.gemm_tr(1.0, &sblk, &sblk, 1.0);
+                nblk = 0;
             }
         }
-        // mirror the upper triangle
-        for a in 0..np {
-            for b in (a + 1)..np {
-                jtj_s[a * np + b] = jtj_s[b * np + a];
-            }
+        if nblk > 0 {
+            let part = sblk.rows(0, nblk);
+            jtj.gemm_tr(1.0, &part, &part, 1.0);
         }
         Some(cost)
     }
