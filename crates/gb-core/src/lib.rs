@@ -23,6 +23,7 @@ mod error;
 pub mod metrics;
 mod model;
 pub mod rng;
+pub mod special;
 
 pub use csv_io::{write_atomic, write_csv_atomic, CsvTable};
 pub use data::{BlockSplit, DataSet};

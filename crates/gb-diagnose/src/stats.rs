@@ -2,6 +2,8 @@
 //! probabilities, moving-block bootstrap.
 use rand::Rng;
 
+pub use gb_core::special::ln_gamma;
+
 /// Sample cross-correlation r_ab(τ) = Σ_k ã(k) b̃(k+τ) / (N σ_a σ_b), τ = 0..=max_lag,
 /// with ã, b̃ the mean-removed signals (b lags a by τ).
 pub fn cross_correlation(a: &[f64], b: &[f64], max_lag: usize) -> Vec<f64> {
@@ -24,32 +26,6 @@ pub fn cross_correlation(a: &[f64], b: &[f64], max_lag: usize) -> Vec<f64> {
 /// Auto-correlation r_ee(τ), τ = 0..=max_lag.
 pub fn autocorrelation(e: &[f64], max_lag: usize) -> Vec<f64> {
     cross_correlation(e, e, max_lag)
-}
-
-/// ln Γ(x) (Lanczos).
-pub fn ln_gamma(x: f64) -> f64 {
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        let pi = std::f64::consts::PI;
-        return (pi / (pi * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let t = x + 7.5;
-    let mut a = C[0];
-    for (i, c) in C.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
 }
 
 /// Regularised upper incomplete gamma Q(a, x) (Numerical Recipes: series or

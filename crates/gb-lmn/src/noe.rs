@@ -13,6 +13,7 @@
 //! radius ≥ 1) or the simulation diverge are rejected.
 use crate::network::{spectral_radius, EvalScratch, Leaf};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
+use gb_core::special::ln_gamma;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -89,32 +90,6 @@ impl NoiseFit {
             NoiseFit::StudentT { nu, scale } => (nu + 1.0) / (nu + (e / scale).powi(2)),
         }
     }
-}
-
-fn ln_gamma(x: f64) -> f64 {
-    // Lanczos approximation (g = 7, n = 9), accurate to ~1e-15 for x > 0.
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        let pi = std::f64::consts::PI;
-        return (pi / (pi * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut a = C[0];
-    let t = x + 7.5;
-    for (i, c) in C.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * (2.0 * std::f64::consts::PI).ln() + (x + 0.5) * t.ln() - t + a.ln()
 }
 
 /// log density of the standard Student-t distribution with ν degrees of freedom.
@@ -216,6 +191,54 @@ pub(crate) struct Prepared {
     pub ucols: Vec<Vec<Vec<f64>>>,
 }
 
+/// Output-side hysteresis state during a simulation: play operators and
+/// relays driven by the previous output, and the ring of their last
+/// `hysteresis_lags` blocks that `fill_x` reads.
+struct OutputHysteresis {
+    bank: Option<gb_preisach::PlayOperatorBank>,
+    grid: Option<crate::relay::RelayGrid>,
+    play: Vec<f64>,
+    relays: Vec<f64>,
+    ring: Vec<f64>,
+    moving: Vec<bool>,
+    block: usize,
+    lags: usize,
+}
+
+impl OutputHysteresis {
+    fn new(net: &LocalModelNetwork, y0: f64) -> Self {
+        let (play, relays, ring) = net.output_hysteresis_init(y0);
+        Self {
+            bank: net.output_bank().ok().flatten(),
+            grid: net.relay_grid(),
+            moving: vec![false; play.len()],
+            play,
+            relays,
+            ring,
+            block: net.spec.output_block(),
+            lags: net.spec.hysteresis_lags,
+        }
+    }
+
+    /// Step every operator with the previous output and store block k.
+    #[inline]
+    fn advance(&mut self, k: usize, y_prev: f64) {
+        if self.block == 0 {
+            return;
+        }
+        if let Some(bk) = &self.bank {
+            bk.step(&mut self.play, y_prev, &mut self.moving);
+        }
+        if let Some(g) = &self.grid {
+            g.step(&mut self.relays, y_prev);
+        }
+        let nop = self.play.len();
+        let slot = (k % self.lags) * self.block;
+        self.ring[slot..slot + nop].copy_from_slice(&self.play);
+        self.ring[slot + nop..slot + self.block].copy_from_slice(&self.relays);
+    }
+}
+
 impl LocalModelNetwork {
     pub(crate) fn prepare(&self, inputs: &[Vec<f64>], y: &[f64]) -> Result<Prepared, LmnError> {
         if inputs.len() != self.input_scaling.len() {
@@ -312,29 +335,13 @@ impl LocalModelNetwork {
         for k in 0..k0 {
             out[k] = init.get(k).copied().unwrap_or(0.0);
         }
-        let obank = self.output_bank().ok().flatten();
-        let grid = self.relay_grid();
         let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
-        let (mut oplay, mut relays, mut oring) = self.output_hysteresis_init(y0);
-        let nop = oplay.len();
-        let b = self.spec.output_block();
-        let lags = self.spec.hysteresis_lags;
-        let mut moving = vec![false; nop];
+        let mut oh = OutputHysteresis::new(self, y0);
         let mut x = vec![0.0; self.spec.n_dynamic() + self.spec.n_hysteresis()];
         let mut s = self.scratch();
         for k in k0..n {
-            if b > 0 {
-                if let Some(bk) = &obank {
-                    bk.step(&mut oplay, out[k - 1], &mut moving);
-                }
-                if let Some(g) = &grid {
-                    g.step(&mut relays, out[k - 1]);
-                }
-                let slot = (k % lags) * b;
-                oring[slot..slot + nop].copy_from_slice(&oplay);
-                oring[slot + nop..slot + b].copy_from_slice(&relays);
-            }
-            self.fill_x(k, out, p, &oring, &mut x);
+            oh.advance(k, out[k - 1]);
+            self.fill_x(k, out, p, &oh.ring, &mut x);
             let v = self.eval(&x, &mut s, None, None);
             if !v.is_finite() || v.abs() > DIVERGED {
                 return false;
@@ -475,14 +482,11 @@ impl LocalModelNetwork {
         jtr.fill(0.0);
         let mut out = vec![0.0; n];
         out[..k0].copy_from_slice(&p.yn[..k0]);
-        let obank = self.output_bank().ok().flatten();
-        let grid = self.relay_grid();
         let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
-        let (mut oplay, mut relays, mut oring) = self.output_hysteresis_init(y0);
-        let nop = oplay.len();
-        let b = self.spec.output_block();
-        let lags = self.spec.hysteresis_lags;
-        let mut moving = vec![false; nop];
+        let mut oh = OutputHysteresis::new(self, y0);
+        let nop = oh.play.len();
+        let b = oh.block;
+        let lags = oh.lags;
         // ring buffer of the last n_a output sensitivities; slot (k mod na)
         let ring = na.max(1);
         let mut sy = vec![0.0; ring * np];
@@ -500,33 +504,26 @@ impl LocalModelNetwork {
         let mut sblk = DMatrix::<f64>::zeros(BLOCK, np);
         let mut nblk = 0;
         for k in k0..n {
-            if b > 0 {
-                if let Some(bk) = &obank {
-                    bk.step(&mut oplay, out[k - 1], &mut moving);
-                    let cur = (k % lags) * nop * np;
-                    let prv = ((k - 1) % lags) * nop * np;
-                    let sy_prev = ((k - 1) % ring) * np;
-                    for (r, &mv) in moving.iter().enumerate() {
-                        let dst = cur + r * np;
-                        if mv {
-                            if k > k0 {
-                                sp[dst..dst + np].copy_from_slice(&sy[sy_prev..sy_prev + np]);
-                            } else {
-                                sp[dst..dst + np].fill(0.0);
-                            }
-                        } else if cur != prv {
-                            sp.copy_within(prv + r * np..prv + (r + 1) * np, dst);
+            oh.advance(k, out[k - 1]);
+            if nop > 0 {
+                // play sensitivities follow ŷ(k−1) while moving, else keep their value
+                let cur = (k % lags) * nop * np;
+                let prv = ((k - 1) % lags) * nop * np;
+                let sy_prev = ((k - 1) % ring) * np;
+                for (r, &mv) in oh.moving.iter().enumerate() {
+                    let dst = cur + r * np;
+                    if mv {
+                        if k > k0 {
+                            sp[dst..dst + np].copy_from_slice(&sy[sy_prev..sy_prev + np]);
+                        } else {
+                            sp[dst..dst + np].fill(0.0);
                         }
+                    } else if cur != prv {
+                        sp.copy_within(prv + r * np..prv + (r + 1) * np, dst);
                     }
                 }
-                if let Some(g) = &grid {
-                    g.step(&mut relays, out[k - 1]);
-                }
-                let slot = (k % lags) * b;
-                oring[slot..slot + nop].copy_from_slice(&oplay);
-                oring[slot + nop..slot + b].copy_from_slice(&relays);
             }
-            self.fill_x(k, &out, p, &oring, &mut x);
+            self.fill_x(k, &out, p, &oh.ring, &mut x);
             let v = self.eval(&x, &mut s, Some(&mut gt), Some(&mut gx));
             if !v.is_finite() || v.abs() > DIVERGED {
                 return None;
@@ -782,29 +779,13 @@ pub(crate) fn regression_matrix(
     let n = yreg.len();
     let k0 = net.spec.max_lag().min(n);
     let ncol = net.spec.n_dynamic() + net.spec.n_hysteresis();
-    let obank = net.output_bank().ok().flatten();
-    let grid = net.relay_grid();
     let y0 = if k0 > 0 { yreg[k0 - 1] } else { 0.0 };
-    let (mut oplay, mut relays, mut oring) = net.output_hysteresis_init(y0);
-    let nop = oplay.len();
-    let b = net.spec.output_block();
-    let lags = net.spec.hysteresis_lags;
-    let mut moving = vec![false; nop];
+    let mut oh = OutputHysteresis::new(net, y0);
     let mut rows = vec![0.0; (n - k0) * ncol];
     for k in k0..n {
-        if b > 0 {
-            if let Some(bk) = &obank {
-                bk.step(&mut oplay, yreg[k - 1], &mut moving);
-            }
-            if let Some(g) = &grid {
-                g.step(&mut relays, yreg[k - 1]);
-            }
-            let slot = (k % lags) * b;
-            oring[slot..slot + nop].copy_from_slice(&oplay);
-            oring[slot + nop..slot + b].copy_from_slice(&relays);
-        }
+        oh.advance(k, yreg[k - 1]);
         let r = (k - k0) * ncol;
-        net.fill_x(k, yreg, p, &oring, &mut rows[r..r + ncol]);
+        net.fill_x(k, yreg, p, &oh.ring, &mut rows[r..r + ncol]);
     }
     (rows, ncol)
 }
