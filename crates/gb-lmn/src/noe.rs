@@ -366,8 +366,19 @@ impl LocalModelNetwork {
             .iter()
             .map(|&v| self.output_scaling.to_norm(v))
             .collect();
+        self.simulate_physical(&p, n, &init_n)
+    }
+
+    /// Free-run simulation from normalised initial values, returned in
+    /// physical units; an error if it diverges.
+    fn simulate_physical(
+        &self,
+        p: &Prepared,
+        n: usize,
+        init_n: &[f64],
+    ) -> Result<Vec<f64>, LmnError> {
         let mut out = Vec::with_capacity(n);
-        if !self.simulate_norm(&p, n, &init_n, &mut out) {
+        if !self.simulate_norm(p, n, init_n, &mut out) {
             return Err(LmnError::Unstable(
                 "the simulation diverged on these inputs".into(),
             ));
@@ -452,16 +463,7 @@ impl LocalModelNetwork {
                 _ => break,
             }
         }
-        let mut out = Vec::with_capacity(n);
-        if !self.simulate_norm(&p_full, n, &init, &mut out) {
-            return Err(LmnError::Unstable(
-                "the simulation diverged on these inputs".into(),
-            ));
-        }
-        Ok(out
-            .iter()
-            .map(|&v| self.output_scaling.from_norm(v))
-            .collect())
+        self.simulate_physical(&p_full, n, &init)
     }
 
     /// Simulation with sensitivities: returns the weighted cost Σ w e² over
