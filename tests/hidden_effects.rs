@@ -7,7 +7,34 @@
 //! - causes that would be a misdiagnosis never appear (e.g. `hysteresis`
 //!   for a static saturation);
 //! - the final validation NRMSE is within 2× the noise floor put in.
-use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions};
+use gb_diagnose::{diagnose, html, systems, DiagnoseData, DiagnoseOptions};
+
+/// Every plot the report promises is a `<figure id=…>` holding one
+/// well-formed `<svg>` with drawn content.
+fn check_report(page: &str, ids: &[String]) {
+    for id in ids {
+        let at = page
+            .find(&format!("<figure id=\"{id}\""))
+            .unwrap_or_else(|| panic!("plot {id} missing from the report"));
+        let rest = &page[at..];
+        let s0 = rest.find("<svg").expect("svg in figure");
+        let s1 = rest.find("</svg>").expect("svg closed") + "</svg>".len();
+        let end = rest.find("</figure>").expect("figure closed");
+        assert!(s0 < s1 && s1 <= end, "svg of {id} not inside its figure");
+        let doc = roxmltree::Document::parse(&rest[s0..s1])
+            .unwrap_or_else(|e| panic!("svg of {id} is not well-formed: {e}"));
+        let drawn = doc
+            .descendants()
+            .filter(|n| {
+                matches!(
+                    n.tag_name().name(),
+                    "polyline" | "path" | "circle" | "rect" | "line"
+                )
+            })
+            .count();
+        assert!(drawn >= 10, "plot {id} has only {drawn} drawn elements");
+    }
+}
 
 fn check(system: &str, forbidden: &[&str]) {
     for seed in [1u64, 2] {
@@ -16,6 +43,16 @@ fn check(system: &str, forbidden: &[&str]) {
         let expected = g.expected_cause.clone();
         let data = DiagnoseData::with_validation(g.train, g.validate).expect("data");
         let d = diagnose(&data, &DiagnoseOptions::default(), None).expect("diagnose");
+        let page = html::render_html(&d, &data, system).expect("html report");
+        let ids = html::plot_ids(&d);
+        check_report(&page, &ids);
+        for c in &d.report.causes {
+            assert!(
+                ids.iter()
+                    .any(|id| id.starts_with("plot-evidence-") && id.ends_with(&format!("-{c}"))),
+                "no evidence plot for {c}"
+            );
+        }
         let r = &d.report;
         let summary = format!(
             "{system} seed {seed}: causes {:?}, baseline NRMSE {:.4}, final {:.4}, noise floor {:.4}",

@@ -331,6 +331,9 @@ pub struct Diagnosis {
     pub report: Report,
     /// The final (possibly extended) model.
     pub model: GreyBoxModel,
+    /// The baseline and the model after each accepted step, in order
+    /// (`chain[0]` is the baseline, the last entry equals `model`).
+    pub chain: Vec<GreyBoxModel>,
 }
 
 /// The model with both a network and hysteresis for a tie: the network with
@@ -559,6 +562,7 @@ pub fn diagnose(
     };
     let baseline_summary = summary(&base);
     let baseline_evidence = Evidence::compute(&base.e_select, &base.yhat_select, &select_inputs(d));
+    let mut chain = vec![base.model.clone()];
     let mut cur = base;
     let mut steps = vec![];
     let mut causes: Vec<String> = vec![];
@@ -788,6 +792,7 @@ pub fn diagnose(
                 }
                 let mut fitted = fitted;
                 cur = fitted[ci].take().expect("chosen candidate was fitted");
+                chain.push(cur.model.clone());
             }
             None => break,
         }
@@ -839,6 +844,7 @@ pub fn diagnose(
     Ok(Diagnosis {
         report,
         model: cur.model,
+        chain,
     })
 }
 

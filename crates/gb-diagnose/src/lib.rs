@@ -21,6 +21,7 @@
 
 mod diagnose;
 pub mod evidence;
+pub mod html;
 mod model;
 pub mod stats;
 pub mod systems;
@@ -30,6 +31,7 @@ pub use diagnose::{
     Observer, OrderChoice, Report, Scores, Step, CAUSES, EVAL_SKIP,
 };
 pub use evidence::Evidence;
+pub use html::render_html;
 pub use model::{GreyBoxModel, ModelFitOptions, Structure, MAX_ORDER, MODEL_FORMAT_VERSION};
 
 /// Errors of the diagnosis crate.
@@ -51,4 +53,7 @@ pub enum DiagnoseError {
     /// Invalid argument.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// The HTML report could not be drawn.
+    #[error("report: {0}")]
+    Report(String),
 }

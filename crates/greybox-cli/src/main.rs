@@ -43,7 +43,7 @@ struct Cli {
 enum Command {
     /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
     #[command(
-        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json\n  greybox diagnose data.csv --order auto --save model.gbm"
+        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm"
     )]
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
@@ -144,6 +144,9 @@ struct DiagnoseArgs {
     /// Save the final model (postcard).
     #[arg(long, value_name = "FILE")]
     save: Option<PathBuf>,
+    /// Write a self-contained HTML report with plots (measured vs simulated, residual tests, evidence per cause, the extension).
+    #[arg(long, value_name = "FILE")]
+    report: Option<PathBuf>,
     /// Run on a generated example instead of files: shock-absorber, or any `generate` system.
     #[arg(long, value_name = "NAME", conflicts_with = "train")]
     example: Option<String>,
@@ -329,7 +332,23 @@ fn run_diagnose(a: DiagnoseArgs, quiet: bool) -> Result<()> {
     let d = diagnose(&data, &opts, Some(&obs)).map_err(|e| e.to_string())?;
     pb.finish_and_clear();
     print_report(&d.report);
+    // render before writing anything: a failure leaves no output file behind
+    let html = match &a.report {
+        Some(_) => {
+            let title = match (&a.example, &a.train) {
+                (Some(ex), _) => format!("greybox diagnosis: example {ex}"),
+                (None, Some(p)) => format!("greybox diagnosis: {}", p.display()),
+                _ => "greybox diagnosis".to_string(),
+            };
+            Some(gb_diagnose::render_html(&d, &data, &title).map_err(|e| e.to_string())?)
+        }
+        None => None,
+    };
     // write outputs only after everything succeeded (each write is atomic)
+    if let (Some(p), Some(h)) = (&a.report, &html) {
+        gb_core::write_atomic(p, h.as_bytes()).map_err(|e| e.to_string())?;
+        println!("HTML report written to {}", p.display());
+    }
     if let Some(j) = &a.json {
         let text = serde_json::to_string_pretty(&d.report).map_err(|e| e.to_string())?;
         gb_core::write_atomic(j, text.as_bytes()).map_err(|e| e.to_string())?;
