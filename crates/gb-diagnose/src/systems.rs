@@ -312,6 +312,9 @@ fn simulate(p: &Params, u: &[f64], ts: f64) -> Vec<f64> {
     y
 }
 
+/// Largest data set [`generate`] writes (10 million samples).
+pub const MAX_GENERATED: usize = 10_000_000;
+
 /// Generate training (8000 samples) and validation (4000 samples) data for
 /// `system` with `seed`: fixed seeds give identical files on every platform.
 ///
@@ -330,6 +333,11 @@ pub fn generate(
         return Err(CoreError::InvalidArgument(
             "at least 100 samples per data set".into(),
         ));
+    }
+    if n_train > MAX_GENERATED || n_validate > MAX_GENERATED {
+        return Err(CoreError::InvalidArgument(format!(
+            "at most {MAX_GENERATED} samples per data set"
+        )));
     }
     let mut r = rng::stream(seed, 0);
     let p = base_params(system, &mut r)?;

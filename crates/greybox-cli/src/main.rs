@@ -10,6 +10,8 @@ use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+mod bench;
+
 const ABOUT: &str =
     "greybox: identify nonlinear dynamical systems and see what your model gets wrong";
 
@@ -71,6 +73,30 @@ enum Command {
         after_help = "Example:\n  greybox wavelet data.csv --column y --wavelet db4 --level 5 --mode periodization -o coeffs.csv\n\nColumns: level,index,value; level 0 is the approximation, then details coarse to fine (PyWavelets' wavedec order)."
     )]
     Wavelet(WaveletArgs),
+    /// Run the real benchmarks (Bouc-Wen, Silverbox, WH2009, tanks, EMPS, MR damper) and print the results table.
+    #[command(
+        after_help = "Benchmarks: bouc-wen, silverbox, wh2009, tanks, emps, mr-damper\n\nEach benchmark: `diagnose` on the training record chooses the model, which is then simulated in free run on the official test sets with their init windows. The table shows our RMSE next to our linear OE model, the published LTI result and the best published result.\n\nExamples:\n  greybox bench --quick                       # a few minutes, subsets (CI)\n  greybox bench --only silverbox --only tanks\n  greybox bench --data-dir ../shared/data --results docs/results.md\n\nA missing data folder prints a notice and exits 0."
+    )]
+    Bench(BenchArgs),
+}
+
+#[derive(Args)]
+struct BenchArgs {
+    /// Folder with the benchmark data (default: $GREYBOX_DATA, else ../shared/data).
+    #[arg(long, value_name = "DIR")]
+    data_dir: Option<PathBuf>,
+    /// Run only this benchmark (repeatable).
+    #[arg(long, value_name = "NAME")]
+    only: Vec<String>,
+    /// Small subsets and one diagnosis step: minutes, for CI; not comparable with published numbers.
+    #[arg(long)]
+    quick: bool,
+    /// Markdown file whose generated results block is replaced (default: docs/results.md for a full run, none for --quick).
+    #[arg(long, value_name = "FILE")]
+    results: Option<PathBuf>,
+    /// Do not write a results file.
+    #[arg(long, conflicts_with = "results")]
+    no_results: bool,
 }
 
 #[derive(Args)]
@@ -208,7 +234,8 @@ type Result<T> = std::result::Result<T, String>;
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let quiet = cli.quiet || !std::io::stderr().is_terminal();
+    // progress bars only for a person watching: silent when piped
+    let quiet = cli.quiet || !std::io::stdout().is_terminal() || !std::io::stderr().is_terminal();
     let r = match cli.command {
         Command::Diagnose(a) => run_diagnose(a, quiet),
         Command::Fit(a) => run_fit(a, quiet),
@@ -216,6 +243,7 @@ fn main() -> ExitCode {
         Command::Generate(a) => run_generate(a),
         Command::Denoise(a) => run_denoise(a),
         Command::Wavelet(a) => run_wavelet(a),
+        Command::Bench(a) => run_bench(a, quiet),
     };
     match r {
         Ok(()) => ExitCode::SUCCESS,
@@ -618,4 +646,25 @@ fn run_wavelet(a: WaveletArgs) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+fn run_bench(a: BenchArgs, quiet: bool) -> Result<()> {
+    let data_dir = a
+        .data_dir
+        .or_else(|| std::env::var_os("GREYBOX_DATA").map(PathBuf::from))
+        .unwrap_or_else(|| PathBuf::from("../shared/data"));
+    let results = if a.no_results {
+        None
+    } else {
+        a.results
+            .or_else(|| (!a.quick).then(|| PathBuf::from("docs/results.md")))
+    };
+    bench::run(&bench::BenchOptions {
+        data_dir,
+        only: a.only,
+        quick: a.quick,
+        quiet,
+        results,
+    })
+    .map(|_| ())
 }

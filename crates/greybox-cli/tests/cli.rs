@@ -335,8 +335,66 @@ fn bad_input_is_one_line_exit_2_no_output() {
         "--threshold",
         &den,
     );
-    // unknown system
+    // absurd sizes and values
     let gd = d.join("gen");
+    assert_bad(
+        &[
+            "generate",
+            "linear",
+            "-o",
+            gd.to_str().unwrap(),
+            "--samples",
+            "100000000000",
+        ],
+        "at most",
+        &gd.join("train.csv"),
+    );
+    assert_bad(
+        &[
+            "diagnose",
+            g,
+            "--max-steps",
+            "100",
+            "--json",
+            rep.to_str().unwrap(),
+        ],
+        "--max-steps",
+        &rep,
+    );
+    let wav = d.join("w.csv");
+    assert_bad(
+        &[
+            "wavelet",
+            g,
+            "--column",
+            "y",
+            "--level",
+            "99",
+            "-o",
+            wav.to_str().unwrap(),
+        ],
+        "level 99",
+        &wav,
+    );
+    let out2 = d.join("out2.gbm");
+    assert_bad(
+        &["fit", g, "--order", "1000", "-o", out2.to_str().unwrap()],
+        "order must be in 1..=",
+        &out2,
+    );
+    let html = d.join("r.html");
+    assert_bad(
+        &[
+            "bench",
+            "--only",
+            "bogus",
+            "--results",
+            html.to_str().unwrap(),
+        ],
+        "unknown benchmark 'bogus'",
+        &html,
+    );
+    // unknown system
     assert_bad(
         &["generate", "warp-drive", "-o", gd.to_str().unwrap()],
         "unknown system 'warp-drive'",
@@ -407,7 +465,7 @@ fn help_teaches_the_workflow() {
     assert!(o.status.success());
     assert!(s.contains("greybox diagnose --example shock-absorber"));
     for sub in [
-        "diagnose", "fit", "simulate", "generate", "denoise", "wavelet",
+        "diagnose", "fit", "simulate", "generate", "denoise", "wavelet", "bench",
     ] {
         assert!(s.contains(sub), "help lacks {sub}");
         let o = run(&[sub, "--help"]);
@@ -417,4 +475,70 @@ fn help_teaches_the_workflow() {
             "{sub} help lacks an example"
         );
     }
+}
+
+#[test]
+fn bench_without_data_is_a_notice_and_exit_0() {
+    let d = tmp("bench-none");
+    let res = d.join("results.md");
+    let o = run(&[
+        "bench",
+        "--data-dir",
+        d.join("absent").to_str().unwrap(),
+        "--results",
+        res.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(stdout(&o).contains("not found; nothing run"));
+    assert!(!res.exists(), "nothing run, nothing written");
+}
+
+/// With the real data present: the quick bench on the smallest benchmark
+/// prints a table row with our RMSE and the published numbers, and
+/// replaces only the generated block of the results file.
+#[test]
+fn bench_quick_runs_a_benchmark_and_writes_its_block() {
+    let data = std::env::var_os("GREYBOX_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    if !data.join("cascaded_tanks/train.csv").is_file() {
+        eprintln!(
+            "bench test skipped: {} not found (set GREYBOX_DATA)",
+            data.display()
+        );
+        return;
+    }
+    let d = tmp("bench-quick");
+    let res = d.join("results.md");
+    write(&res, "# Results\n\nhand-written text stays\n");
+    let args = [
+        "bench",
+        "--quick",
+        "--only",
+        "tanks",
+        "--data-dir",
+        data.to_str().unwrap(),
+        "--results",
+        res.to_str().unwrap(),
+    ];
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    assert!(
+        s.contains("| Cascaded tanks with overflow | test (init window 50"),
+        "{s}"
+    );
+    assert!(
+        s.contains("0.588 V") && s.contains("0.191 V"),
+        "published numbers: {s}"
+    );
+    let text = std::fs::read_to_string(&res).unwrap();
+    assert!(text.starts_with("# Results\n\nhand-written text stays\n"));
+    assert_eq!(text.matches("greybox bench: begin").count(), 1);
+    // a second run replaces the block instead of appending another
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = std::fs::read_to_string(&res).unwrap();
+    assert_eq!(text.matches("greybox bench: begin").count(), 1);
+    assert!(text.contains("hand-written text stays"));
 }

@@ -1,0 +1,517 @@
+//! `greybox bench`: the field's real benchmarks with their standard splits and
+//! init windows, our models next to the LTI and best published results.
+//!
+//! For every benchmark the model class is chosen by `diagnose` on the
+//! training data (fit and select blocks of the training record; the test
+//! records are never used for a decision), then the final model is
+//! simulated in free run on each official test set with its init window.
+use gb_core::{metrics, CsvTable, DataSet};
+use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, GreyBoxModel, OrderChoice};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// How the test samples are scored.
+#[derive(Clone, Copy)]
+enum Init {
+    /// The first `n` measured outputs initialise the state; samples n.. are scored.
+    Window(usize),
+    /// Periodic steady state: the input is applied twice from rest and the
+    /// second period is scored (no measured output used).
+    Periodic,
+    /// From rest (zero initial conditions); every sample is scored.
+    Rest,
+}
+
+struct TestSet {
+    name: &'static str,
+    file: &'static str,
+    init: Init,
+    /// Published LTI result (in `unit`), if any.
+    lti: Option<f64>,
+    /// Best published result and who.
+    best: Option<(f64, &'static str)>,
+}
+
+struct Benchmark {
+    name: &'static str,
+    title: &'static str,
+    dir: &'static str,
+    train: &'static str,
+    /// Training rows used (full run), after skipping `skip` rows.
+    skip: usize,
+    rows: usize,
+    inputs: &'static [&'static str],
+    output: &'static str,
+    /// Display unit and factor from the file's unit.
+    unit: &'static str,
+    factor: f64,
+    order: usize,
+    tests: Vec<TestSet>,
+}
+
+fn benchmarks() -> Vec<Benchmark> {
+    vec![
+        Benchmark {
+            name: "bouc-wen",
+            title: "Bouc-Wen hysteretic benchmark",
+            dir: "bouc_wen",
+            train: "train_multisine_forgione.csv",
+            skip: 8192,
+            rows: 16384,
+            inputs: &["u"],
+            output: "y",
+            unit: "m",
+            factor: 1.0,
+            order: 2,
+            tests: vec![
+                TestSet {
+                    name: "multisine",
+                    file: "test_multisine.csv",
+                    init: Init::Periodic,
+                    lti: None,
+                    best: Some((7.53e-6, "gr-SS-NN, Iacob et al. 2025")),
+                },
+                TestSet {
+                    name: "sine sweep",
+                    file: "test_sinesweep.csv",
+                    init: Init::Rest,
+                    lti: None,
+                    best: None,
+                },
+            ],
+        },
+        Benchmark {
+            name: "silverbox",
+            title: "Silverbox (electronic Duffing oscillator)",
+            dir: "silverbox",
+            train: "train_multisine.csv",
+            skip: 0,
+            rows: 20000,
+            inputs: &["u"],
+            output: "y",
+            unit: "mV",
+            factor: 1e3,
+            order: 2,
+            tests: vec![
+                TestSet {
+                    name: "multisine",
+                    file: "test_multisine.csv",
+                    init: Init::Window(50),
+                    lti: Some(6.96),
+                    best: Some((0.301, "GP NARX, Champneys et al. 2024")),
+                },
+                TestSet {
+                    name: "arrow full",
+                    file: "test_arrow_full.csv",
+                    init: Init::Window(50),
+                    lti: Some(14.4),
+                    best: Some((0.26, "PNLSS, Paduart 2010")),
+                },
+                TestSet {
+                    name: "arrow no-extrapolation",
+                    file: "test_arrow_no_extrapolation.csv",
+                    init: Init::Window(50),
+                    lti: Some(6.58),
+                    best: Some((0.259, "GP NARX, Champneys et al. 2024")),
+                },
+            ],
+        },
+        Benchmark {
+            name: "wh2009",
+            title: "Wiener-Hammerstein 2009",
+            dir: "wiener_hammerstein_2009",
+            train: "train.csv",
+            skip: 0,
+            rows: 20000,
+            inputs: &["u"],
+            output: "y",
+            unit: "mV",
+            factor: 1e3,
+            order: 2,
+            tests: vec![TestSet {
+                name: "test",
+                file: "test.csv",
+                init: Init::Window(50),
+                lti: Some(43.4),
+                best: Some((0.241, "DT SUBNET, Beintema 2021")),
+            }],
+        },
+        Benchmark {
+            name: "tanks",
+            title: "Cascaded tanks with overflow",
+            dir: "cascaded_tanks",
+            train: "train.csv",
+            skip: 0,
+            rows: 1024,
+            inputs: &["u"],
+            output: "y",
+            unit: "V",
+            factor: 1.0,
+            order: 2,
+            tests: vec![TestSet {
+                name: "test",
+                file: "test.csv",
+                init: Init::Window(50),
+                lti: Some(0.588),
+                best: Some((0.191, "grey-box, Worden 2018")),
+            }],
+        },
+        Benchmark {
+            name: "emps",
+            title: "Electro-mechanical positioning system",
+            dir: "emps",
+            train: "train.csv",
+            skip: 0,
+            rows: 24841,
+            inputs: &["u"],
+            output: "y",
+            unit: "mm",
+            factor: 1e3,
+            order: 2,
+            tests: vec![TestSet {
+                name: "pulses",
+                file: "test.csv",
+                init: Init::Window(20),
+                lti: Some(5.53),
+                best: Some((2.64, "dynoNet, Forgione & Piga 2021")),
+            }],
+        },
+        Benchmark {
+            name: "mr-damper",
+            title: "MR damper, Dyke white-noise test (first 60 % train, last 40 % test)",
+            dir: "mr_damper_dyke_nees",
+            train: "ranran_50.csv",
+            skip: 0,
+            rows: 20000,
+            inputs: &["D", "V", "Y"],
+            output: "F",
+            unit: "N",
+            factor: 1.0,
+            order: 2,
+            tests: vec![TestSet {
+                name: "last 40 %",
+                file: "ranran_50.csv",
+                init: Init::Window(50),
+                lti: None,
+                best: None,
+            }],
+        },
+    ]
+}
+
+/// Names `--only` accepts.
+pub fn names() -> Vec<&'static str> {
+    benchmarks().iter().map(|b| b.name).collect()
+}
+
+/// Options of a bench run.
+pub struct BenchOptions {
+    pub data_dir: PathBuf,
+    pub only: Vec<String>,
+    pub quick: bool,
+    pub quiet: bool,
+    pub results: Option<PathBuf>,
+}
+
+struct Row {
+    bench: &'static str,
+    title: &'static str,
+    test: &'static str,
+    unit: &'static str,
+    ours: f64,
+    ours_nrmse: f64,
+    linear: f64,
+    lti: Option<f64>,
+    best: Option<(f64, &'static str)>,
+    model: String,
+    causes: Vec<String>,
+    fit_s: f64,
+    samples: usize,
+    train_rows: usize,
+}
+
+fn load(path: &Path, inputs: &[&str], output: &str) -> Result<DataSet, String> {
+    let t = CsvTable::read(path).map_err(|e| e.to_string())?;
+    let inputs: Vec<String> = inputs.iter().map(|s| s.to_string()).collect();
+    DataSet::from_table(&t, &inputs, Some(output)).map_err(|e| e.to_string())
+}
+
+/// Free-run test error (RMSE in file units, NRMSE) of `m` on `test` under `init`.
+fn score(m: &GreyBoxModel, test: &DataSet, init: Init) -> Result<(f64, f64, usize), String> {
+    let (y, sim): (Vec<f64>, Vec<f64>) = match init {
+        Init::Window(n) => {
+            let n = n.min(test.len() / 2);
+            let sim = m
+                .simulate_init_window(&test.inputs, &test.output[..n])
+                .map_err(|e| e.to_string())?;
+            (test.output[n..].to_vec(), sim[n..].to_vec())
+        }
+        Init::Periodic => {
+            let twice: Vec<Vec<f64>> = test.inputs.iter().map(|u| u.repeat(2)).collect();
+            let rest = vec![0.0; m.max_lag()];
+            let sim = gb_core::Simulate::simulate(m, &twice, &rest).map_err(|e| e.to_string())?;
+            (test.output.clone(), sim[test.len()..].to_vec())
+        }
+        Init::Rest => {
+            let rest = vec![0.0; m.max_lag()];
+            let sim =
+                gb_core::Simulate::simulate(m, &test.inputs, &rest).map_err(|e| e.to_string())?;
+            (test.output.clone(), sim)
+        }
+    };
+    let rmse = metrics::rmse(&y, &sim).map_err(|e| e.to_string())?;
+    let nrmse = metrics::nrmse(&y, &sim).map_err(|e| e.to_string())?;
+    Ok((rmse, nrmse, y.len()))
+}
+
+struct Observer(ProgressBar);
+
+impl gb_diagnose::Observer for Observer {
+    fn progress(&self, done: usize, total: usize, message: &str) {
+        self.0.set_length(total as u64);
+        self.0.set_position(done as u64);
+        self.0.set_message(message.to_string());
+    }
+}
+
+fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, String> {
+    let root = dir.join(b.dir);
+    let full = load(&root.join(b.train), b.inputs, b.output)?;
+    let (rows, test_cap) = if o.quick {
+        (3000, Some(4000))
+    } else {
+        (b.rows, None)
+    };
+    // MR damper: one record, the last 40 % is the test set
+    let split_test = b.tests.len() == 1 && b.tests[0].file == b.train;
+    let train_end = if split_test {
+        full.len() * 6 / 10
+    } else {
+        full.len()
+    };
+    let start = b.skip.min(train_end);
+    let train = full.slice(start..(start + rows).min(train_end));
+    let mut tests = vec![];
+    for t in &b.tests {
+        let mut d = if split_test {
+            full.slice(train_end..full.len())
+        } else {
+            load(&root.join(t.file), b.inputs, b.output)?
+        };
+        if let Some(cap) = test_cap {
+            d = d.slice(0..cap.min(d.len()));
+        }
+        tests.push(d);
+    }
+    let pb = ProgressBar::new(3);
+    if o.quiet {
+        pb.set_draw_target(ProgressDrawTarget::hidden());
+    } else {
+        pb.set_style(
+            ProgressStyle::with_template(
+                "{spinner} {prefix} [{bar:20}] {pos}/{len} {msg} ({elapsed})",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+        );
+        pb.set_prefix(b.name);
+        pb.enable_steady_tick(std::time::Duration::from_millis(120));
+    }
+    let t0 = Instant::now();
+    let data = DiagnoseData::with_validation(train.clone(), tests[0].clone())
+        .map_err(|e| e.to_string())?;
+    let opts = DiagnoseOptions {
+        order: OrderChoice::Fixed(b.order),
+        max_steps: if o.quick { 1 } else { 2 },
+        ..DiagnoseOptions::default()
+    };
+    let obs = Observer(pb.clone());
+    let dg = diagnose(&data, &opts, Some(&obs)).map_err(|e| e.to_string())?;
+    let fit_s = t0.elapsed().as_secs_f64();
+    pb.finish_and_clear();
+    let baseline = dg.chain.first().unwrap_or(&dg.model);
+    let mut out = vec![];
+    for (t, d) in b.tests.iter().zip(&tests) {
+        let (rmse, nrmse, n) = score(&dg.model, d, t.init)?;
+        let (lin, _, _) = score(baseline, d, t.init)?;
+        out.push(Row {
+            bench: b.name,
+            title: b.title,
+            test: t.name,
+            unit: b.unit,
+            ours: rmse * b.factor,
+            ours_nrmse: nrmse,
+            linear: lin * b.factor,
+            lti: t.lti,
+            best: t.best,
+            model: format!(
+                "{}, order {}, {} parameters",
+                dg.report.final_model.spec,
+                dg.report.final_model.order,
+                dg.report.final_model.parameters
+            ),
+            causes: dg.report.causes.clone(),
+            fit_s,
+            samples: n,
+            train_rows: train.len(),
+        });
+    }
+    Ok(out)
+}
+
+fn fmt_val(v: f64, unit: &str) -> String {
+    let a = v.abs();
+    let s = if a != 0.0 && !(1e-2..1e4).contains(&a) {
+        format!("{v:.3e}")
+    } else if a >= 100.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.3}")
+    };
+    format!("{s} {unit}")
+}
+
+fn init_text(i: Init) -> String {
+    match i {
+        Init::Window(n) => format!("init window {n}"),
+        Init::Periodic => "periodic steady state".into(),
+        Init::Rest => "from rest".into(),
+    }
+}
+
+/// Run the benchmarks; prints the table and (optionally) writes the results
+/// block of a Markdown file. Returns the number of benchmarks run.
+pub fn run(o: &BenchOptions) -> Result<usize, String> {
+    let all = benchmarks();
+    for n in &o.only {
+        if !all.iter().any(|b| b.name == n) {
+            return Err(format!(
+                "--only: unknown benchmark '{n}' (known: {})",
+                names().join(", ")
+            ));
+        }
+    }
+    if !o.data_dir.is_dir() {
+        println!(
+            "greybox bench: data folder {} not found; nothing run (give --data-dir or set GREYBOX_DATA to the benchmark data, see README)",
+            o.data_dir.display()
+        );
+        return Ok(0);
+    }
+    let selected: Vec<&Benchmark> = all
+        .iter()
+        .filter(|b| o.only.is_empty() || o.only.iter().any(|n| n == b.name))
+        .collect();
+    let mut rows: Vec<Row> = vec![];
+    let mut inits = vec![];
+    for b in &selected {
+        let missing: Vec<String> = std::iter::once(b.train)
+            .chain(b.tests.iter().map(|t| t.file))
+            .filter(|f| !o.data_dir.join(b.dir).join(f).is_file())
+            .map(|f| format!("{}/{f}", b.dir))
+            .collect();
+        if !missing.is_empty() {
+            println!("{}: skipped, missing {}", b.name, missing.join(", "));
+            continue;
+        }
+        match run_one(b, &o.data_dir, o) {
+            Ok(r) => {
+                for (t, row) in b.tests.iter().zip(&r) {
+                    println!(
+                        "{:<10} {:<24} ours {:>14}  (NRMSE {:.4})  linear OE {:>14}  fit {:.1} s",
+                        row.bench,
+                        row.test,
+                        fmt_val(row.ours, row.unit),
+                        row.ours_nrmse,
+                        fmt_val(row.linear, row.unit),
+                        row.fit_s
+                    );
+                    inits.push(init_text(t.init));
+                }
+                rows.extend(r);
+            }
+            Err(e) => println!("{}: failed: {e}", b.name),
+        }
+    }
+    let n_run = rows
+        .iter()
+        .map(|r| r.bench)
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    let table = markdown(&rows, &inits, o.quick);
+    println!();
+    println!("{table}");
+    if let Some(p) = &o.results {
+        write_results(p, &table)?;
+        println!("results written to {}", p.display());
+    }
+    Ok(n_run)
+}
+
+fn markdown(rows: &[Row], inits: &[String], quick: bool) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| benchmark | test set (scoring) | greybox | linear OE (ours) | LTI published | best published | model (diagnosed causes) | training rows | fit time |"
+    );
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+    for (r, init) in rows.iter().zip(inits) {
+        let _ = writeln!(
+            s,
+            "| {} | {} ({}, {} samples) | **{}** | {} | {} | {} | {} ({}) | {} | {:.0} s |",
+            r.title,
+            r.test,
+            init,
+            r.samples,
+            fmt_val(r.ours, r.unit),
+            fmt_val(r.linear, r.unit),
+            r.lti.map_or("—".into(), |v| fmt_val(v, r.unit)),
+            r.best.map_or("—".into(), |(v, who)| format!(
+                "{} ({who})",
+                fmt_val(v, r.unit)
+            )),
+            r.model,
+            if r.causes.is_empty() {
+                "none".into()
+            } else {
+                r.causes.join(", ")
+            },
+            r.train_rows,
+            r.fit_s
+        );
+    }
+    if quick {
+        s.push_str("\n(--quick: 3000 training rows, one diagnosis step, at most 4000 test samples; not comparable with published numbers.)\n");
+    }
+    s
+}
+
+const BEGIN: &str = "<!-- greybox bench: begin (generated by `greybox bench`, do not edit) -->";
+const END: &str = "<!-- greybox bench: end -->";
+
+/// Replace the generated block of `path` (between the markers) by `table`,
+/// or append a section with it.
+fn write_results(path: &Path, table: &str) -> Result<(), String> {
+    let old = std::fs::read_to_string(path).unwrap_or_default();
+    let date = std::process::Command::new("date")
+        .arg("-u")
+        .arg("+%Y-%m-%d")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .map(|s| s.trim().to_string())
+        .unwrap_or_default();
+    let block = format!(
+        "{BEGIN}\nGenerated by `greybox bench` on {date} ({} cores). Free-run simulation RMSE on the official test sets.\n\n{table}{END}",
+        std::thread::available_parallelism().map_or(1, |n| n.get())
+    );
+    let new = match (old.find(BEGIN), old.find(END)) {
+        (Some(a), Some(b)) if b > a => format!("{}{block}{}", &old[..a], &old[b + END.len()..]),
+        _ if old.is_empty() => {
+            format!("# Results on real benchmark data\n\n## `greybox bench`\n\n{block}\n")
+        }
+        _ => format!("{}\n## `greybox bench`\n\n{block}\n", old.trim_end()),
+    };
+    gb_core::write_atomic(path, new.as_bytes()).map_err(|e| e.to_string())
+}
