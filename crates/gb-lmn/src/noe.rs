@@ -183,6 +183,35 @@ pub struct TrainReport {
     pub mse_final: f64,
 }
 
+/// G += BᵀB for a row-major block B (`rows` × n, n = G's size) of
+/// sensitivity rows: one packed GEMM (matrixmultiply) per block.
+fn add_gram(g: &mut DMatrix<f64>, block: &[f64], rows: usize) {
+    let n = g.nrows();
+    assert!(g.ncols() == n && block.len() >= rows * n);
+    // SAFETY: Bᵀ is n × rows with strides (1, n) into `block`, B is rows × n
+    // with strides (n, 1) into `block` (both within block[..rows·n], checked
+    // above), and G is n × n column-major with strides (1, n); G does not
+    // alias `block`.
+    unsafe {
+        matrixmultiply::dgemm(
+            n,
+            rows,
+            n,
+            1.0,
+            block.as_ptr(),
+            1,
+            n as isize,
+            block.as_ptr(),
+            n as isize,
+            1,
+            1.0,
+            g.as_mut_ptr(),
+            1,
+            n as isize,
+        );
+    }
+}
+
 /// Normalised signals of one experiment prepared for simulation.
 pub(crate) struct Prepared {
     pub un: Vec<Vec<f64>>,
@@ -503,7 +532,7 @@ impl LocalModelNetwork {
         // Sensitivity rows are gathered in blocks and JᵀWJ is updated with one
         // matrix product per block (SIMD GEMM instead of rank-1 updates).
         const BLOCK: usize = 64;
-        let mut sblk = DMatrix::<f64>::zeros(BLOCK, np);
+        let mut sblk = vec![0.0; BLOCK * np];
         let mut nblk = 0;
         for k in k0..n {
             oh.advance(k, out[k - 1]);
@@ -561,19 +590,19 @@ impl LocalModelNetwork {
             let w = weights.map_or(1.0, |w| w[k]);
             cost += w * e * e;
             let sw = w.sqrt();
+            let row = &mut sblk[nblk * np..(nblk + 1) * np];
             for a in 0..np {
                 jtr[a] += w * snew[a] * e;
-                sblk[(nblk, a)] = sw * snew[a];
+                row[a] = sw * snew[a];
             }
             nblk += 1;
             if nblk == BLOCK {
-                jtj.gemm_tr(1.0, &sblk, &sblk, 1.0);
+                add_gram(jtj, &sblk, nblk);
                 nblk = 0;
             }
         }
         if nblk > 0 {
-            let part = sblk.rows(0, nblk);
-            jtj.gemm_tr(1.0, &part, &part, 1.0);
+            add_gram(jtj, &sblk, nblk);
         }
         Some(cost)
     }
@@ -804,27 +833,30 @@ pub(crate) fn weighted_ls(
     let n = y.len();
     let mut ata = DMatrix::<f64>::zeros(p, p);
     let mut aty = DVector::<f64>::zeros(p);
-    {
-        let s = ata.as_mut_slice();
-        for k in 0..n {
-            let wk = w.map_or(1.0, |w| w[k]);
-            if wk == 0.0 {
-                continue;
-            }
-            let row = &a[k * p..(k + 1) * p];
-            for i in 0..p {
-                let wi = wk * row[i];
-                aty[i] += wi * y[k];
-                for j in i..p {
-                    s[j * p + i] += wi * row[j];
-                }
-            }
+    // AᵀWA by blocks of √w-scaled rows, one GEMM per block
+    const BLOCK: usize = 64;
+    let mut blk = vec![0.0; BLOCK * p];
+    let mut nb = 0;
+    for k in 0..n {
+        let wk = w.map_or(1.0, |w| w[k]);
+        if wk == 0.0 {
+            continue;
         }
+        let row = &a[k * p..(k + 1) * p];
+        let sw = wk.sqrt();
+        let dst = &mut blk[nb * p..(nb + 1) * p];
         for i in 0..p {
-            for j in (i + 1)..p {
-                s[i * p + j] = s[j * p + i];
-            }
+            aty[i] += wk * row[i] * y[k];
+            dst[i] = sw * row[i];
         }
+        nb += 1;
+        if nb == BLOCK {
+            add_gram(&mut ata, &blk, nb);
+            nb = 0;
+        }
+    }
+    if nb > 0 {
+        add_gram(&mut ata, &blk, nb);
     }
     let tr = (0..p).map(|i| ata[(i, i)]).sum::<f64>() / p.max(1) as f64;
     let reg = ridge.max(1e-12) * tr.max(1e-300);
@@ -1089,6 +1121,23 @@ pub fn fit_linear_oe_warm(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gram_block_matches_naive_sum() {
+        let (rows, n) = (37, 11);
+        let b: Vec<f64> = (0..rows * n)
+            .map(|i| ((i * 7919) % 101) as f64 / 50.0 - 1.0)
+            .collect();
+        let mut g = DMatrix::from_fn(n, n, |i, j| (i + 2 * j) as f64);
+        let g0 = g.clone();
+        add_gram(&mut g, &b, rows);
+        for i in 0..n {
+            for j in 0..n {
+                let naive: f64 = (0..rows).map(|k| b[k * n + i] * b[k * n + j]).sum();
+                assert!((g[(i, j)] - g0[(i, j)] - naive).abs() < 1e-12);
+            }
+        }
+    }
     use rand::SeedableRng;
     use rand_distr::{Distribution, StandardNormal};
 
