@@ -48,6 +48,9 @@ struct Benchmark {
     unit: &'static str,
     factor: f64,
     order: usize,
+    /// The output integrates (position from force): the model is identified
+    /// for the increments Δy(k) = y(k) − y(k−1) and its simulation is summed.
+    integrating: bool,
     tests: Vec<TestSet>,
 }
 
@@ -65,6 +68,7 @@ fn benchmarks() -> Vec<Benchmark> {
             unit: "m",
             factor: 1.0,
             order: 2,
+            integrating: false,
             tests: vec![
                 TestSet {
                     name: "multisine",
@@ -94,6 +98,7 @@ fn benchmarks() -> Vec<Benchmark> {
             unit: "mV",
             factor: 1e3,
             order: 2,
+            integrating: false,
             tests: vec![
                 TestSet {
                     name: "multisine",
@@ -130,6 +135,7 @@ fn benchmarks() -> Vec<Benchmark> {
             unit: "mV",
             factor: 1e3,
             order: 2,
+            integrating: false,
             tests: vec![TestSet {
                 name: "test",
                 file: "test.csv",
@@ -150,6 +156,7 @@ fn benchmarks() -> Vec<Benchmark> {
             unit: "V",
             factor: 1.0,
             order: 2,
+            integrating: false,
             tests: vec![TestSet {
                 name: "test",
                 file: "test.csv",
@@ -170,6 +177,7 @@ fn benchmarks() -> Vec<Benchmark> {
             unit: "mm",
             factor: 1e3,
             order: 2,
+            integrating: true,
             tests: vec![TestSet {
                 name: "pulses",
                 file: "test.csv",
@@ -190,6 +198,7 @@ fn benchmarks() -> Vec<Benchmark> {
             unit: "N",
             factor: 1.0,
             order: 2,
+            integrating: false,
             tests: vec![TestSet {
                 name: "last 40 %",
                 file: "ranran_50.csv",
@@ -238,8 +247,48 @@ fn load(path: &Path, inputs: &[&str], output: &str) -> Result<DataSet, String> {
     DataSet::from_table(&t, &inputs, Some(output)).map_err(|e| e.to_string())
 }
 
-/// Free-run test error (RMSE in file units, NRMSE) of `m` on `test` under `init`.
-fn score(m: &GreyBoxModel, test: &DataSet, init: Init) -> Result<(f64, f64, usize), String> {
+/// Increments Δy(k) = y(k) − y(k−1) (Δy(0) = 0) as the output.
+fn increments(d: &DataSet) -> DataSet {
+    let mut out = d.clone();
+    for k in (1..d.len()).rev() {
+        out.output[k] = d.output[k] - d.output[k - 1];
+    }
+    if let Some(v) = out.output.first_mut() {
+        *v = 0.0;
+    }
+    out.output_name = format!("d{}", d.output_name);
+    out
+}
+
+/// Free-run test error (RMSE in file units, NRMSE) of `m` on `test` under
+/// `init`; with `integrating`, `m` simulates the increments of the output and
+/// the simulated output is their running sum from the last initial sample.
+fn score(
+    m: &GreyBoxModel,
+    test: &DataSet,
+    init: Init,
+    integrating: bool,
+) -> Result<(f64, f64, usize), String> {
+    if integrating {
+        let Init::Window(n) = init else {
+            return Err("an integrating benchmark needs an init window".into());
+        };
+        let n = n.clamp(1, test.len() / 2);
+        let inc = increments(test);
+        let sim = m
+            .simulate_init_window(&inc.inputs, &inc.output[..n])
+            .map_err(|e| e.to_string())?;
+        let mut y_sim = Vec::with_capacity(test.len() - n);
+        let mut acc = test.output[n - 1];
+        for v in &sim[n..] {
+            acc += v;
+            y_sim.push(acc);
+        }
+        let y = &test.output[n..];
+        let rmse = metrics::rmse(y, &y_sim).map_err(|e| e.to_string())?;
+        let nrmse = metrics::nrmse(y, &y_sim).map_err(|e| e.to_string())?;
+        return Ok((rmse, nrmse, y.len()));
+    }
     let (y, sim): (Vec<f64>, Vec<f64>) = match init {
         Init::Window(n) => {
             let n = n.min(test.len() / 2);
@@ -319,8 +368,12 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
         pb.enable_steady_tick(std::time::Duration::from_millis(120));
     }
     let t0 = Instant::now();
-    let data = DiagnoseData::with_validation(train.clone(), tests[0].clone())
-        .map_err(|e| e.to_string())?;
+    let (train_m, val_m) = if b.integrating {
+        (increments(&train), increments(&tests[0]))
+    } else {
+        (train.clone(), tests[0].clone())
+    };
+    let data = DiagnoseData::with_validation(train_m, val_m).map_err(|e| e.to_string())?;
     let opts = DiagnoseOptions {
         order: OrderChoice::Fixed(b.order),
         max_steps: if o.quick { 1 } else { 2 },
@@ -333,8 +386,8 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
     let baseline = dg.chain.first().unwrap_or(&dg.model);
     let mut out = vec![];
     for (t, d) in b.tests.iter().zip(&tests) {
-        let (rmse, nrmse, n) = score(&dg.model, d, t.init)?;
-        let (lin, _, _) = score(baseline, d, t.init)?;
+        let (rmse, nrmse, n) = score(&dg.model, d, t.init, b.integrating)?;
+        let (lin, _, _) = score(baseline, d, t.init, b.integrating)?;
         out.push(Row {
             bench: b.name,
             title: b.title,
