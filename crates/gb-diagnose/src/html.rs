@@ -129,6 +129,29 @@ fn range(points: impl Iterator<Item = f64>) -> (f64, f64) {
     (lo - pad, hi + pad)
 }
 
+type Chart<'a, 'b> = ChartContext<
+    'a,
+    SVGBackend<'b>,
+    Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+>;
+
+/// White background, caption and axes areas of every plot.
+fn frame<'a, 'b>(
+    root: &'a DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    title: &str,
+    x: std::ops::Range<f64>,
+    y: std::ops::Range<f64>,
+) -> Result<Chart<'a, 'b>, DiagnoseError> {
+    root.fill(&WHITE).map_err(draw_err)?;
+    ChartBuilder::on(root)
+        .caption(title, ("sans-serif", 16))
+        .margin(10)
+        .x_label_area_size(38)
+        .y_label_area_size(64)
+        .build_cartesian_2d(x, y)
+        .map_err(draw_err)
+}
+
 /// A 2-D chart of line/point/stem series with optional horizontal lines
 /// (confidence bands), as an SVG string.
 fn chart(
@@ -156,14 +179,7 @@ fn chart(
     let mut buf = String::new();
     {
         let root = SVGBackend::with_string(&mut buf, (W, H)).into_drawing_area();
-        root.fill(&WHITE).map_err(draw_err)?;
-        let mut ch = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(10)
-            .x_label_area_size(38)
-            .y_label_area_size(64)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(draw_err)?;
+        let mut ch = frame(&root, title, x0..x1, y0..y1)?;
         let ylab = if log_y {
             format!("log10 {ylabel}")
         } else {
@@ -249,14 +265,7 @@ fn rect_chart(
     let mut buf = String::new();
     {
         let root = SVGBackend::with_string(&mut buf, (W, 420)).into_drawing_area();
-        root.fill(&WHITE).map_err(draw_err)?;
-        let mut ch = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 16))
-            .margin(10)
-            .x_label_area_size(38)
-            .y_label_area_size(64)
-            .build_cartesian_2d(x0..x1, y0..y1)
-            .map_err(draw_err)?;
+        let mut ch = frame(&root, title, x0..x1, y0..y1)?;
         ch.configure_mesh()
             .x_desc(xlabel)
             .y_desc(ylabel)
