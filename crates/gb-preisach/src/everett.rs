@@ -39,6 +39,17 @@ pub trait Everett {
     /// F(α, β) for nodes with α ≥ β.
     fn value(&self, alpha: &Self::Node, beta: &Self::Node) -> f64;
 
+    /// Signed open link of the staircase from corner `s` to the input `x`:
+    /// F(x, s) when `ascending`, −F(s, x) otherwise.
+    #[inline]
+    fn link(&self, x: &Self::Node, s: &Self::Node, ascending: bool) -> f64 {
+        if ascending {
+            self.value(x, s)
+        } else {
+            -self.value(s, x)
+        }
+    }
+
     /// Partial derivatives (∂F/∂α, ∂F/∂β) at α ≥ β; ∂F/∂α ≥ 0 ≥ ∂F/∂β for a
     /// non-negative density.
     fn partials(&self, alpha: &Self::Node, beta: &Self::Node) -> (f64, f64);
@@ -320,6 +331,14 @@ impl Everett for ParametricEverett {
     #[inline]
     fn value(&self, a: &ParametricNode, b: &ParametricNode) -> f64 {
         self.mass * (a.p - b.p) * (a.q - b.q)
+    }
+
+    /// F is symmetric in its nodes, so only the sign depends on the
+    /// direction (branch-free).
+    #[inline(always)]
+    fn link(&self, x: &ParametricNode, s: &ParametricNode, ascending: bool) -> f64 {
+        let v = self.mass * (x.p - s.p) * (x.q - s.q);
+        f64::from_bits(v.to_bits() ^ (u64::from(!ascending) << 63))
     }
 
     fn partials(&self, a: &ParametricNode, b: &ParametricNode) -> (f64, f64) {

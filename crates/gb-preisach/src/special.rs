@@ -170,7 +170,8 @@ static PHI_TABLE: std::sync::OnceLock<PhiTable> = std::sync::OnceLock::new();
 
 /// Piecewise polynomial table of Φ on [−9, 9]: 288 cells of width 1/16, each
 /// the degree-7 Chebyshev interpolant of Φ (from [`erfc`]) written in
-/// monomials of the local variable u ∈ [−1, 1].
+/// monomials of w = u/2 ∈ [−½, ½] (u ∈ [−1, 1] the Chebyshev variable; the
+/// coefficients are scaled by 2^m, exactly).
 #[allow(clippy::needless_range_loop)]
 pub(crate) fn phi_table() -> &'static PhiTable {
     PHI_TABLE.get_or_init(|| {
@@ -212,34 +213,41 @@ pub(crate) fn phi_table() -> &'static PhiTable {
                         mono[m] += c * t[j][m];
                     }
                 }
+                for (m, v) in mono.iter_mut().enumerate() {
+                    *v *= (1u32 << m) as f64;
+                }
                 PhiCell(mono)
             })
             .collect()
     })
 }
 
-/// Cell coordinate t = (z − z_lo)·16 of the [`phi_table`] for z: Φ(z) is
-/// [`normal_cdf_at`]`(table, z·16 + 144)`.
+/// Cell coordinate t = (z − z_lo)·16 − ½ of the [`phi_table`] for z (cell i
+/// is t ∈ [i − ½, i + ½)): Φ(z) is [`normal_cdf_at`]`(table, z·16 + 143.5)`.
 pub(crate) const PHI_T_SCALE: f64 = PHI_INV_H;
-/// Offset of the cell coordinate (−z_lo·16).
-pub(crate) const PHI_T_OFFSET: f64 = -PHI_LO * PHI_INV_H;
+/// Offset of the cell coordinate (−z_lo·16 − ½).
+pub(crate) const PHI_T_OFFSET: f64 = -PHI_LO * PHI_INV_H - 0.5;
 
-/// Φ at the table coordinate `t` = (z − z_lo)·16, from the table (absolute
-/// error below 5e-15) or, outside [−9, 9], from [`normal_cdf`].
+/// Φ at the table coordinate `t` = (z − z_lo)·16 − ½, from the table
+/// (absolute error below 5e-15) or, outside [−9, 9], from [`normal_cdf`].
 #[inline(always)]
 pub(crate) fn normal_cdf_at(table: &PhiTable, t: f64) -> f64 {
-    if !(t >= 0.0 && t < PHI_CELLS as f64) {
+    if !(t >= -0.5 && t < PHI_CELLS as f64 - 0.5) {
         return normal_cdf((t - PHI_T_OFFSET) / PHI_T_SCALE);
     }
-    let i = t as usize;
-    let u = 2.0 * (t - i as f64) - 1.0;
+    // Round to the nearest cell centre i: adding 1.5·2^52 leaves round(t) in
+    // the low mantissa bits (|t| < 2^31), and w = t − i ∈ [−½, ½] exactly.
+    const ROUND: f64 = 6_755_399_441_055_744.0;
+    let r = t + ROUND;
+    let i = r.to_bits() as u32 as usize;
+    let w = t - (r - ROUND);
     let c = &table[i].0;
     // Estrin's scheme (short dependency chains).
-    let u2 = u * u;
-    let u4 = u2 * u2;
-    let q0 = (c[0] + c[1] * u) + (c[2] + c[3] * u) * u2;
-    let q1 = (c[4] + c[5] * u) + (c[6] + c[7] * u) * u2;
-    q0 + q1 * u4
+    let w2 = w * w;
+    let w4 = w2 * w2;
+    let q0 = (c[0] + c[1] * w) + (c[2] + c[3] * w) * w2;
+    let q1 = (c[4] + c[5] * w) + (c[6] + c[7] * w) * w2;
+    q0 + q1 * w4
 }
 
 /// Fast standard normal distribution function: the [`phi_table`]
@@ -247,7 +255,7 @@ pub(crate) fn normal_cdf_at(table: &PhiTable, t: f64) -> f64 {
 /// outside.
 #[cfg(test)]
 pub fn normal_cdf_fast(z: f64) -> f64 {
-    normal_cdf_at(phi_table(), (z - PHI_LO) * PHI_INV_H)
+    normal_cdf_at(phi_table(), z * PHI_T_SCALE + PHI_T_OFFSET)
 }
 
 /// Standard normal density φ(z).
