@@ -55,9 +55,10 @@ pub(crate) struct Corner<N> {
     pub(crate) time: u64,
 }
 
-/// NaN lanes below slot 0 of each half of [`PreisachState::keys`] (≥ [`POP_CHUNK`]).
-const KEY_PAD: usize = 4;
-/// Keys compared per chunk when counting the wiped-out extrema.
+/// Padding keys (`i64::MAX`, never wiped) below corner 0 in
+/// [`PreisachState::keys`], enough for two chunks of the wipe-out count.
+const KEY_PAD: usize = 2 * POP_CHUNK;
+/// Extrema tested per chunk when counting the wiped-out ones.
 const POP_CHUNK: usize = 4;
 
 /// Caller-owned memory of a [`Preisach`] operator: a fixed-capacity stack of
@@ -68,13 +69,12 @@ const POP_CHUNK: usize = 4;
 #[derive(Debug, Clone)]
 pub struct PreisachState<N> {
     /// Corner slots; `buf[..n]` in use, `buf[n]` always exists.
-    buf: Vec<Corner<N>>,
-    /// Wipe-out keys of corner j at `(j & 1)·half + KEY_PAD + j/2`: s_j for
-    /// maxima (odd j), −s_j for minima (even j). Each half is decreasing over
-    /// its live lanes, so the corners wiped by x are the live keys ≤ ±x, a
-    /// suffix; lanes below `KEY_PAD` are NaN (never ≤).
-    keys: Vec<f64>,
-    half: usize,
+    buf: Box<[Corner<N>]>,
+    /// Wipe-out key of corner j at `KEY_PAD + j`: [`ord`]`(s_j)` for maxima
+    /// (odd j), `!ord(s_j)` for minima (even j). Keys of one parity decrease
+    /// towards the top, so the extrema that x wipes out, those with key
+    /// ≤ ord(x) (maxima) or ≤ !ord(x) (minima), are a suffix.
+    keys: Box<[i64]>,
     n: usize,
     pub(crate) run_x: f64,
     pub(crate) run_node: N,
@@ -192,13 +192,11 @@ impl<E: Everett> Preisach<E> {
             time: u64::MAX,
         };
         let slots = cap.saturating_add(1).min(66);
-        let half = KEY_PAD + slots / 2 + 1;
-        let mut keys = vec![f64::NAN; 2 * half];
-        keys[KEY_PAD] = -lo;
+        let mut keys = vec![i64::MAX; KEY_PAD + slots];
+        keys[KEY_PAD] = !ord(lo);
         let mut st = PreisachState {
-            buf: vec![anchor; slots],
-            keys,
-            half,
+            buf: vec![anchor; slots].into(),
+            keys: keys.into(),
             n: 1,
             run_x: lo,
             run_node: lo_node,
@@ -325,46 +323,46 @@ pub(crate) fn check_finite(x: &[f64]) -> Result<(), PreisachError> {
     }
 }
 
-impl<N: Copy> PreisachState<N> {
-    /// Double the corner slots (only without a memory cap ≤ 64).
-    #[cold]
-    #[inline(never)]
-    fn grow(&mut self) {
-        let slots = 2 * self.buf.len();
-        self.buf.resize(slots, self.buf[0]);
-        let half = KEY_PAD + slots / 2 + 1;
-        let mut keys = vec![f64::NAN; 2 * half];
-        for par in 0..2 {
-            let (old, new) = (par * self.half, par * half);
-            let live = self.half - KEY_PAD;
-            keys[new + KEY_PAD..new + KEY_PAD + live]
-                .copy_from_slice(&self.keys[old + KEY_PAD..old + self.half]);
-        }
-        self.keys = keys;
-        self.half = half;
-    }
+/// The corner slots and keys of [`PreisachState`] with twice the slots
+/// (only without a memory cap ≤ 64). Takes and returns the buffers, not the
+/// state, so the state never escapes the stepping loop and can live in
+/// registers.
+#[cold]
+#[inline(never)]
+fn grown<N: Copy>(buf: &[Corner<N>], keys: &[i64]) -> (Box<[Corner<N>]>, Box<[i64]>) {
+    let slots = 2 * buf.len();
+    let mut corners = buf.to_vec();
+    corners.resize(slots, buf[0]);
+    let mut new_keys = keys.to_vec();
+    new_keys.resize(KEY_PAD + slots, i64::MAX);
+    (corners.into(), new_keys.into())
 }
 
-/// Flip the sign of `v` when the corner count `n` is even (descending
-/// branch, or a minimum at slot `n`).
+/// Order-preserving map of a non-NaN float to i64 (−0 taken as +0):
+/// u < v ⇔ ord(u) < ord(v), and `!` reverses the order.
 #[inline(always)]
-fn signed(v: f64, n: usize) -> f64 {
-    f64::from_bits(v.to_bits() ^ ((!(n as u64) & 1) << 63))
+fn ord(v: f64) -> i64 {
+    let i = (v + 0.0).to_bits() as i64;
+    i ^ (((i >> 63) as u64) >> 1) as i64
 }
 
-/// Memory update: reversal detection, memory cap, wiping out. Branch-free
-/// except for rare long wipe-outs (more than [`POP_CHUNK`] pairs).
+/// Memory update: reversal detection, memory cap, wiping out. Integer and
+/// branch-free except for rare long wipe-outs (more than [`POP_CHUNK`]
+/// pairs), so the step-to-step dependency through the stack length is short.
 #[inline]
 pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
     let mut n = st.n;
     if n >= st.buf.len() {
-        st.grow();
+        (st.buf, st.keys) = grown(&st.buf, &st.keys);
     }
     // Work on locals: stores into the buffers cannot then force reloads of
     // the state fields.
-    let (run_x, cap, half) = (st.run_x, st.cap, st.half);
-    // Reversal: x − x_prev against the branch direction (odd n ascending).
-    let rev = signed(x - run_x, n) < 0.0;
+    let (run_x, cap) = (st.run_x, st.cap);
+    let (ox, orun) = (ord(x), ord(run_x));
+    // Parity mask: 0 ascending (odd n, top corner a minimum), −1 descending;
+    // xor with it turns "x < run_x" into "x > run_x".
+    let flip = (n as i64 & 1) - 1;
+    let rev = (ox ^ flip) < (orun ^ flip);
     // Candidate corner j = n (the previous input), stored unconditionally
     // in the free slot; a reversal then only moves the stack length.
     let prefix = st.buf[n - 1].prefix + st.run_term;
@@ -375,23 +373,25 @@ pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
         time: st.t.wrapping_sub(1),
     };
     let keys = &mut st.keys[..];
-    keys[(n & 1) * half + KEY_PAD + n / 2] = signed(run_x, n);
+    keys[KEY_PAD + n] = orun ^ flip;
     let inc = usize::from(rev);
     let full = usize::from(n >= cap);
     n = n + inc - 2 * (inc & full);
-    // Wiping out: the extrema of the parity opposite to the top corner with
-    // key ≤ ±x form a suffix of their half; count it chunk by chunk.
-    let sx = signed(x, n);
-    let mut end = (n & 1) * half + KEY_PAD + n / 2;
+    // Wiping out: extrema at n − 2, n − 4, … (the parity opposite to the top
+    // corner) with key ≤ ±x, counted chunk by chunk from the top.
+    let sx = ox ^ ((n as i64 & 1) - 1);
+    let mut top = KEY_PAD + n;
     let mut wiped = 0;
     loop {
-        let c = &keys[end - POP_CHUNK..end];
-        let k = c.iter().map(|&v| usize::from(v <= sx)).sum::<usize>();
+        let c = &keys[top - 2 * POP_CHUNK..top];
+        let k = (0..POP_CHUNK)
+            .map(|i| usize::from(c[2 * i] <= sx))
+            .sum::<usize>();
         wiped += k;
         if k < POP_CHUNK {
             break;
         }
-        end -= POP_CHUNK;
+        top -= 2 * POP_CHUNK;
     }
     // Descending below β₀ wipes s₀ too: back to negative saturation (n = 1).
     st.n = (n - 2 * wiped).max(1);
