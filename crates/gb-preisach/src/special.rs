@@ -242,7 +242,7 @@ pub(crate) const PHI_T_MAX: f64 = PHI_CELLS as f64 - 0.5;
 /// (absolute error below 5e-15) or, outside [−9, 9], from [`normal_cdf`].
 #[inline(always)]
 pub(crate) fn normal_cdf_at(table: &PhiTable, t: f64) -> f64 {
-    if !(t >= PHI_T_MIN && t < PHI_T_MAX) {
+    if !(PHI_T_MIN..PHI_T_MAX).contains(&t) {
         return normal_cdf((t - PHI_T_OFFSET) / PHI_T_SCALE);
     }
     normal_cdf_in_table(table, t)
