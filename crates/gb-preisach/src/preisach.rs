@@ -43,11 +43,11 @@ pub enum InitialState {
     History(Vec<f64>),
 }
 
-/// One memory corner: dominant extremum, its Everett node and the partial sum
+/// One memory corner: the Everett node of the dominant extremum (its value
+/// is kept as the wipe-out key) and the partial sum
 /// Σ_{i ≤ j} (−1)^{i+1} F(s_{i−1}, s_i).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Corner<N> {
-    pub(crate) x: f64,
     pub(crate) node: N,
     pub(crate) prefix: f64,
     /// Sample index of the extremum (steps since the state was created;
@@ -76,7 +76,8 @@ pub struct PreisachState<N> {
     /// ≤ ord(x) (maxima) or ≤ !ord(x) (minima), are a suffix.
     keys: Box<[i64]>,
     n: usize,
-    pub(crate) run_x: f64,
+    /// [`ord`] of the current input.
+    run_key: i64,
     pub(crate) run_node: N,
     pub(crate) run_term: f64,
     /// Sample index the next step will get.
@@ -95,7 +96,9 @@ impl<N: Copy> PreisachState<N> {
     /// The stored dominant extrema M₁, m₁, M₂, … (oldest first, without the
     /// lower support bound s₀ and without the current input).
     pub fn extrema(&self) -> Vec<f64> {
-        self.corners()[1..].iter().map(|c| c.x).collect()
+        (1..self.n)
+            .map(|j| unord(self.keys[KEY_PAD + j] ^ parity_mask(j)))
+            .collect()
     }
 
     /// Sample indices of the stored extrema, aligned with
@@ -116,7 +119,7 @@ impl<N: Copy> PreisachState<N> {
 
     /// The current (clamped) input.
     pub fn input(&self) -> f64 {
-        self.run_x
+        unord(self.run_key)
     }
 
     /// Whether the current input is on an ascending branch.
@@ -186,7 +189,6 @@ impl<E: Everett> Preisach<E> {
         let cap = self.memory_cap.map_or(usize::MAX, |c| c.saturating_add(1));
         let lo_node = self.everett.node(lo);
         let anchor = Corner {
-            x: lo,
             node: lo_node,
             prefix: 0.0,
             time: u64::MAX,
@@ -198,7 +200,7 @@ impl<E: Everett> Preisach<E> {
             buf: vec![anchor; slots].into(),
             keys: keys.into(),
             n: 1,
-            run_x: lo,
+            run_key: ord(lo),
             run_node: lo_node,
             run_term: 0.0,
             t: 0,
@@ -346,6 +348,18 @@ fn ord(v: f64) -> i64 {
     i ^ (((i >> 63) as u64) >> 1) as i64
 }
 
+/// Inverse of [`ord`] (the map is an involution on the bits).
+#[inline(always)]
+fn unord(o: i64) -> f64 {
+    f64::from_bits((o ^ (((o >> 63) as u64) >> 1) as i64) as u64)
+}
+
+/// 0 for odd `j` (ascending branch, maxima keys), −1 (all bits) for even.
+#[inline(always)]
+fn parity_mask(j: usize) -> i64 {
+    (j as i64 & 1) - 1
+}
+
 /// Memory update: reversal detection, memory cap, wiping out. Integer and
 /// branch-free except for rare long wipe-outs (more than [`POP_CHUNK`]
 /// pairs), so the step-to-step dependency through the stack length is short.
@@ -357,17 +371,16 @@ pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
     }
     // Work on locals: stores into the buffers cannot then force reloads of
     // the state fields.
-    let (run_x, cap) = (st.run_x, st.cap);
-    let (ox, orun) = (ord(x), ord(run_x));
-    // Parity mask: 0 ascending (odd n, top corner a minimum), −1 descending;
-    // xor with it turns "x < run_x" into "x > run_x".
-    let flip = (n as i64 & 1) - 1;
+    let (orun, cap) = (st.run_key, st.cap);
+    let ox = ord(x);
+    // Xor with the parity mask turns "x < x_prev" into "x > x_prev" on a
+    // descending branch.
+    let flip = parity_mask(n);
     let rev = (ox ^ flip) < (orun ^ flip);
     // Candidate corner j = n (the previous input), stored unconditionally
     // in the free slot; a reversal then only moves the stack length.
     let prefix = st.buf[n - 1].prefix + st.run_term;
     st.buf[n] = Corner {
-        x: run_x,
         node: st.run_node,
         prefix,
         time: st.t.wrapping_sub(1),
@@ -379,7 +392,7 @@ pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
     n = n + inc - 2 * (inc & full);
     // Wiping out: extrema at n − 2, n − 4, … (the parity opposite to the top
     // corner) with key ≤ ±x, counted chunk by chunk from the top.
-    let sx = ox ^ ((n as i64 & 1) - 1);
+    let sx = ox ^ parity_mask(n);
     let mut top = KEY_PAD + n;
     let mut wiped = 0;
     loop {
@@ -395,7 +408,7 @@ pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
     }
     // Descending below β₀ wipes s₀ too: back to negative saturation (n = 1).
     st.n = (n - 2 * wiped).max(1);
-    st.run_x = x;
+    st.run_key = ox;
     st.t += 1;
 }
 
