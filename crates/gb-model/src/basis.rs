@@ -61,6 +61,28 @@ struct Tables {
     psi: Vec<f64>,
     phi_support: (f64, f64),
     psi_support: (f64, f64),
+    /// `Some(r)` when φ and ψ are linear between the points `m/2^r`
+    /// (spline wavelets such as `bior2.x`): expansions are then exactly
+    /// multilinear on a dyadic grid and evaluate through it.
+    linear_resolution: Option<u32>,
+}
+
+/// Smallest `r ≤ 3` such that `table` is linear between the points `m/2^r`.
+fn linear_resolution(table: &[f64], res: usize) -> Option<u32> {
+    (0..=3u32).find(|&r| {
+        let step = 1usize << (res as u32 - r);
+        table.iter().enumerate().all(|(i, &v)| {
+            let a = i / step * step;
+            let b = (a + step).min(table.len() - 1);
+            let t = if b > a {
+                (i - a) as f64 / (b - a) as f64
+            } else {
+                0.0
+            };
+            let li = table[a] + t * (table[b] - table[a]);
+            (li - v).abs() <= 1e-12 * (1.0 + v.abs())
+        })
+    })
 }
 
 impl Tables {
@@ -76,8 +98,12 @@ impl Tables {
                 ((last + 1).min(t.len() - 1)) as f64 / per,
             )
         };
+        let lr = linear_resolution(r.phi_samples(), TABLE_RESOLUTION)
+            .zip(linear_resolution(r.psi_samples(), TABLE_RESOLUTION))
+            .map(|(a, b)| a.max(b));
         Ok(Self {
             per,
+            linear_resolution: lr,
             phi_support: support(r.phi_samples()),
             psi_support: support(r.psi_samples()),
             phi: r.phi_samples().to_vec(),
@@ -124,6 +150,103 @@ struct Group {
     index: Vec<u32>,
 }
 
+/// `f` and its nodes on the dyadic grid of the finest level, for
+/// piecewise-linear wavelets (exact multilinear interpolation).
+#[derive(Debug, Clone)]
+struct Grid {
+    n: Vec<usize>,
+    stride: Vec<usize>,
+    values: Vec<f64>,
+}
+
+/// Most grid nodes built for fast evaluation.
+const MAX_GRID_NODES: usize = 1 << 20;
+
+impl Grid {
+    /// Multilinear interpolation at the normalised point `s ∈ [0, 1]ᵈ`;
+    /// gradient with respect to `s` into `grad`.
+    #[inline]
+    fn eval(&self, s: &[f64], grad: Option<&mut [f64; MAX_DIMS]>) -> f64 {
+        let d = self.n.len();
+        let mut base = 0usize;
+        let mut frac = [0.0f64; MAX_DIMS];
+        let mut scale = [0.0f64; MAX_DIMS];
+        for i in 0..d {
+            let cells = (self.n[i] - 1) as f64;
+            let pos = s[i] * cells;
+            let mut c = pos as usize;
+            if c >= self.n[i] - 1 {
+                c = self.n[i] - 2;
+            }
+            frac[i] = pos - c as f64;
+            scale[i] = cells;
+            base += c * self.stride[i];
+        }
+        match d {
+            1 => {
+                let a = self.values[base];
+                let b = self.values[base + 1];
+                if let Some(g) = grad {
+                    g[0] = (b - a) * scale[0];
+                }
+                a + frac[0] * (b - a)
+            }
+            2 => {
+                let s0 = self.stride[0];
+                let v00 = self.values[base];
+                let v01 = self.values[base + 1];
+                let v10 = self.values[base + s0];
+                let v11 = self.values[base + s0 + 1];
+                let (t0, t1) = (frac[0], frac[1]);
+                let a = v00 + t1 * (v01 - v00);
+                let b = v10 + t1 * (v11 - v10);
+                if let Some(g) = grad {
+                    g[0] = (b - a) * scale[0];
+                    let c0 = v01 - v00;
+                    let c1 = v11 - v10;
+                    g[1] = (c0 + t0 * (c1 - c0)) * scale[1];
+                }
+                a + t0 * (b - a)
+            }
+            _ => {
+                let corners = 1usize << d;
+                let mut total = 0.0;
+                let mut gacc = [0.0f64; MAX_DIMS];
+                for c in 0..corners {
+                    let mut off = base;
+                    let mut w = 1.0;
+                    for i in 0..d {
+                        if c >> i & 1 == 1 {
+                            off += self.stride[i];
+                            w *= frac[i];
+                        } else {
+                            w *= 1.0 - frac[i];
+                        }
+                    }
+                    let v = self.values[off];
+                    total += w * v;
+                    for i in 0..d {
+                        let mut wi = scale[i];
+                        for e in 0..d {
+                            let up = c >> e & 1 == 1;
+                            if e == i {
+                                wi *= if up { 1.0 } else { -1.0 };
+                            } else {
+                                wi *= if up { frac[e] } else { 1.0 - frac[e] };
+                            }
+                        }
+                        gacc[i] += wi * v;
+                    }
+                }
+                if let Some(g) = grad {
+                    g[..d].copy_from_slice(&gacc[..d]);
+                }
+                total
+            }
+        }
+    }
+}
+
 /// Caller-owned scratch for [`SparseExpansion::eval_with`] (no allocation per call).
 #[derive(Debug, Clone, Default)]
 pub struct EvalScratch {
@@ -162,6 +285,7 @@ pub struct SparseExpansion {
     tables: Arc<Tables>,
     groups: Vec<Group>,
     inv_width: Vec<f64>,
+    grid: std::sync::OnceLock<Option<Arc<Grid>>>,
 }
 
 impl PartialEq for SparseExpansion {
@@ -225,6 +349,7 @@ impl SparseExpansion {
             coefficients: Vec::new(),
             groups: Vec::new(),
             inv_width,
+            grid: std::sync::OnceLock::new(),
         })
     }
 
@@ -418,6 +543,7 @@ impl SparseExpansion {
     }
 
     fn refresh_values(&mut self) {
+        self.grid = std::sync::OnceLock::new();
         for g in self.groups.iter_mut() {
             for (slot, &ix) in g.coef.iter_mut().zip(&g.index) {
                 if ix != u32::MAX {
@@ -428,6 +554,7 @@ impl SparseExpansion {
     }
 
     fn compile(&mut self) {
+        self.grid = std::sync::OnceLock::new();
         let d = self.dims();
         let mut groups: Vec<Group> = Vec::new();
         let mut keys: Vec<(i32, Vec<AtomKind>)> = Vec::new();
@@ -480,6 +607,42 @@ impl SparseExpansion {
         self.groups = groups;
     }
 
+    /// The fast-evaluation grid (built on first use), for piecewise-linear wavelets.
+    fn grid(&self) -> Option<&Grid> {
+        self.grid
+            .get_or_init(|| {
+                let r = self.tables.linear_resolution?;
+                let d = self.dims();
+                let jmax = self.coefficients.iter().map(|c| c.level).max()?;
+                let level = jmax + r as i32;
+                if !(0..=20).contains(&level) {
+                    return None;
+                }
+                let cells = 1usize << level;
+                let n = vec![cells + 1; d];
+                let total = n.iter().try_fold(1usize, |a, &b| a.checked_mul(b))?;
+                if total > MAX_GRID_NODES {
+                    return None;
+                }
+                let mut stride = vec![1usize; d];
+                for i in (0..d.saturating_sub(1)).rev() {
+                    stride[i] = stride[i + 1] * n[i + 1];
+                }
+                let mut values = vec![0.0; total];
+                let mut scratch = EvalScratch::default();
+                let mut x = [0.0f64; MAX_DIMS];
+                for (flat, v) in values.iter_mut().enumerate() {
+                    for i in 0..d {
+                        let k = flat / stride[i] % n[i];
+                        x[i] = self.lo[i] + (self.hi[i] - self.lo[i]) * k as f64 / cells as f64;
+                    }
+                    *v = self.eval_atoms(&x[..d], None, false, &mut scratch);
+                }
+                Some(Arc::new(Grid { n, stride, values }))
+            })
+            .as_deref()
+    }
+
     /// `f(x)` (allocates a scratch; use [`eval_with`](Self::eval_with) in loops).
     pub fn eval(&self, x: &[f64]) -> f64 {
         let mut s = EvalScratch::default();
@@ -488,7 +651,46 @@ impl SparseExpansion {
 
     /// `f(x)`; with `grad` also `∂f/∂x` (0 outside the box), with `basis` the
     /// non-zero basis values `(index, Ψ_λ(x))` in `scratch.basis`.
+    #[inline]
     pub fn eval_with(
+        &self,
+        x: &[f64],
+        grad: Option<&mut [f64]>,
+        basis: bool,
+        scratch: &mut EvalScratch,
+    ) -> f64 {
+        if !basis {
+            if let Some(g) = self.grid() {
+                let d = self.dims();
+                let mut s = [0.0f64; MAX_DIMS];
+                let mut inside = [0.0f64; MAX_DIMS];
+                for i in 0..d {
+                    let v = (x[i] - self.lo[i]) * self.inv_width[i];
+                    if v > 0.0 && v < 1.0 {
+                        s[i] = v;
+                        inside[i] = self.inv_width[i];
+                    } else {
+                        s[i] = if v >= 1.0 { 1.0 } else { 0.0 };
+                    }
+                }
+                return match grad {
+                    Some(gr) => {
+                        let mut gs = [0.0f64; MAX_DIMS];
+                        let v = g.eval(&s[..d], Some(&mut gs));
+                        for i in 0..d {
+                            gr[i] = gs[i] * inside[i];
+                        }
+                        v
+                    }
+                    None => g.eval(&s[..d], None),
+                };
+            }
+        }
+        self.eval_atoms(x, grad, basis, scratch)
+    }
+
+    /// [`eval_with`](Self::eval_with) through the atoms (no grid).
+    pub fn eval_atoms(
         &self,
         x: &[f64],
         mut grad: Option<&mut [f64]>,
@@ -714,6 +916,46 @@ mod tests {
         for &x in &[0.01, 0.37, 0.5, 0.93] {
             assert!((e.eval(&[x]) - g.eval(&[x]).unwrap()).abs() < 1e-9, "{x}");
         }
+    }
+
+    #[test]
+    fn grid_evaluation_equals_atom_evaluation_for_spline_wavelets() {
+        for d in 1..=3usize {
+            let mut e = SparseExpansion::new("bior2.2", vec![-1.0; d], vec![2.0; d]).unwrap();
+            assert!(e.tables.linear_resolution.is_some());
+            e.add_coarse_grid(1).unwrap();
+            let c = e.detail_candidates(1);
+            e.extend_unchecked(c);
+            let c = e.detail_candidates(2);
+            e.extend_unchecked(c);
+            let vals: Vec<f64> = (0..e.len())
+                .map(|i| ((i * 7919) % 13) as f64 - 6.0)
+                .collect();
+            e.set_values(&vals).unwrap();
+            let mut s = EvalScratch::default();
+            for k in 0..50 {
+                let x: Vec<f64> = (0..d)
+                    .map(|i| -1.2 + 3.4 * (((k * 31 + i * 17) % 97) as f64 / 96.0))
+                    .collect();
+                let mut g1 = [0.0; MAX_DIMS];
+                let mut g2 = [0.0; MAX_DIMS];
+                let a = e.eval_with(&x, Some(&mut g1[..d]), false, &mut s);
+                let b = e.eval_atoms(&x, Some(&mut g2[..d]), false, &mut s);
+                assert!(
+                    (a - b).abs() < 1e-9 * (1.0 + b.abs()),
+                    "d {d} x {x:?}: {a} vs {b}"
+                );
+                for i in 0..d {
+                    // derivatives agree except on cell boundaries
+                    assert!((g1[i] - g2[i]).abs() < 1e-6 * (1.0 + g2[i].abs()) || k % 8 == 0,);
+                }
+            }
+        }
+        assert!(SparseExpansion::new("db4", vec![0.0], vec![1.0])
+            .unwrap()
+            .tables
+            .linear_resolution
+            .is_none());
     }
 
     #[test]
