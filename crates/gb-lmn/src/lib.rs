@@ -60,7 +60,7 @@ pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
-    FitOptions, NoiseFit, TrainReport,
+    zero_linear_network, FitOptions, NoiseFit, TrainReport,
 };
 pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
 pub use relay::RelayGrid;
