@@ -794,6 +794,12 @@ impl ParticleFilter {
     }
 
     /// Runs the filter with reusable buffers, calling `observer` at every step.
+    ///
+    /// With `parallel` and `N ≥ 4096` (one rayon fork-join per time step), the
+    /// run is moved onto a rayon worker when called from outside the pool, so
+    /// that the thread driving the time loop takes part in every step instead of
+    /// sleeping on a latch and being woken at every step; `observer` then runs
+    /// on that worker (hence `Send`).
     pub fn run_with<M, F>(
         &self,
         model: &M,
@@ -803,9 +809,17 @@ impl ParticleFilter {
     ) -> Result<FilterOutput<M::State>>
     where
         M: StateSpaceModel,
-        F: FnMut(&FilterStep<'_, M::State>),
+        F: FnMut(&FilterStep<'_, M::State>) + Send,
     {
-        self.run_impl(Isa::detect(), model, obs, ws, observer)
+        let isa = Isa::detect();
+        if self.config.parallel
+            && self.config.n_particles >= PAR_MIN
+            && rayon::current_thread_index().is_none()
+        {
+            rayon::scope(|_| self.run_impl(isa, model, obs, ws, observer))
+        } else {
+            self.run_impl(isa, model, obs, ws, observer)
+        }
     }
 
     pub(crate) fn run_impl<M, F>(
