@@ -384,7 +384,13 @@ fn sys_ancestors(sys: &Sys<'_>, s: usize, out: &mut [usize]) {
         // s < K(i) < e for these particles, so K(i) < N and C_i < C_{N−1}:
         // `count` reduces to the plain conversion (no clamping)
         for (i, &p) in (base + start + 1..).zip(&pk[start..stop]) {
-            out[((o + p * f) * sys.scale + sys.shift) as usize - s] = i;
+            let x = (o + p * f) * sys.scale + sys.shift;
+            debug_assert!((0.0..(e + 1) as f64).contains(&x));
+            // SAFETY: x is finite and in [0, e + 1) (0 ≤ C_i < C_{N−1}, scale =
+            // N / C_{N−1} > 0, shift ∈ (0, 1], and ⌊x⌋ = K(i) < e), so the
+            // truncation is representable (`as` would add saturation checks).
+            let c: usize = unsafe { x.to_int_unchecked() };
+            out[c - s] = i;
         }
         if done {
             break;

@@ -171,12 +171,18 @@ pub fn fill_standard_normal(rng: &mut SmcRng, out: &mut [f64]) {
 /// `j` of `rej` set where `|out_j| ≥ x_{i_j + 1}` (slow path needed). Branch-free.
 #[inline(always)]
 fn zig_fast(t: &Zig, bits: &[u64], out: &mut [f64], rej: &mut [u64]) {
-    for (j, (o, &b)) in out.iter_mut().zip(bits).enumerate() {
-        let i = (b & 0xff) as usize;
-        let u = f64::from_bits((1024u64 << 52) | (b >> 12)) - 3.0;
-        let x = u * t.x[i];
-        *o = x;
-        rej[j >> 6] |= ((x.abs() >= t.x[i + 1]) as u64) << (j & 63);
+    for ((oc, bc), r) in out.chunks_mut(64).zip(bits.chunks(64)).zip(rej.iter_mut()) {
+        // the mask stays in a register (an `|=` into memory per draw would chain
+        // every iteration through store-to-load forwarding)
+        let mut m = 0u64;
+        for (j, (o, &b)) in oc.iter_mut().zip(bc).enumerate() {
+            let i = (b & 0xff) as usize;
+            let u = f64::from_bits((1024u64 << 52) | (b >> 12)) - 3.0;
+            let x = u * t.x[i];
+            *o = x;
+            m |= ((x.abs() >= t.x[i + 1]) as u64) << j;
+        }
+        *r = m;
     }
 }
 
