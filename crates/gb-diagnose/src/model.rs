@@ -4,15 +4,17 @@
 use crate::DiagnoseError;
 use gb_core::{CoreError, DataSet, Model, Simulate};
 use gb_lmn::{
-    fit_linear_oe_warm, fit_lmn_oe, FitOptions, LocalModelNetwork, LolimotOptions, NetworkSpec,
+    fit_linear_oe_warm, fit_lmn_oe, Experiment, FitOptions, LmnModel, LmnParams, LocalModelNetwork,
+    LolimotOptions, NetworkSpec,
 };
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// Magic bytes at the start of a model file.
 const MAGIC: &[u8; 4] = b"GBM\x01";
-/// Version of the model-file format.
-pub const MODEL_FORMAT_VERSION: u32 = 1;
+/// Version of the model-file format (2: optional tree/oblique network
+/// [`GreyBoxModel::lmn`]; version-1 files are still read).
+pub const MODEL_FORMAT_VERSION: u32 = 2;
 /// Largest model order accepted.
 pub const MAX_ORDER: usize = 8;
 
@@ -127,8 +129,24 @@ pub struct GreyBoxModel {
     pub output_name: String,
     /// What the model consists of.
     pub structure: Structure,
-    /// The fitted network (one leaf when linear).
+    /// The fitted network (one leaf when linear). For a model with
+    /// [`lmn`](Self::lmn) it is a one-leaf placeholder that carries the noise
+    /// model fitted on the network's simulation residuals.
     pub network: LocalModelNetwork,
+    /// The full local model network of `greybox fit --model lmn` with
+    /// `--weights/--splits/--prune/--focus/--max-leaves` (issue 3). When
+    /// present it is what simulates.
+    pub lmn: Option<LmnModel>,
+}
+
+/// The model-file layout of format version 1 (no `lmn`).
+#[derive(Deserialize)]
+struct GreyBoxModelV1 {
+    format_version: u32,
+    input_names: Vec<String>,
+    output_name: String,
+    structure: Structure,
+    network: LocalModelNetwork,
 }
 
 /// Options of [`GreyBoxModel::fit`].
@@ -173,6 +191,37 @@ impl GreyBoxModel {
             output_name: data.output_name.clone(),
             structure,
             network,
+            lmn: None,
+        })
+    }
+
+    /// Fit the full local model network ([`LmnModel`], issue 3) with
+    /// `params` on `data`; `network` becomes a one-leaf placeholder holding
+    /// the Gaussian noise model of the simulation residuals.
+    pub fn fit_lmn(
+        structure: Structure,
+        data: &DataSet,
+        params: &LmnParams,
+    ) -> Result<Self, DiagnoseError> {
+        let exp = Experiment::from(data);
+        let lmn = params.fit(std::slice::from_ref(&exp))?;
+        let k0 = lmn.max_lag().min(data.len());
+        let sim = lmn.simulate(&exp, k0)?;
+        let res: Vec<f64> = data.output[k0..]
+            .iter()
+            .zip(&sim[k0..])
+            .map(|(a, b)| a - b)
+            .collect();
+        let spec = NetworkSpec::order(structure.order, data.n_inputs());
+        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
+        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        Ok(Self {
+            format_version: MODEL_FORMAT_VERSION,
+            input_names: data.input_names.clone(),
+            output_name: data.output_name.clone(),
+            structure,
+            network,
+            lmn: Some(lmn),
         })
     }
 
@@ -184,12 +233,19 @@ impl GreyBoxModel {
         inputs: &[Vec<f64>],
         y_window: &[f64],
     ) -> Result<Vec<f64>, DiagnoseError> {
+        if let Some(l) = &self.lmn {
+            let e = Experiment::new(inputs.to_vec(), y_window.to_vec());
+            return Ok(l.simulate(&e, y_window.len())?);
+        }
         Ok(self.network.simulate_with_init_window(inputs, y_window)?)
     }
 
     /// Number of initial samples the simulation takes from measurements.
     pub fn max_lag(&self) -> usize {
-        self.network.spec.max_lag()
+        match &self.lmn {
+            Some(l) => l.max_lag(),
+            None => self.network.spec.max_lag(),
+        }
     }
 
     /// Serialise (postcard, with a magic header and format version).
@@ -210,14 +266,38 @@ impl GreyBoxModel {
             )));
         }
         let v = u32::from_le_bytes([bytes[4], bytes[5], bytes[6], bytes[7]]);
-        if v != MODEL_FORMAT_VERSION {
-            return Err(DiagnoseError::ModelFile(format!(
-                "{name}: model format version {v}, this greybox reads version {MODEL_FORMAT_VERSION}"
-            )));
-        }
-        let m: Self = postcard::from_bytes(&bytes[8..]).map_err(|e| {
+        let corrupt = |e: postcard::Error| {
             DiagnoseError::ModelFile(format!("{name}: truncated or corrupt model file ({e})"))
-        })?;
+        };
+        let m: Self = match v {
+            MODEL_FORMAT_VERSION => postcard::from_bytes(&bytes[8..]).map_err(corrupt)?,
+            1 => {
+                let o: GreyBoxModelV1 = postcard::from_bytes(&bytes[8..]).map_err(corrupt)?;
+                Self {
+                    format_version: o.format_version,
+                    input_names: o.input_names,
+                    output_name: o.output_name,
+                    structure: o.structure,
+                    network: o.network,
+                    lmn: None,
+                }
+            }
+            _ => {
+                return Err(DiagnoseError::ModelFile(format!(
+                    "{name}: model format version {v}, this greybox reads versions 1 and {MODEL_FORMAT_VERSION}"
+                )))
+            }
+        };
+        if let Some(l) = &m.lmn {
+            if l.regressors.n_inputs() != m.input_names.len() {
+                return Err(DiagnoseError::ModelFile(format!(
+                    "{name}: inconsistent model (network inputs)"
+                )));
+            }
+            l.check_consistency().map_err(|e| {
+                DiagnoseError::ModelFile(format!("{name}: inconsistent model ({e})"))
+            })?;
+        }
         m.network
             .spec
             .check(m.input_names.len())
@@ -257,15 +337,82 @@ impl Simulate for GreyBoxModel {
         self.input_names.len()
     }
     fn simulate(&self, inputs: &[Vec<f64>], init: &[f64]) -> Result<Vec<f64>, CoreError> {
+        if let Some(l) = &self.lmn {
+            let e = Experiment::new(inputs.to_vec(), init.to_vec());
+            return Ok(l.simulate(&e, init.len())?);
+        }
         Ok(self.network.simulate_signals(inputs, init)?)
     }
 }
 
 impl Model for GreyBoxModel {
     fn describe(&self) -> String {
-        self.network.describe()
+        match &self.lmn {
+            Some(l) => format!("{}, {} noise", l.describe(), self.network.noise.describe()),
+            None => self.network.describe(),
+        }
     }
     fn n_parameters(&self) -> usize {
-        self.network.n_parameters()
+        match &self.lmn {
+            Some(l) => l.n_parameters(),
+            None => self.network.n_parameters(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn data() -> DataSet {
+        let u: Vec<f64> = (0..600).map(|k| ((k * 7919) % 13) as f64 - 6.0).collect();
+        let mut y = vec![0.0; 600];
+        for k in 1..600 {
+            y[k] = 0.5 * y[k - 1] + u[k - 1] + 0.05 * (u[k - 1]).powi(2);
+        }
+        DataSet::new(vec!["u".into()], "y".into(), vec![u], y).unwrap()
+    }
+
+    #[test]
+    fn version_1_files_still_load_and_lmn_models_round_trip() {
+        let d = data();
+        let m =
+            GreyBoxModel::fit(Structure::linear(1), &d, None, None, &Default::default()).unwrap();
+        // a version-1 file: the same fields without `lmn`
+        #[derive(Serialize)]
+        struct V1<'a> {
+            format_version: u32,
+            input_names: &'a [String],
+            output_name: &'a str,
+            structure: Structure,
+            network: &'a LocalModelNetwork,
+        }
+        let mut bytes = MAGIC.to_vec();
+        bytes.extend_from_slice(&1u32.to_le_bytes());
+        bytes.extend(
+            postcard::to_allocvec(&V1 {
+                format_version: 1,
+                input_names: &m.input_names,
+                output_name: &m.output_name,
+                structure: m.structure,
+                network: &m.network,
+            })
+            .unwrap(),
+        );
+        let back = GreyBoxModel::from_bytes(&bytes, "v1").unwrap();
+        assert_eq!(back.network, m.network);
+        assert!(back.lmn.is_none());
+        // the full network: saved, reloaded, simulates identically
+        let s = Structure::parse("lmn", 1).unwrap();
+        let p = LmnParams::new(gb_lmn::RegressorSpec::arx(1, &[1], &[1])).max_leaves(3);
+        let l = GreyBoxModel::fit_lmn(s, &d, &p).unwrap();
+        let b2 = GreyBoxModel::from_bytes(&l.to_bytes().unwrap(), "lmn").unwrap();
+        assert_eq!(b2, l);
+        let sim = b2.simulate(&d.inputs, &d.output[..1]).unwrap();
+        let e = gb_core::metrics::nrmse(&d.output[1..], &sim[1..]).unwrap();
+        assert!(e < 0.05, "nrmse {e}");
+        let mut bad = bytes.clone();
+        bad[4] = 7;
+        assert!(GreyBoxModel::from_bytes(&bad, "x").is_err());
     }
 }

@@ -16,6 +16,15 @@
 //! the simulation error with analytic sensitivities propagated through time
 //! ([`noe`]), rejecting unstable parameter sets.
 //!
+//! The full network of issue 3 is [`LmnModel`], built by [`LmnParams`]:
+//! separate local-model space x and partition space z from per-signal tapped
+//! delays ([`RegressorSpec`]), affine or polynomial (degree ≤ 3) local models
+//! plus user columns, normalised Gaussian or decision-tree sigmoid weights
+//! ([`WeightKind`]), axis or oblique (HILOMOT) splits ([`SplitKind`]),
+//! termination by AICc/BIC/validation ([`Criterion`]), pruning, and global
+//! Levenberg–Marquardt for one-step or simulation error ([`Focus`]); several
+//! experiments per fit ([`Experiment`]). See docs/lmn.md.
+//!
 //! ```
 //! use gb_lmn::{NetworkSpec, fit_linear_oe, FitOptions};
 //! // y(k) = 0.5 y(k-1) + u(k-1)
@@ -31,22 +40,33 @@
 // Index loops mirror the subscripts of the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod hilomot;
+mod lmn;
 mod lolimot;
+mod narx;
 mod network;
 pub mod noe;
+mod prune;
+mod regressors;
 mod relay;
 mod scaling;
 mod spec;
+pub mod tree;
 
+pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
+pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
 pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
+pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
-    FitOptions, NoiseFit, TrainReport,
+    zero_linear_network, FitOptions, NoiseFit, TrainReport,
 };
+pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
 pub use relay::RelayGrid;
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
+pub use tree::{Partition, WeightKind};
 
 /// Errors of the local-model-network crate.
 #[derive(Debug, thiserror::Error)]

@@ -869,6 +869,17 @@ pub(crate) fn weighted_ls(
     Ok(ch.solve(&aty).iter().copied().collect())
 }
 
+/// A one-leaf (linear) network of structure `spec` with the scalings of the
+/// data and all parameters zero (a placeholder that carries scalings and a
+/// noise model).
+pub fn zero_linear_network(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+) -> LocalModelNetwork {
+    linear_network(spec, inputs, y)
+}
+
 /// A one-leaf (linear) network with the given structure and scalings, zero parameters.
 pub(crate) fn linear_network(
     spec: &NetworkSpec,

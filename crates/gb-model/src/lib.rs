@@ -1,1 +1,50 @@
-//! gb-model
+//! # gb-model — the wavelet-sparse grey-box state-space class
+//!
+//! J. Hauth's thesis (*Grey-Box Modelling for Nonlinear Systems*, TU
+//! Kaiserslautern 2008, ch. 5) proposes a model class with hidden states,
+//! nonlinear parts in a sparse wavelet basis, Preisach hysteresis with
+//! wavelet primitive (Everett) functions and non-Gaussian noise:
+//!
+//! ```text
+//! x_{t+1} = A x_t + B u_t + f(x_t, u_t) + h(t) + v_t,
+//! y_t     = C x_t + D u_t + g(x_t, u_t) + w_t.
+//! ```
+//!
+//! * [`SparseExpansion`]: tensor-product wavelet expansions on a box with
+//!   sparse coefficients (point evaluation from `gb-wavelet`).
+//! * [`WaveletEverett`]: a 2-D wavelet Everett function for
+//!   `gb_preisach::Preisach`.
+//! * [`SparseStateSpace`]: the model (simulation, grey-box structure,
+//!   noise, postcard model files).
+//! * [`OeParams`] → [`OutputError::fit`]: output-error identification with
+//!   sensitivities, Levenberg–Marquardt and coarse-to-fine sparse refinement.
+//! * [`SmcParams`] → [`Smc::fit`]: the SMC path (particle filter likelihood,
+//!   PMMH with a Laplace sparsity prior, `gb-smc`).
+//! * [`linear_from_oe`]: the best linear model (`gb-lmn`) as state space.
+//!
+//! See `docs/model.md`.
+#![warn(missing_docs)]
+// Index loops mirror the subscripts of the formulas they implement.
+#![allow(clippy::needless_range_loop)]
+
+mod basis;
+mod error;
+mod everett;
+mod identify;
+mod linear;
+mod model;
+mod smc;
+
+pub use basis::{Coefficient, EvalScratch, SparseExpansion, MAX_DIMS, TABLE_RESOLUTION};
+pub use error::{ModelError, Result};
+pub use everett::WaveletEverett;
+pub use gb_wavelet::AtomKind;
+pub use identify::{
+    IdentificationPath, Observer, OeParams, OeReport, OutputError, ProgressBar, Silent, StageReport,
+};
+pub use linear::{linear_from_network, linear_from_oe};
+pub use model::{
+    HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, Structure, Target,
+    FORMAT_VERSION, MAGIC,
+};
+pub use smc::{Smc, SmcParams, SmcReport};

@@ -11,8 +11,8 @@
 //! tabulated, defines a model.
 
 use crate::special::{
-    cauchy_cdf, cauchy_pdf, normal_cdf_at, normal_pdf, phi_table, PhiTable, PHI_T_OFFSET,
-    PHI_T_SCALE,
+    cauchy_cdf, cauchy_pdf, normal_cdf_at, normal_cdf_in_table, normal_pdf, phi_table, PhiTable,
+    PHI_T_MAX, PHI_T_MIN, PHI_T_OFFSET, PHI_T_SCALE,
 };
 use crate::PreisachError;
 use serde::{Deserialize, Serialize};
@@ -38,6 +38,17 @@ pub trait Everett {
 
     /// F(α, β) for nodes with α ≥ β.
     fn value(&self, alpha: &Self::Node, beta: &Self::Node) -> f64;
+
+    /// Signed open link of the staircase from corner `s` to the input `x`:
+    /// F(x, s) when `ascending`, −F(s, x) otherwise.
+    #[inline]
+    fn link(&self, x: &Self::Node, s: &Self::Node, ascending: bool) -> f64 {
+        if ascending {
+            self.value(x, s)
+        } else {
+            -self.value(s, x)
+        }
+    }
 
     /// Partial derivatives (∂F/∂α, ∂F/∂β) at α ≥ β; ∂F/∂α ≥ 0 ≥ ∂F/∂β for a
     /// non-negative density.
@@ -132,8 +143,10 @@ pub struct ParametricEverett {
 }
 
 /// Precomputed affine maps x ↦ k·x + c to the argument of the distribution
-/// functions (table coordinate for Gaussian, z for Lorentzian) and the Φ
-/// table; derived from the parameters, so ignored by `==` and serde.
+/// functions (table coordinate for Gaussian, z for Lorentzian), the Φ
+/// table and the inputs [lo, hi) for which both coordinates lie inside the
+/// table (with a margin of ¼ cell for rounding); derived from the
+/// parameters, so ignored by `==` and serde.
 #[derive(Clone, Copy)]
 struct FastCdf {
     table: &'static PhiTable,
@@ -141,6 +154,8 @@ struct FastCdf {
     ca: f64,
     kb: f64,
     cb: f64,
+    lo: f64,
+    hi: f64,
 }
 
 impl FastCdf {
@@ -149,12 +164,21 @@ impl FastCdf {
             DensityShape::Gaussian => (PHI_T_SCALE, PHI_T_OFFSET),
             DensityShape::Lorentzian => (1.0, 0.0),
         };
+        let (ka, ca, kb, cb) = (
+            scale / wa,
+            offset - a * scale / wa,
+            scale / wb,
+            offset - b * scale / wb,
+        );
+        let (t0, t1) = (PHI_T_MIN + 0.25, PHI_T_MAX - 0.25);
         Self {
             table: phi_table(),
-            ka: scale / wa,
-            ca: offset - a * scale / wa,
-            kb: scale / wb,
-            cb: offset - b * scale / wb,
+            ka,
+            ca,
+            kb,
+            cb,
+            lo: ((t0 - ca) / ka).max((t0 - cb) / kb),
+            hi: ((t1 - ca) / ka).min((t1 - cb) / kb),
         }
     }
 }
@@ -311,6 +335,11 @@ impl Everett for ParametricEverett {
         let f = &self.fast;
         let (ta, tb) = (f.ka * x + f.ca, f.kb * x + f.cb);
         let (p, q) = match self.shape {
+            // One range check for both table look-ups.
+            DensityShape::Gaussian if x >= f.lo && x < f.hi => (
+                normal_cdf_in_table(f.table, ta),
+                normal_cdf_in_table(f.table, tb),
+            ),
             DensityShape::Gaussian => (normal_cdf_at(f.table, ta), normal_cdf_at(f.table, tb)),
             DensityShape::Lorentzian => (cauchy_cdf(ta), cauchy_cdf(tb)),
         };
@@ -320,6 +349,14 @@ impl Everett for ParametricEverett {
     #[inline]
     fn value(&self, a: &ParametricNode, b: &ParametricNode) -> f64 {
         self.mass * (a.p - b.p) * (a.q - b.q)
+    }
+
+    /// F is symmetric in its nodes, so only the sign depends on the
+    /// direction (branch-free).
+    #[inline(always)]
+    fn link(&self, x: &ParametricNode, s: &ParametricNode, ascending: bool) -> f64 {
+        let v = self.mass * (x.p - s.p) * (x.q - s.q);
+        f64::from_bits(v.to_bits() ^ (u64::from(!ascending) << 63))
     }
 
     fn partials(&self, a: &ParametricNode, b: &ParametricNode) -> (f64, f64) {
@@ -688,6 +725,36 @@ impl Everett for GridEverett {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn gaussian_nodes_match_exact_cdf_across_the_table_edges() {
+        // The single range check of `node` (both table coordinates inside
+        // the table) and the checked fallback agree with the exact Φ, also
+        // just inside and outside the table ends of either coordinate.
+        use crate::special::normal_cdf;
+        let f = ParametricEverett::gaussian(1.0, 0.4, 0.3, -0.7, 0.2).unwrap();
+        let (lo, hi) = (f.fast.lo, f.fast.hi);
+        assert!(lo < hi);
+        let edges = [
+            lo,
+            hi,
+            0.4 - 9.0 * 0.3,
+            0.4 + 9.0 * 0.3,
+            -0.7 - 1.8,
+            -0.7 + 1.8,
+        ];
+        let mut worst: f64 = 0.0;
+        for e in edges {
+            for k in -200..=200 {
+                let x = e + k as f64 * 1e-4;
+                let n = f.node(x);
+                worst = worst
+                    .max((n.p - normal_cdf((x - 0.4) / 0.3)).abs())
+                    .max((n.q - normal_cdf((x + 0.7) / 0.2)).abs());
+            }
+        }
+        assert!(worst < 5e-15, "max abs error {worst}");
+    }
 
     #[test]
     fn parametric_is_everett_of_its_density() {

@@ -43,17 +43,23 @@ pub enum InitialState {
     History(Vec<f64>),
 }
 
-/// One memory corner: dominant extremum, its Everett node and the partial sum
+/// One memory corner: the Everett node of the dominant extremum (its value
+/// is kept as the wipe-out key) and the partial sum
 /// Σ_{i ≤ j} (−1)^{i+1} F(s_{i−1}, s_i).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Corner<N> {
-    pub(crate) x: f64,
     pub(crate) node: N,
     pub(crate) prefix: f64,
     /// Sample index of the extremum (steps since the state was created;
     /// `u64::MAX` for corners of the initial state).
     pub(crate) time: u64,
 }
+
+/// Padding keys (`i64::MAX`, never wiped) below corner 0 in
+/// [`PreisachState::keys`], enough for two chunks of the wipe-out count.
+const KEY_PAD: usize = 2 * POP_CHUNK;
+/// Extrema tested per chunk when counting the wiped-out ones.
+const POP_CHUNK: usize = 4;
 
 /// Caller-owned memory of a [`Preisach`] operator: a fixed-capacity stack of
 /// alternating dominant extrema (the staircase corners) plus the current
@@ -62,10 +68,16 @@ pub(crate) struct Corner<N> {
 /// when the memory gets deeper than ever before).
 #[derive(Debug, Clone)]
 pub struct PreisachState<N> {
-    /// Corner slots; `buf[..n]` in use.
-    buf: Vec<Corner<N>>,
+    /// Corner slots; `buf[..n]` in use, `buf[n]` always exists.
+    buf: Box<[Corner<N>]>,
+    /// Wipe-out key of corner j at `KEY_PAD + j`: [`ord`]`(s_j)` for maxima
+    /// (odd j), `!ord(s_j)` for minima (even j). Keys of one parity decrease
+    /// towards the top, so the extrema that x wipes out, those with key
+    /// ≤ ord(x) (maxima) or ≤ !ord(x) (minima), are a suffix.
+    keys: Box<[i64]>,
     n: usize,
-    pub(crate) run_x: f64,
+    /// [`ord`] of the current input.
+    run_key: i64,
     pub(crate) run_node: N,
     pub(crate) run_term: f64,
     /// Sample index the next step will get.
@@ -84,7 +96,9 @@ impl<N: Copy> PreisachState<N> {
     /// The stored dominant extrema M₁, m₁, M₂, … (oldest first, without the
     /// lower support bound s₀ and without the current input).
     pub fn extrema(&self) -> Vec<f64> {
-        self.corners()[1..].iter().map(|c| c.x).collect()
+        (1..self.n)
+            .map(|j| unord(self.keys[KEY_PAD + j] ^ parity_mask(j)))
+            .collect()
     }
 
     /// Sample indices of the stored extrema, aligned with
@@ -105,7 +119,7 @@ impl<N: Copy> PreisachState<N> {
 
     /// The current (clamped) input.
     pub fn input(&self) -> f64 {
-        self.run_x
+        unord(self.run_key)
     }
 
     /// Whether the current input is on an ascending branch.
@@ -175,15 +189,18 @@ impl<E: Everett> Preisach<E> {
         let cap = self.memory_cap.map_or(usize::MAX, |c| c.saturating_add(1));
         let lo_node = self.everett.node(lo);
         let anchor = Corner {
-            x: lo,
             node: lo_node,
             prefix: 0.0,
             time: u64::MAX,
         };
+        let slots = cap.saturating_add(1).min(66);
+        let mut keys = vec![i64::MAX; KEY_PAD + slots];
+        keys[KEY_PAD] = !ord(lo);
         let mut st = PreisachState {
-            buf: vec![anchor; cap.min(65)],
+            buf: vec![anchor; slots].into(),
+            keys: keys.into(),
             n: 1,
-            run_x: lo,
+            run_key: ord(lo),
             run_node: lo_node,
             run_term: 0.0,
             t: 0,
@@ -242,14 +259,7 @@ impl<E: Everett> Preisach<E> {
         st.run_node = node;
         let n = st.n;
         let last = &st.buf[n - 1];
-        let asc = n & 1 == 1;
-        let (a, b) = if asc {
-            (&node, &last.node)
-        } else {
-            (&last.node, &node)
-        };
-        let v = self.everett.value(a, b);
-        let term = if asc { v } else { -v };
+        let term = self.everett.link(&node, &last.node, n & 1 == 1);
         st.run_term = term;
         st.offset + 2.0 * (last.prefix + term)
     }
@@ -315,46 +325,90 @@ pub(crate) fn check_finite(x: &[f64]) -> Result<(), PreisachError> {
     }
 }
 
-/// Memory update: reversal detection, memory cap, wiping out.
+/// The corner slots and keys of [`PreisachState`] with twice the slots
+/// (only without a memory cap ≤ 64). Takes and returns the buffers, not the
+/// state, so the state never escapes the stepping loop and can live in
+/// registers.
+#[cold]
+#[inline(never)]
+fn grown<N: Copy>(buf: &[Corner<N>], keys: &[i64]) -> (Box<[Corner<N>]>, Box<[i64]>) {
+    let slots = 2 * buf.len();
+    let mut corners = buf.to_vec();
+    corners.resize(slots, buf[0]);
+    let mut new_keys = keys.to_vec();
+    new_keys.resize(KEY_PAD + slots, i64::MAX);
+    (corners.into(), new_keys.into())
+}
+
+/// Order-preserving map of a non-NaN float to i64 (−0 taken as +0):
+/// u < v ⇔ ord(u) < ord(v), and `!` reverses the order.
+#[inline(always)]
+fn ord(v: f64) -> i64 {
+    let i = (v + 0.0).to_bits() as i64;
+    i ^ (((i >> 63) as u64) >> 1) as i64
+}
+
+/// Inverse of [`ord`] (the map is an involution on the bits).
+#[inline(always)]
+fn unord(o: i64) -> f64 {
+    f64::from_bits((o ^ (((o >> 63) as u64) >> 1) as i64) as u64)
+}
+
+/// 0 for odd `j` (ascending branch, maxima keys), −1 (all bits) for even.
+#[inline(always)]
+fn parity_mask(j: usize) -> i64 {
+    (j as i64 & 1) - 1
+}
+
+/// Memory update: reversal detection, memory cap, wiping out. Integer and
+/// branch-free except for rare long wipe-outs (more than [`POP_CHUNK`]
+/// pairs), so the step-to-step dependency through the stack length is short.
 #[inline]
 pub(crate) fn advance<N: Copy>(st: &mut PreisachState<N>, x: f64) {
-    // Work on locals: stores into the slot buffer cannot then force reloads
-    // of the state fields.
     let mut n = st.n;
-    let (run_x, cap) = (st.run_x, st.cap);
-    let buf = &mut st.buf;
-    let asc = n & 1 == 1;
-    let rev = (asc & (x < run_x)) | (!asc & (x > run_x));
-    // Candidate corner: the previous input, stored unconditionally in the
-    // free slot; a reversal then only moves the stack length.
-    let cand = Corner {
-        x: run_x,
+    if n >= st.buf.len() {
+        (st.buf, st.keys) = grown(&st.buf, &st.keys);
+    }
+    // Work on locals: stores into the buffers cannot then force reloads of
+    // the state fields.
+    let (orun, cap) = (st.run_key, st.cap);
+    let ox = ord(x);
+    // Xor with the parity mask turns "x < x_prev" into "x > x_prev" on a
+    // descending branch.
+    let flip = parity_mask(n);
+    let rev = (ox ^ flip) < (orun ^ flip);
+    // Candidate corner j = n (the previous input), stored unconditionally
+    // in the free slot; a reversal then only moves the stack length.
+    let prefix = st.buf[n - 1].prefix + st.run_term;
+    st.buf[n] = Corner {
         node: st.run_node,
-        prefix: buf[n - 1].prefix + st.run_term,
+        prefix,
         time: st.t.wrapping_sub(1),
     };
-    if n < buf.len() {
-        buf[n] = cand;
-    } else if rev && n < cap {
-        buf.push(cand);
-    }
+    let keys = &mut st.keys[..];
+    keys[KEY_PAD + n] = orun ^ flip;
     let inc = usize::from(rev);
     let full = usize::from(n >= cap);
     n = n + inc - 2 * (inc & full);
-    if asc ^ rev {
-        while n >= 3 && x >= buf[n - 2].x {
-            n -= 2;
+    // Wiping out: extrema at n − 2, n − 4, … (the parity opposite to the top
+    // corner) with key ≤ ±x, counted chunk by chunk from the top.
+    let sx = ox ^ parity_mask(n);
+    let mut top = KEY_PAD + n;
+    let mut wiped = 0;
+    loop {
+        let c = &keys[top - 2 * POP_CHUNK..top];
+        let k = (0..POP_CHUNK)
+            .map(|i| usize::from(c[2 * i] <= sx))
+            .sum::<usize>();
+        wiped += k;
+        if k < POP_CHUNK {
+            break;
         }
-    } else {
-        while n >= 4 && x <= buf[n - 2].x {
-            n -= 2;
-        }
-        if n == 2 && x <= buf[0].x {
-            n = 1;
-        }
+        top -= 2 * POP_CHUNK;
     }
-    st.n = n;
-    st.run_x = x;
+    // Descending below β₀ wipes s₀ too: back to negative saturation (n = 1).
+    st.n = (n - 2 * wiped).max(1);
+    st.run_key = ox;
     st.t += 1;
 }
 
@@ -536,6 +590,105 @@ mod tests {
             // Alternating, nested dominant extrema.
             for w in e.windows(3) {
                 assert!((w[0] - w[2]).abs() > 0.0 && (w[0] - w[1]) * (w[2] - w[1]) > 0.0);
+            }
+        }
+    }
+
+    /// Straightforward reference: the extremum list updated with explicit
+    /// branches and loops, and the full staircase sum re-evaluated at every
+    /// step with the exact Φ (`erfc`), no table, nodes or partial sums.
+    /// Returns the outputs and the number of steps that wiped ≥ 2 pairs.
+    fn full_sum_reference(
+        (c, a, wa, b, wb): (f64, f64, f64, f64, f64),
+        cap: Option<usize>,
+        x: &[f64],
+    ) -> (Vec<f64>, usize) {
+        use crate::special::normal_cdf;
+        let f = |al: f64, be: f64| {
+            let p = normal_cdf((al - a) / wa) - normal_cdf((be - a) / wa);
+            let q = normal_cdf((al - b) / wb) - normal_cdf((be - b) / wb);
+            c * p * q
+        };
+        let mut s = vec![f64::NEG_INFINITY];
+        let mut cur = f64::NEG_INFINITY;
+        let mut deep_wipes = 0;
+        let mut y = Vec::with_capacity(x.len());
+        for &v in x {
+            let ascending = s.len() % 2 == 1;
+            if (ascending && v < cur) || (!ascending && v > cur) {
+                if cap.is_some_and(|k| s.len() > k) {
+                    s.pop(); // forget the innermost loop
+                } else {
+                    s.push(cur);
+                }
+            }
+            let before = s.len();
+            if s.len() % 2 == 1 {
+                while s.len() >= 3 && v >= s[s.len() - 2] {
+                    s.truncate(s.len() - 2);
+                }
+            } else {
+                while s.len() >= 4 && v <= s[s.len() - 2] {
+                    s.truncate(s.len() - 2);
+                }
+            }
+            if before - s.len() >= 4 {
+                deep_wipes += 1;
+            }
+            cur = v;
+            let mut sum = 0.0;
+            for j in 1..=s.len() {
+                let (u, w) = (s[j - 1], if j < s.len() { s[j] } else { cur });
+                let sign = if j % 2 == 1 { 1.0 } else { -1.0 };
+                sum += sign * f(u.max(w), u.min(w));
+            }
+            y.push(-c + 2.0 * sum);
+        }
+        (y, deep_wipes)
+    }
+
+    #[test]
+    fn fast_path_matches_full_sum_reference() {
+        use rand::{Rng, SeedableRng};
+        let par = (1.0, 0.4, 0.3, -0.4, 0.3);
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(17);
+        // I.i.d. bursts, nested decaying oscillations (deep memories that the
+        // next large sample wipes out at once) and exact repeats of past
+        // samples (ties with stored extrema).
+        let mut x: Vec<f64> = Vec::new();
+        while x.len() < 200_000 {
+            match rng.random_range(0..3) {
+                0 => x.extend((0..50).map(|_| rng.random_range(-1.5..1.5))),
+                1 => {
+                    let (m, a) = (rng.random_range(-0.5..0.5), rng.random_range(0.3..1.0));
+                    let k = rng.random_range(10..60);
+                    x.extend((0..k).map(|i| {
+                        let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+                        m + sign * a * (1.0 - i as f64 / k as f64)
+                    }));
+                }
+                _ if x.len() > 100 => {
+                    for _ in 0..20 {
+                        let back = rng.random_range(1..100);
+                        x.push(x[x.len() - back]);
+                    }
+                }
+                _ => {}
+            }
+        }
+        for cap in [Some(32), Some(5), None] {
+            let mut p = Preisach::new(
+                ParametricEverett::gaussian(par.0, par.1, par.2, par.3, par.4).unwrap(),
+            );
+            if let Some(k) = cap {
+                p = p.with_memory_cap(k).unwrap();
+            }
+            let y = p.simulate(&x, &InitialState::NegativeSaturation).unwrap();
+            let (r, deep) = full_sum_reference(par, cap, &x);
+            // Many steps wipe ≥ 2 pairs at once (a shallow cap allows few).
+            assert!(cap == Some(5) || deep > 5000, "only {deep} deep wipe-outs");
+            for (t, (u, v)) in y.iter().zip(&r).enumerate() {
+                assert!((u - v).abs() < 1e-12, "cap {cap:?}, step {t}: {u} vs {v}");
             }
         }
     }

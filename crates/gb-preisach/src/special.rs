@@ -160,17 +160,20 @@ const PHI_INV_H: f64 = 16.0;
 const PHI_CELLS: usize = 288;
 const PHI_DEG: usize = 8;
 
-/// One table cell: 8 coefficients in one 64-byte cache line.
+/// One table cell: 8 coefficients in one 64-byte cache line, stored as the
+/// pairs (c₀, c₄), (c₁, c₅), (c₂, c₆), (c₃, c₇) so the two halves of the
+/// Estrin scheme run as one two-lane vector.
 #[derive(Clone, Copy)]
 #[repr(align(64))]
 pub(crate) struct PhiCell([f64; PHI_DEG]);
 
-pub(crate) type PhiTable = Vec<PhiCell>;
-static PHI_TABLE: std::sync::OnceLock<PhiTable> = std::sync::OnceLock::new();
+pub(crate) type PhiTable = [PhiCell; PHI_CELLS];
+static PHI_TABLE: std::sync::OnceLock<Box<PhiTable>> = std::sync::OnceLock::new();
 
 /// Piecewise polynomial table of Φ on [−9, 9]: 288 cells of width 1/16, each
 /// the degree-7 Chebyshev interpolant of Φ (from [`erfc`]) written in
-/// monomials of the local variable u ∈ [−1, 1].
+/// monomials of w = u/2 ∈ [−½, ½] (u ∈ [−1, 1] the Chebyshev variable; the
+/// coefficients are scaled by 2^m, exactly).
 #[allow(clippy::needless_range_loop)]
 pub(crate) fn phi_table() -> &'static PhiTable {
     PHI_TABLE.get_or_init(|| {
@@ -212,34 +215,57 @@ pub(crate) fn phi_table() -> &'static PhiTable {
                         mono[m] += c * t[j][m];
                     }
                 }
-                PhiCell(mono)
+                for (m, v) in mono.iter_mut().enumerate() {
+                    *v *= (1u32 << m) as f64;
+                }
+                let [c0, c1, c2, c3, c4, c5, c6, c7] = mono;
+                PhiCell([c0, c4, c1, c5, c2, c6, c3, c7])
             })
-            .collect()
+            .collect::<Vec<_>>()
+            .try_into()
+            .unwrap_or_else(|_| unreachable!())
     })
 }
 
-/// Cell coordinate t = (z − z_lo)·16 of the [`phi_table`] for z: Φ(z) is
-/// [`normal_cdf_at`]`(table, z·16 + 144)`.
+/// Cell coordinate t = (z − z_lo)·16 − ½ of the [`phi_table`] for z (cell i
+/// is t ∈ [i − ½, i + ½)): Φ(z) is [`normal_cdf_at`]`(table, z·16 + 143.5)`.
 pub(crate) const PHI_T_SCALE: f64 = PHI_INV_H;
-/// Offset of the cell coordinate (−z_lo·16).
-pub(crate) const PHI_T_OFFSET: f64 = -PHI_LO * PHI_INV_H;
+/// Offset of the cell coordinate (−z_lo·16 − ½).
+pub(crate) const PHI_T_OFFSET: f64 = -PHI_LO * PHI_INV_H - 0.5;
 
-/// Φ at the table coordinate `t` = (z − z_lo)·16, from the table (absolute
-/// error below 5e-15) or, outside [−9, 9], from [`normal_cdf`].
+/// Lowest table coordinate of the [`phi_table`] (cell 0 is t ∈ [−½, ½)).
+pub(crate) const PHI_T_MIN: f64 = -0.5;
+/// End of the table coordinates (exclusive).
+pub(crate) const PHI_T_MAX: f64 = PHI_CELLS as f64 - 0.5;
+
+/// Φ at the table coordinate `t` = (z − z_lo)·16 − ½, from the table
+/// (absolute error below 5e-15) or, outside [−9, 9], from [`normal_cdf`].
 #[inline(always)]
 pub(crate) fn normal_cdf_at(table: &PhiTable, t: f64) -> f64 {
-    if !(t >= 0.0 && t < PHI_CELLS as f64) {
+    if !(PHI_T_MIN..PHI_T_MAX).contains(&t) {
         return normal_cdf((t - PHI_T_OFFSET) / PHI_T_SCALE);
     }
-    let i = t as usize;
-    let u = 2.0 * (t - i as f64) - 1.0;
+    normal_cdf_in_table(table, t)
+}
+
+/// Φ from the table at a coordinate the caller has checked to lie in
+/// [[`PHI_T_MIN`], [`PHI_T_MAX`]) (elsewhere the value is meaningless).
+#[inline(always)]
+pub(crate) fn normal_cdf_in_table(table: &PhiTable, t: f64) -> f64 {
+    // Round to the nearest cell centre i: adding 1.5·2^52 leaves round(t) in
+    // the low mantissa bits (|t| < 2^31), and w = t − i ∈ [−½, ½] exactly.
+    const ROUND: f64 = 6_755_399_441_055_744.0;
+    let r = t + ROUND;
+    let i = (r.to_bits() as u32 as usize).min(PHI_CELLS - 1);
+    let w = t - (r - ROUND);
     let c = &table[i].0;
-    // Estrin's scheme (short dependency chains).
-    let u2 = u * u;
-    let u4 = u2 * u2;
-    let q0 = (c[0] + c[1] * u) + (c[2] + c[3] * u) * u2;
-    let q1 = (c[4] + c[5] * u) + (c[6] + c[7] * u) * u2;
-    q0 + q1 * u4
+    // Estrin's scheme, the halves q₀ = c₀ + c₁w + (c₂ + c₃w)w² and
+    // q₁ = c₄ + c₅w + (c₆ + c₇w)w² side by side.
+    let w2 = w * w;
+    let a = [c[0] + c[2] * w, c[1] + c[3] * w];
+    let b = [c[4] + c[6] * w, c[5] + c[7] * w];
+    let q = [a[0] + b[0] * w2, a[1] + b[1] * w2];
+    q[0] + q[1] * (w2 * w2)
 }
 
 /// Fast standard normal distribution function: the [`phi_table`]
@@ -247,7 +273,7 @@ pub(crate) fn normal_cdf_at(table: &PhiTable, t: f64) -> f64 {
 /// outside.
 #[cfg(test)]
 pub fn normal_cdf_fast(z: f64) -> f64 {
-    normal_cdf_at(phi_table(), (z - PHI_LO) * PHI_INV_H)
+    normal_cdf_at(phi_table(), z * PHI_T_SCALE + PHI_T_OFFSET)
 }
 
 /// Standard normal density φ(z).

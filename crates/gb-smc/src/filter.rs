@@ -15,7 +15,7 @@
 use crate::error::{Result, SmcError};
 use crate::model::{Observations, StateSpaceModel, StateVector};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{domain, stream, SmcRng, CHUNK, PAR_MIN, PAR_MIN_LIGHT};
+use crate::rng::{domain, stream, CHUNK, PAR_MIN, PAR_MIN_LIGHT};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -192,12 +192,15 @@ pub struct FilterWorkspace<S> {
     lw: Vec<f64>,
     lw_new: Vec<f64>,
     w: Vec<f64>,
+    cum: Vec<f64>,
+    cum_new: Vec<f64>,
     anc: Vec<usize>,
     aux: Vec<f64>,
     stats: Vec<ChunkStat>,
+    fac: Vec<f64>,
+    off: Vec<f64>,
+    bnd: Vec<usize>,
     counts: Vec<u32>,
-    anc_next: Vec<usize>,
-    bounds: Vec<(f64, usize)>,
 }
 
 impl<S> FilterWorkspace<S> {
@@ -209,16 +212,21 @@ impl<S> FilterWorkspace<S> {
             lw: Vec::new(),
             lw_new: Vec::new(),
             w: Vec::new(),
+            cum: Vec::new(),
+            cum_new: Vec::new(),
             anc: Vec::new(),
             aux: Vec::new(),
             stats: Vec::new(),
+            fac: Vec::new(),
+            off: Vec::new(),
+            bnd: Vec::new(),
             counts: Vec::new(),
-            anc_next: Vec::new(),
-            bounds: Vec::new(),
         }
     }
 }
 
+/// Per-chunk result of a move: chunk-relative exponentials `e_i = exp(ℓ_i − max)`
+/// with `sum = Σ e_i` (the last chunk-relative cumulative sum) and `sum2 = Σ e_i²`.
 #[derive(Debug, Clone, Copy, Default)]
 struct ChunkStat {
     max: f64,
@@ -235,7 +243,9 @@ struct Norm {
     sum2: f64,
 }
 
-fn combine(stats: &[ChunkStat], t: usize) -> Result<Norm> {
+/// Combines the chunk statistics (sequentially, in chunk order) and sets the
+/// per-chunk factors `f_k = exp(max_k − max) / Σ` that normalise `e_i`.
+fn combine(stats: &[ChunkStat], t: usize, fac: &mut Vec<f64>) -> Result<Norm> {
     let mut max = f64::NEG_INFINITY;
     for s in stats {
         if s.bad {
@@ -247,22 +257,311 @@ fn combine(stats: &[ChunkStat], t: usize) -> Result<Norm> {
         return Err(SmcError::AllWeightsZero { t });
     }
     let (mut sum, mut sum2) = (0.0, 0.0);
+    fac.clear();
     for s in stats {
         if s.max > f64::NEG_INFINITY {
             let f = (s.max - max).exp();
             sum += s.sum * f;
             sum2 += s.sum2 * f * f;
+            fac.push(f);
+        } else {
+            fac.push(0.0);
         }
+    }
+    for f in fac.iter_mut() {
+        *f /= sum;
     }
     Ok(Norm { max, sum, sum2 })
 }
 
-/// Exp-normalises a chunk of log-weights: `w_i = exp(lw_i − max_chunk)`.
-/// The exponentials vectorise; the sums use four fixed lanes (deterministic order).
-#[inline]
-fn chunk_exp(lw: &[f64], w: &mut [f64], max: f64, bad: bool) -> ChunkStat {
+/// `W_i = e_i f_k`: normalised weights.
+fn normalise(parallel: bool, w: &mut [f64], fac: &[f64]) {
+    let body = |(wc, &f): (&mut [f64], &f64)| wc.iter_mut().for_each(|x| *x *= f);
+    if parallel && w.len() >= PAR_MIN_LIGHT {
+        w.par_chunks_mut(CHUNK).zip(fac.par_iter()).for_each(body);
+    } else {
+        w.chunks_mut(CHUNK).zip(fac.iter()).for_each(body);
+    }
+}
+
+/// Systematic resampling plan shared by all output chunks of a step.
+///
+/// The global cumulative weight of particle `i` in chunk `k` is
+/// `C_i = o_k + P_i f_k` (`P_i`: chunk-relative cumulative sum of `e_i`,
+/// `o_{k+1} = o_k + P_last f_k`), and particle `i` covers the
+/// `K(i) = #{j : (j + v)/N ≤ C_i / C_{N−1}}` first outputs, so
+/// `a_j = min{i : K(i) > j}`. `K` is monotone and `K(N − 1) = N`;
+/// `b_k = K(last particle of chunk k − 1)`. Any output chunk can thus find its
+/// ancestors from `P`, `o`, `f` and `b` alone, independently of the others.
+#[derive(Clone, Copy)]
+struct Sys<'a> {
+    cum: &'a [f64],
+    fac: &'a [f64],
+    off: &'a [f64],
+    bnd: &'a [usize],
+    total: f64,
+    scale: f64,
+    shift: f64,
+    n: usize,
+}
+
+impl Sys<'_> {
+    #[inline(always)]
+    fn count(&self, c: f64) -> usize {
+        let k = ((c * self.scale + self.shift) as usize).min(self.n);
+        if c >= self.total {
+            self.n
+        } else {
+            k
+        }
+    }
+}
+
+/// Offsets `o_k` and boundaries `b_k` of the systematic plan.
+fn plan(
+    stats: &[ChunkStat],
+    fac: &[f64],
+    v: f64,
+    n: usize,
+    off: &mut Vec<f64>,
+    bnd: &mut Vec<usize>,
+) -> (f64, f64, f64) {
+    off.clear();
+    let mut o = 0.0;
+    off.push(o);
+    for (s, &f) in stats.iter().zip(fac) {
+        o += s.sum * f;
+        off.push(o);
+    }
+    let total = o;
+    let scale = n as f64 / total;
+    let shift = 1.0 - v;
+    let sys = Sys {
+        cum: &[],
+        fac,
+        off,
+        bnd: &[],
+        total,
+        scale,
+        shift,
+        n,
+    };
+    bnd.clear();
+    bnd.extend(off.iter().map(|&o| sys.count(o)));
+    bnd[0] = 0;
+    (total, scale, shift)
+}
+
+/// Ancestors `a_j` of the outputs `j ∈ [s, s + out.len())` (systematic plan),
+/// written to `out` as "`i + 1` at position `K(i)`" (the last writer of a
+/// position is the first particle covering it) for [`fill_forward`]; zero elsewhere.
+#[inline(always)]
+fn sys_ancestors(sys: &Sys<'_>, s: usize, out: &mut [usize]) {
+    let e = s + out.len();
+    // first parent chunk whose outputs reach past s (b_K = N > s)
+    let mut k = sys.bnd[1..].partition_point(|&b| b <= s);
+    out.iter_mut().for_each(|a| *a = 0);
+    let mut first = true;
+    loop {
+        let base = k * CHUNK;
+        let pk = &sys.cum[base..(base + CHUNK).min(sys.n)];
+        let (o, f) = (sys.off[k], sys.fac[k]);
+        let start = if first {
+            let i = pk.partition_point(|&p| sys.count(o + p * f) <= s);
+            out[0] = base + i;
+            first = false;
+            i
+        } else {
+            0
+        };
+        // the last chunk needed: its outputs reach e (b_K = N ≥ e)
+        let done = sys.bnd[k + 1] >= e;
+        let stop = if done {
+            pk.partition_point(|&p| sys.count(o + p * f) < e)
+        } else {
+            pk.len()
+        };
+        // s < K(i) < e for these particles, so K(i) < N and C_i < C_{N−1}:
+        // `count` reduces to the plain conversion (no clamping)
+        for (i, &p) in (base + start + 1..).zip(&pk[start..stop]) {
+            let x = (o + p * f) * sys.scale + sys.shift;
+            debug_assert!((0.0..(e + 1) as f64).contains(&x));
+            // SAFETY: x is finite and in [0, e + 1) (0 ≤ C_i < C_{N−1}, scale =
+            // N / C_{N−1} > 0, shift ∈ (0, 1], and ⌊x⌋ = K(i) < e), so the
+            // truncation is representable (`as` would add saturation checks).
+            let c: usize = unsafe { x.to_int_unchecked() };
+            out[c - s] = i;
+        }
+        if done {
+            break;
+        }
+        k += 1;
+    }
+}
+
+/// Fills the unwritten (zero) positions with the last written value. The
+/// written values increase, so this is a running maximum; it is done with
+/// bit operations because which positions are written is random (a branch
+/// would mispredict, and LLVM turns a `max`/select in this loop into one).
+#[inline(always)]
+fn fill_forward(a: &mut [usize]) {
+    let mut acc = 0usize;
+    for x in a.iter_mut() {
+        let v = *x;
+        // all ones iff v == 0 (the values are < 2^63)
+        let keep = ((v as i64).wrapping_sub(1) >> 63) as usize;
+        acc = v | (acc & keep);
+        *x = acc;
+    }
+}
+
+/// [`fill_forward`] and `x_j ← x_old[a_j]` in one pass.
+#[inline(never)]
+fn fill_forward_gather<S: Clone>(a: &mut [usize], x_old: &[S], x: &mut [S]) {
+    let mut acc = 0usize;
+    for (ai, xi) in a.iter_mut().zip(x.iter_mut()) {
+        let v = *ai;
+        let keep = ((v as i64).wrapping_sub(1) >> 63) as usize;
+        acc = v | (acc & keep);
+        *ai = acc;
+        *xi = x_old[acc].clone();
+    }
+}
+
+/// How a step weights a moved particle on top of `log g_t` (and the proposal ratio).
+#[derive(Clone, Copy)]
+enum Base {
+    /// After resampling (bootstrap / guided): nothing.
+    Zero,
+    /// Without resampling: `ℓ_{t−1}^{a} − max ℓ_{t−1}`.
+    Prev(f64),
+    /// APF after resampling: `−log η_t^{a}`.
+    Apf,
+}
+
+/// Everything a chunk task reads.
+struct Ctx<'a, M: StateSpaceModel> {
+    model: &'a M,
+    t: usize,
+    y: &'a M::Obs,
+    u: &'a [f64],
+    seed: u64,
+    /// bootstrap: batch methods of the model
+    batch: bool,
+    x_old: &'a [M::State],
+    lw_old: &'a [f64],
+    aux: &'a [f64],
+    base: Base,
+    sys: Option<Sys<'a>>,
+}
+
+type Item<'a, S> = (
+    usize,
+    (
+        (((&'a mut [S], &'a mut [f64]), &'a mut [f64]), &'a mut [f64]),
+        &'a mut [usize],
+    ),
+);
+
+/// One output chunk `m` of one step: ancestors, move, log-weights, chunk-relative
+/// exponentials `e_i`, their cumulative sums and statistics.
+#[inline(always)]
+fn task_body<M: StateSpaceModel>(ctx: &Ctx<'_, M>, item: Item<'_, M::State>) -> ChunkStat {
+    let (m, ((((xc, lc), wc), pc), ac)) = item;
+    let t = ctx.t;
+    let model = ctx.model;
+    let (y, u) = (ctx.y, ctx.u);
+    let mut rng = stream(ctx.seed, domain::MOVE, t as u64, m as u64);
+    if t == 0 {
+        if ctx.batch {
+            for xi in xc.iter_mut() {
+                *xi = model.sample_initial(u, &mut rng);
+            }
+            model.log_observation_batch(0, xc, y, u, lc);
+        } else {
+            for (xi, li) in xc.iter_mut().zip(lc.iter_mut()) {
+                *xi = model.sample_initial_proposal(y, u, &mut rng);
+                *li =
+                    model.log_observation(0, xi, y, u) + model.log_initial_proposal_ratio(xi, y, u);
+            }
+        }
+    } else {
+        let x_old = ctx.x_old;
+        let gathered = match &ctx.sys {
+            Some(sys) => {
+                sys_ancestors(sys, m * CHUNK, ac);
+                if ctx.batch {
+                    fill_forward_gather(ac, x_old, xc);
+                    true
+                } else {
+                    fill_forward(ac);
+                    false
+                }
+            }
+            None => false,
+        };
+        let (lw_old, aux) = (ctx.lw_old, ctx.aux);
+        let base = |a: usize| -> f64 {
+            match ctx.base {
+                Base::Zero => 0.0,
+                Base::Prev(shift) => lw_old[a] - shift,
+                Base::Apf => -aux[a],
+            }
+        };
+        if ctx.batch {
+            if !gathered {
+                for (xi, &a) in xc.iter_mut().zip(ac.iter()) {
+                    *xi = x_old[a].clone();
+                }
+            }
+            model.sample_transition_batch(t, xc, u, &mut rng);
+            model.log_observation_batch(t, xc, y, u, lc);
+            if !matches!(ctx.base, Base::Zero) {
+                for (li, &a) in lc.iter_mut().zip(ac.iter()) {
+                    *li += base(a);
+                }
+            }
+        } else {
+            for ((xi, li), &a) in xc.iter_mut().zip(lc.iter_mut()).zip(ac.iter()) {
+                let p = &x_old[a];
+                *xi = model.sample_proposal(t, p, y, u, &mut rng);
+                *li = base(a)
+                    + model.log_observation(t, xi, y, u)
+                    + model.log_proposal_ratio(t, p, xi, y, u);
+            }
+        }
+    }
+    finish_chunk(lc, wc, pc)
+}
+
+/// Max and validity of the log-weights, `e_i = exp(ℓ_i − max)`, `Σ e²`, and the
+/// chunk-relative cumulative sums `P` (blocks of 64 summed independently, then
+/// offset: a fixed association, so the result does not depend on the CPU).
+#[inline(always)]
+fn finish_chunk(lc: &[f64], wc: &mut [f64], pc: &mut [f64]) -> ChunkStat {
+    const L: usize = 8;
+    let mut mx = [f64::NEG_INFINITY; L];
+    let mut bad = [false; L];
+    let mut it = lc.chunks_exact(L);
+    for c in &mut it {
+        for k in 0..L {
+            let l = c[k];
+            bad[k] |= l.is_nan() || l == f64::INFINITY;
+            mx[k] = if l > mx[k] { l } else { mx[k] };
+        }
+    }
+    for (k, &l) in it.remainder().iter().enumerate() {
+        bad[k] |= l.is_nan() || l == f64::INFINITY;
+        mx[k] = if l > mx[k] { l } else { mx[k] };
+    }
+    let mut max = f64::NEG_INFINITY;
+    for &v in &mx {
+        max = if v > max { v } else { max };
+    }
+    let bad = bad.iter().any(|&b| b);
     if max == f64::NEG_INFINITY || bad {
-        w.iter_mut().for_each(|x| *x = 0.0);
+        wc.iter_mut().for_each(|x| *x = 0.0);
+        pc.iter_mut().for_each(|x| *x = 0.0);
         return ChunkStat {
             max,
             sum: 0.0,
@@ -270,43 +569,141 @@ fn chunk_exp(lw: &[f64], w: &mut [f64], max: f64, bad: bool) -> ChunkStat {
             bad,
         };
     }
-    exp_shifted(lw, w, max);
-    let (s, s2) = lane_sums(w);
-    ChunkStat {
-        max,
-        sum: s,
-        sum2: s2,
-        bad,
-    }
-}
-
-#[inline(always)]
-fn exp_shifted_generic(lw: &[f64], w: &mut [f64], max: f64) {
-    for (wi, &l) in w.iter_mut().zip(lw) {
+    for (wi, &l) in wc.iter_mut().zip(lc) {
         *wi = exp_nonpos(l - max);
     }
+    let (_, sum2) = lane_sums(wc);
+    let sum = prefix_sums(wc, pc);
+    ChunkStat {
+        max,
+        sum,
+        sum2,
+        bad: false,
+    }
 }
 
-/// The same code compiled for AVX2 (4 lanes). No FMA contraction happens, so
-/// the results are bit-identical to the baseline (SSE2) build.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn exp_shifted_avx2(lw: &[f64], w: &mut [f64], max: f64) {
-    exp_shifted_generic(lw, w, max)
-}
-
-/// `w_i = exp(lw_i − max)`, with runtime dispatch to AVX2 where available.
-#[inline]
-pub(crate) fn exp_shifted(lw: &[f64], w: &mut [f64], max: f64) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU supports AVX2 (checked above).
-            unsafe { exp_shifted_avx2(lw, w, max) };
-            return;
+/// Cumulative sums of `w` into `p` in blocks of 64 (each block from 0, then the
+/// block offsets added); returns the total `p.last()`.
+#[inline(always)]
+pub(crate) fn prefix_sums(w: &[f64], p: &mut [f64]) -> f64 {
+    const B: usize = 64;
+    const NB: usize = 8;
+    if w.len() == B * NB && p.len() == B * NB {
+        // the same sums, eight independent chains interleaved
+        let mut c = [0.0f64; NB];
+        for r in 0..B {
+            for l in 0..NB {
+                c[l] += w[l * B + r];
+                p[l * B + r] = c[l];
+            }
+        }
+    } else {
+        for (wb, pb) in w.chunks(B).zip(p.chunks_mut(B)) {
+            let mut c = 0.0;
+            for (x, q) in wb.iter().zip(pb.iter_mut()) {
+                c += x;
+                *q = c;
+            }
         }
     }
-    exp_shifted_generic(lw, w, max)
+    let mut off = 0.0;
+    for (i, pb) in p.chunks_mut(B).enumerate() {
+        if i > 0 {
+            pb.iter_mut().for_each(|q| *q += off);
+        }
+        off = *pb.last().expect("non-empty block");
+    }
+    off
+}
+
+/// Instruction sets the chunk tasks are compiled for. The same IEEE operations
+/// run in the same order on each (no FMA contraction), so results are
+/// bit-identical whichever one runs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Isa {
+    Base,
+    #[cfg(target_arch = "x86_64")]
+    Avx2,
+    #[cfg(target_arch = "x86_64")]
+    Avx512,
+}
+
+impl Isa {
+    pub(crate) fn detect() -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx512f")
+                && std::arch::is_x86_feature_detected!("avx512dq")
+                && std::arch::is_x86_feature_detected!("avx512vl")
+            {
+                return Isa::Avx512;
+            }
+            if std::arch::is_x86_feature_detected!("avx2") {
+                return Isa::Avx2;
+            }
+        }
+        Isa::Base
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn task_avx2<M: StateSpaceModel>(ctx: &Ctx<'_, M>, item: Item<'_, M::State>) -> ChunkStat {
+    task_body(ctx, item)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512dq,avx512vl")]
+fn task_avx512<M: StateSpaceModel>(ctx: &Ctx<'_, M>, item: Item<'_, M::State>) -> ChunkStat {
+    task_body(ctx, item)
+}
+
+#[inline]
+fn task<M: StateSpaceModel>(isa: Isa, ctx: &Ctx<'_, M>, item: Item<'_, M::State>) -> ChunkStat {
+    match isa {
+        Isa::Base => task_body(ctx, item),
+        // SAFETY: `Isa::detect` checked that the CPU supports these features.
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { task_avx2(ctx, item) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { task_avx512(ctx, item) },
+    }
+}
+
+/// Runs all output chunks of one step (rayon above `PAR_MIN` particles).
+#[allow(clippy::too_many_arguments)]
+fn run_step<M: StateSpaceModel>(
+    isa: Isa,
+    parallel: bool,
+    ctx: &Ctx<'_, M>,
+    x: &mut [M::State],
+    lw: &mut [f64],
+    w: &mut [f64],
+    cum: &mut [f64],
+    anc: &mut [usize],
+    stats: &mut Vec<ChunkStat>,
+) {
+    if parallel && x.len() >= PAR_MIN {
+        x.par_chunks_mut(CHUNK)
+            .zip(lw.par_chunks_mut(CHUNK))
+            .zip(w.par_chunks_mut(CHUNK))
+            .zip(cum.par_chunks_mut(CHUNK))
+            .zip(anc.par_chunks_mut(CHUNK))
+            .enumerate()
+            .map(|item| task(isa, ctx, item))
+            .collect_into_vec(stats);
+    } else {
+        stats.clear();
+        stats.extend(
+            x.chunks_mut(CHUNK)
+                .zip(lw.chunks_mut(CHUNK))
+                .zip(w.chunks_mut(CHUNK))
+                .zip(cum.chunks_mut(CHUNK))
+                .zip(anc.chunks_mut(CHUNK))
+                .enumerate()
+                .map(|item| task(isa, ctx, item)),
+        );
+    }
 }
 
 /// `(Σ w, Σ w²)` with four independent accumulators in a fixed order.
@@ -326,192 +723,6 @@ pub(crate) fn lane_sums(w: &[f64]) -> (f64, f64) {
         b[k] += x * x;
     }
     ((a[0] + a[1]) + (a[2] + a[3]), (b[0] + b[1]) + (b[2] + b[3]))
-}
-
-type ChunkItem<'a, S> = (usize, ((&'a mut [S], &'a mut [f64]), &'a mut [f64]));
-
-/// Moves every particle with `f(i, &mut x_i, rng) -> log w_i` in chunks with
-/// per-chunk streams; fills `w` with chunk-relative exponentials.
-#[allow(clippy::too_many_arguments)]
-fn kernel<S, F>(
-    parallel: bool,
-    x: &mut [S],
-    lw: &mut [f64],
-    w: &mut [f64],
-    stats: &mut Vec<ChunkStat>,
-    seed: u64,
-    t: usize,
-    f: F,
-) where
-    S: Send,
-    F: Fn(usize, &mut S, &mut SmcRng) -> f64 + Sync,
-{
-    let body = |(k, ((xc, lc), wc)): ChunkItem<'_, S>| {
-        let mut rng = stream(seed, domain::MOVE, t as u64, k as u64);
-        let base = k * CHUNK;
-        let mut max = f64::NEG_INFINITY;
-        let mut bad = false;
-        for (j, (xi, li)) in xc.iter_mut().zip(lc.iter_mut()).enumerate() {
-            let l = f(base + j, xi, &mut rng);
-            bad |= l.is_nan() || l == f64::INFINITY;
-            *li = l;
-            max = if l > max { l } else { max };
-        }
-        chunk_exp(lc, wc, max, bad)
-    };
-    if parallel && x.len() >= PAR_MIN {
-        x.par_chunks_mut(CHUNK)
-            .zip(lw.par_chunks_mut(CHUNK))
-            .zip(w.par_chunks_mut(CHUNK))
-            .enumerate()
-            .map(body)
-            .collect_into_vec(stats);
-    } else {
-        stats.clear();
-        stats.extend(
-            x.chunks_mut(CHUNK)
-                .zip(lw.chunks_mut(CHUNK))
-                .zip(w.chunks_mut(CHUNK))
-                .enumerate()
-                .map(body),
-        );
-    }
-}
-
-/// Turns chunk-relative exponentials into normalised weights `W_i`.
-fn normalise(parallel: bool, w: &mut [f64], stats: &[ChunkStat], norm: Norm) {
-    let body = |(wc, s): (&mut [f64], &ChunkStat)| {
-        let f = if s.max > f64::NEG_INFINITY {
-            (s.max - norm.max).exp() / norm.sum
-        } else {
-            0.0
-        };
-        wc.iter_mut().for_each(|x| *x *= f);
-    };
-    if parallel && w.len() >= PAR_MIN_LIGHT {
-        w.par_chunks_mut(CHUNK).zip(stats.par_iter()).for_each(body);
-    } else {
-        w.chunks_mut(CHUNK).zip(stats.iter()).for_each(body);
-    }
-}
-
-/// Raw pointer to the ancestor buffer, shared by chunks writing disjoint ranges.
-#[derive(Clone, Copy)]
-struct AncPtr(*mut usize);
-// SAFETY: only used to write pairwise disjoint index ranges from different chunks.
-unsafe impl Send for AncPtr {}
-unsafe impl Sync for AncPtr {}
-
-/// Normalises the weights and draws systematic-resampling ancestors in the same
-/// pass, chunk-parallel. Chunk `k` holds normalised mass `μ_k` starting at
-/// cumulative offset `o_k` (computed sequentially over chunks, so the result does
-/// not depend on scheduling); it owns the outputs `j ∈ [b_k, b_{k+1})` with
-/// `b_k = #{j : (j + v)/N ≤ o_k}` and sets `a_j = min{i : k_i > j}` (store `i` at `k_{i-1}`, then a running maximum)
-/// where `k_i = #{j : (j + v)/N ≤ C_i}`. O(N) work, no data-dependent branches.
-#[allow(clippy::too_many_arguments)]
-fn normalise_systematic(
-    parallel: bool,
-    w: &mut [f64],
-    stats: &[ChunkStat],
-    norm: Norm,
-    v: f64,
-    anc: &mut [usize],
-    bounds: &mut Vec<(f64, usize)>,
-) {
-    let n = w.len();
-    debug_assert_eq!(anc.len(), n);
-    let factor = |s: &ChunkStat| {
-        if s.max > f64::NEG_INFINITY {
-            (s.max - norm.max).exp() / norm.sum
-        } else {
-            0.0
-        }
-    };
-    // offsets o_k and output boundaries b_k
-    bounds.clear();
-    let mut off = 0.0;
-    for s in stats {
-        bounds.push((off, 0));
-        off += s.sum * factor(s);
-    }
-    let total = off;
-    let scale = n as f64 / total;
-    let shift = 1.0 - v;
-    let kc = stats.len();
-    let mut prev = 0usize;
-    for (k, b) in bounds.iter_mut().enumerate() {
-        let x = if k == 0 {
-            0
-        } else {
-            (((b.0 * scale + shift) as usize).min(n)).max(prev)
-        };
-        b.1 = x;
-        prev = x;
-    }
-    let ptr = AncPtr(anc.as_mut_ptr());
-    let bounds_ref = &bounds[..];
-    let body = |(k, (wc, s)): (usize, (&mut [f64], &ChunkStat))| {
-        let f = factor(s);
-        wc.iter_mut().for_each(|x| *x *= f);
-        let (o, start) = bounds_ref[k];
-        let end = if k + 1 < kc { bounds_ref[k + 1].1 } else { n };
-        if end == start {
-            return;
-        }
-        let p = ptr;
-        // SAFETY: the ranges [b_k, b_{k+1}) are disjoint for different k and lie in 0..n.
-        let out = unsafe { std::slice::from_raw_parts_mut(p.0.add(start), end - start) };
-        // Particle i's first child sits at k_{i-1}: store i there (the last writer
-        // for a position is the first particle with k_i > j), then fill forward.
-        let i0 = k * CHUNK;
-        out.iter_mut().for_each(|a| *a = i0);
-        let last = wc.iter().rposition(|&x| x > 0.0).unwrap_or(0);
-        let mut c = o;
-        let mut prev = start;
-        let kof = |c: f64| ((c * scale + shift) as usize).clamp(start, end);
-        // pairs: the cumulative sum's dependency chain advances once per two particles
-        let mut pairs = wc[..last].chunks_exact(2);
-        let mut i = 0;
-        for p in &mut pairs {
-            if prev < end {
-                out[prev - start] = i0 + i;
-            }
-            let ka = kof(c + p[0]);
-            c += p[0] + p[1];
-            if ka < end {
-                out[ka - start] = i0 + i + 1;
-            }
-            prev = kof(c);
-            i += 2;
-        }
-        for &wi in pairs.remainder() {
-            if prev < end {
-                out[prev - start] = i0 + i;
-            }
-            c += wi;
-            prev = kof(c);
-            i += 1;
-        }
-        if prev < end {
-            out[prev - start] = i0 + last;
-        }
-        let mut acc = i0;
-        for a in out.iter_mut() {
-            acc = acc.max(*a);
-            *a = acc;
-        }
-    };
-    if parallel && n >= PAR_MIN_LIGHT {
-        w.par_chunks_mut(CHUNK)
-            .zip(stats.par_iter())
-            .enumerate()
-            .for_each(body);
-    } else {
-        w.chunks_mut(CHUNK)
-            .zip(stats.iter())
-            .enumerate()
-            .for_each(body);
-    }
 }
 
 /// A configured particle filter.
@@ -589,8 +800,37 @@ impl ParticleFilter {
     }
 
     /// Runs the filter with reusable buffers, calling `observer` at every step.
+    ///
+    /// With `parallel` and `N ≥ 4096` (one rayon fork-join per time step), the
+    /// run is moved onto a rayon worker when called from outside the pool, so
+    /// that the thread driving the time loop takes part in every step instead of
+    /// sleeping on a latch and being woken at every step; `observer` then runs
+    /// on that worker (hence `Send`).
     pub fn run_with<M, F>(
         &self,
+        model: &M,
+        obs: &Observations<'_, M::Obs>,
+        ws: &mut FilterWorkspace<M::State>,
+        observer: F,
+    ) -> Result<FilterOutput<M::State>>
+    where
+        M: StateSpaceModel,
+        F: FnMut(&FilterStep<'_, M::State>) + Send,
+    {
+        let isa = Isa::detect();
+        if self.config.parallel
+            && self.config.n_particles >= PAR_MIN
+            && rayon::current_thread_index().is_none()
+        {
+            rayon::scope(|_| self.run_impl(isa, model, obs, ws, observer))
+        } else {
+            self.run_impl(isa, model, obs, ws, observer)
+        }
+    }
+
+    pub(crate) fn run_impl<M, F>(
+        &self,
+        isa: Isa,
         model: &M,
         obs: &Observations<'_, M::Obs>,
         ws: &mut FilterWorkspace<M::State>,
@@ -609,6 +849,7 @@ impl ParticleFilter {
         let par = cfg.parallel;
         let seed = cfg.seed;
         let kind = cfg.kind;
+        let batch = kind == FilterKind::Bootstrap;
         let always = cfg.ess_threshold >= 1.0;
         let ln_n = (n as f64).ln();
 
@@ -622,11 +863,13 @@ impl ParticleFilter {
         ws.lw.resize(n, 0.0);
         ws.lw_new.resize(n, 0.0);
         ws.w.resize(n, 0.0);
+        ws.cum.resize(n, 0.0);
+        ws.cum_new.resize(n, 0.0);
         ws.anc.clear();
         ws.anc.extend(0..n);
-        ws.anc_next.resize(n, 0);
+        // systematic resampling inside the move tasks (not for the APF, whose
+        // first-stage weights are resampled before the move)
         let fused = kind != FilterKind::Auxiliary && cfg.resampling == Resampling::Systematic;
-        let mut next_ready = false;
         if kind == FilterKind::Auxiliary {
             ws.aux.resize(n, 0.0);
         }
@@ -642,55 +885,37 @@ impl ParticleFilter {
 
         // t = 0
         {
-            let y = obs.y(0);
-            let u = obs.input(0);
-            match kind {
-                FilterKind::Bootstrap => kernel(
-                    par,
-                    &mut ws.x,
-                    &mut ws.lw,
-                    &mut ws.w,
-                    &mut ws.stats,
-                    seed,
-                    0,
-                    |_, x, rng| {
-                        *x = model.sample_initial(u, rng);
-                        model.log_observation(0, x, y, u)
-                    },
-                ),
-                _ => kernel(
-                    par,
-                    &mut ws.x,
-                    &mut ws.lw,
-                    &mut ws.w,
-                    &mut ws.stats,
-                    seed,
-                    0,
-                    |_, x, rng| {
-                        *x = model.sample_initial_proposal(y, u, rng);
-                        model.log_observation(0, x, y, u)
-                            + model.log_initial_proposal_ratio(x, y, u)
-                    },
-                ),
-            }
-        }
-        let mut norm = combine(&ws.stats, 0)?;
-        let mut ess = norm.sum * norm.sum / norm.sum2;
-        if fused && tt > 1 && (always || ess < cfg.ess_threshold * n as f64) {
-            let v: f64 = stream(seed, domain::RESAMPLE, 1, 0).random();
-            normalise_systematic(
+            let ctx = Ctx {
+                model,
+                t: 0,
+                y: obs.y(0),
+                u: obs.input(0),
+                seed,
+                batch,
+                x_old: &[],
+                lw_old: &[],
+                aux: &[],
+                base: Base::Zero,
+                sys: None,
+            };
+            run_step(
+                isa,
                 par,
+                &ctx,
+                &mut ws.x_new,
+                &mut ws.lw_new,
                 &mut ws.w,
-                &ws.stats,
-                norm,
-                v,
-                &mut ws.anc_next,
-                &mut ws.bounds,
+                &mut ws.cum_new,
+                &mut ws.anc,
+                &mut ws.stats,
             );
-            next_ready = true;
-        } else {
-            normalise(par, &mut ws.w, &ws.stats, norm);
         }
+        let mut norm = combine(&ws.stats, 0, &mut ws.fac)?;
+        std::mem::swap(&mut ws.x, &mut ws.x_new);
+        std::mem::swap(&mut ws.lw, &mut ws.lw_new);
+        std::mem::swap(&mut ws.cum, &mut ws.cum_new);
+        normalise(par, &mut ws.w, &ws.fac);
+        let mut ess = norm.sum * norm.sum / norm.sum2;
         let mut inc = norm.max + norm.sum.ln() - ln_n;
         let mut loglik = inc;
         incs.push(inc);
@@ -716,6 +941,7 @@ impl ParticleFilter {
             let u = obs.input(t);
             let mut extra = 0.0;
             let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
+            let mut sys_v = None;
             let resampled = if kind == FilterKind::Auxiliary {
                 // log η_t(x_{t-1}^i)
                 let (x, aux) = (&ws.x, &mut ws.aux);
@@ -767,8 +993,8 @@ impl ParticleFilter {
                 rs
             } else {
                 let rs = always || ess < cfg.ess_threshold * n as f64;
-                if rs && next_ready {
-                    std::mem::swap(&mut ws.anc, &mut ws.anc_next);
+                if rs && fused {
+                    sys_v = Some(rng.random::<f64>());
                 } else if rs {
                     resample_unchecked(
                         cfg.resampling,
@@ -786,72 +1012,61 @@ impl ParticleFilter {
                     *a = i;
                 }
             }
-            let prev_ln = if resampled { ln_n } else { norm.sum.ln() };
-            let shift = norm.max;
-            let apf = kind == FilterKind::Auxiliary;
-            let (x_old, lw_old, anc, aux) = (&ws.x, &ws.lw, &ws.anc, &ws.aux);
-            let base = |a: usize| -> f64 {
-                if !resampled {
-                    lw_old[a] - shift
-                } else if apf {
-                    -aux[a]
-                } else {
-                    0.0
+            let sys = match sys_v {
+                Some(v) => {
+                    let (total, scale, shift) =
+                        plan(&ws.stats, &ws.fac, v, n, &mut ws.off, &mut ws.bnd);
+                    Some(Sys {
+                        cum: &ws.cum,
+                        fac: &ws.fac,
+                        off: &ws.off,
+                        bnd: &ws.bnd,
+                        total,
+                        scale,
+                        shift,
+                        n,
+                    })
                 }
+                None => None,
             };
-            match kind {
-                FilterKind::Bootstrap => kernel(
-                    par,
-                    &mut ws.x_new,
-                    &mut ws.lw_new,
-                    &mut ws.w,
-                    &mut ws.stats,
-                    seed,
-                    t,
-                    |i, x, rng| {
-                        let a = anc[i];
-                        *x = model.sample_transition(t, &x_old[a], u, rng);
-                        base(a) + model.log_observation(t, x, y, u)
-                    },
-                ),
-                _ => kernel(
-                    par,
-                    &mut ws.x_new,
-                    &mut ws.lw_new,
-                    &mut ws.w,
-                    &mut ws.stats,
-                    seed,
-                    t,
-                    |i, x, rng| {
-                        let a = anc[i];
-                        let p = &x_old[a];
-                        *x = model.sample_proposal(t, p, y, u, rng);
-                        base(a)
-                            + model.log_observation(t, x, y, u)
-                            + model.log_proposal_ratio(t, p, x, y, u)
-                    },
-                ),
-            }
-            norm = combine(&ws.stats, t)?;
+            let prev_ln = if resampled { ln_n } else { norm.sum.ln() };
+            let base = if !resampled {
+                Base::Prev(norm.max)
+            } else if kind == FilterKind::Auxiliary {
+                Base::Apf
+            } else {
+                Base::Zero
+            };
+            let ctx = Ctx {
+                model,
+                t,
+                y,
+                u,
+                seed,
+                batch,
+                x_old: &ws.x,
+                lw_old: &ws.lw,
+                aux: &ws.aux,
+                base,
+                sys,
+            };
+            run_step(
+                isa,
+                par,
+                &ctx,
+                &mut ws.x_new,
+                &mut ws.lw_new,
+                &mut ws.w,
+                &mut ws.cum_new,
+                &mut ws.anc,
+                &mut ws.stats,
+            );
+            norm = combine(&ws.stats, t, &mut ws.fac)?;
             std::mem::swap(&mut ws.x, &mut ws.x_new);
             std::mem::swap(&mut ws.lw, &mut ws.lw_new);
+            std::mem::swap(&mut ws.cum, &mut ws.cum_new);
+            normalise(par, &mut ws.w, &ws.fac);
             ess = norm.sum * norm.sum / norm.sum2;
-            next_ready = false;
-            if fused && t + 1 < tt && (always || ess < cfg.ess_threshold * n as f64) {
-                let v: f64 = stream(seed, domain::RESAMPLE, t as u64 + 1, 0).random();
-                normalise_systematic(
-                    par,
-                    &mut ws.w,
-                    &ws.stats,
-                    norm,
-                    v,
-                    &mut ws.anc_next,
-                    &mut ws.bounds,
-                );
-                next_ready = true;
-            } else {
-                normalise(par, &mut ws.w, &ws.stats, norm);
-            }
             inc = norm.max + norm.sum.ln() - prev_ln + extra;
             loglik += inc;
             incs.push(inc);
@@ -989,12 +1204,54 @@ mod tests {
     use super::exp_nonpos;
 
     #[test]
-    fn exp_dispatch_matches_scalar() {
-        let lw: Vec<f64> = (0..1001).map(|i| -(i as f64) * 0.731).collect();
-        let mut w = vec![0.0; lw.len()];
-        super::exp_shifted(&lw, &mut w, 0.0);
-        for (a, &l) in w.iter().zip(&lw) {
-            assert_eq!(a.to_bits(), exp_nonpos(l).to_bits());
+    fn every_instruction_set_gives_identical_bits() {
+        use super::{FilterWorkspace, Isa};
+        use crate::{FilterConfig, FilterKind, LinearGaussian, Observations, Resampling};
+        let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+        let (_, y) = model.simulate(50, 2);
+        let obs = Observations::new(&y);
+        let mut isas = vec![Isa::Base];
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2") {
+                isas.push(Isa::Avx2);
+            }
+            if Isa::detect() == Isa::Avx512 {
+                isas.push(Isa::Avx512);
+            }
+        }
+        for kind in [FilterKind::Bootstrap, FilterKind::Guided] {
+            for (rs, tau) in [
+                (Resampling::Systematic, 1.0),
+                (Resampling::Systematic, 0.5),
+                (Resampling::Stratified, 1.0),
+            ] {
+                let pf = FilterConfig::new(1500)
+                    .kind(kind)
+                    .resampling(rs)
+                    .ess_threshold(tau)
+                    .seed(4)
+                    .store_history(true)
+                    .build()
+                    .unwrap();
+                let runs: Vec<_> = isas
+                    .iter()
+                    .map(|&isa| {
+                        pf.run_impl(isa, &model, &obs, &mut FilterWorkspace::new(), |_| {})
+                            .unwrap()
+                    })
+                    .collect();
+                for r in &runs[1..] {
+                    assert_eq!(r.log_likelihood.to_bits(), runs[0].log_likelihood.to_bits());
+                    let (a, b) = (
+                        r.history.as_ref().unwrap(),
+                        runs[0].history.as_ref().unwrap(),
+                    );
+                    assert_eq!(a.states, b.states);
+                    assert_eq!(a.weights, b.weights);
+                    assert_eq!(a.ancestors, b.ancestors);
+                }
+            }
         }
     }
 

@@ -2,7 +2,7 @@
 //! (the reference against which the particle methods are tested).
 use crate::error::{check, Result, SmcError};
 use crate::model::{StateSpaceModel, TransitionDensity};
-use crate::rng::{standard_normal, stream, SmcRng};
+use crate::rng::{fill_standard_normal, standard_normal, stream, SmcRng};
 use serde::{Deserialize, Serialize};
 
 const LN_2PI: f64 = 1.837_877_066_409_345_3;
@@ -172,6 +172,27 @@ impl StateSpaceModel for LinearGaussian {
     fn log_observation(&self, _t: usize, x: &f64, y: &f64, u: &[f64]) -> f64 {
         let e = y - self.c * x - self.d * Self::u0(u);
         self.obs_const - 0.5 * e * e * self.inv_r
+    }
+    #[inline(always)]
+    fn sample_transition_batch(&self, _t: usize, x: &mut [f64], u: &[f64], rng: &mut SmcRng) {
+        let bu = self.b * Self::u0(u);
+        let mut z = [0.0f64; 128];
+        for blk in x.chunks_mut(128) {
+            let z = &mut z[..blk.len()];
+            fill_standard_normal(rng, z);
+            for (xi, &zi) in blk.iter_mut().zip(z.iter()) {
+                *xi = self.a * *xi + bu + self.sd_q * zi;
+            }
+        }
+    }
+    #[inline(always)]
+    fn log_observation_batch(&self, _t: usize, x: &[f64], y: &f64, u: &[f64], out: &mut [f64]) {
+        let yc = *y;
+        let du = self.d * Self::u0(u);
+        for (o, &xi) in out.iter_mut().zip(x) {
+            let e = yc - self.c * xi - du;
+            *o = self.obs_const - 0.5 * e * e * self.inv_r;
+        }
     }
     fn sample_initial_proposal(&self, y: &f64, u: &[f64], rng: &mut SmcRng) -> f64 {
         let (m, v, _) = self.posterior(self.m0, self.p0, *y, Self::u0(u));

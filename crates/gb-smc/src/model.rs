@@ -56,6 +56,40 @@ pub trait StateSpaceModel: Sync {
     /// `log g_t(y_t | x_t, u_t)`; `-inf` where the density is zero.
     fn log_observation(&self, t: usize, x: &Self::State, y: &Self::Obs, u: &[f64]) -> f64;
 
+    /// Moves a block of particles in place, `x_i ← draw from f_t(· | x_i, u_t)`,
+    /// all from one stream (used by the bootstrap filter, block by block).
+    /// Default: [`sample_transition`](Self::sample_transition) for each particle in
+    /// order. Override it to vectorise the transition (e.g. with
+    /// [`fill_standard_normal`](crate::rng::fill_standard_normal)); any
+    /// deterministic use of `rng` keeps the filter reproducible.
+    #[inline]
+    fn sample_transition_batch(
+        &self,
+        t: usize,
+        x: &mut [Self::State],
+        u: &[f64],
+        rng: &mut SmcRng,
+    ) {
+        for xi in x.iter_mut() {
+            *xi = self.sample_transition(t, xi, u, rng);
+        }
+    }
+    /// `out_i = log g_t(y_t | x_i, u_t)` for a block of particles. Default:
+    /// [`log_observation`](Self::log_observation) for each particle.
+    #[inline]
+    fn log_observation_batch(
+        &self,
+        t: usize,
+        x: &[Self::State],
+        y: &Self::Obs,
+        u: &[f64],
+        out: &mut [f64],
+    ) {
+        for (o, xi) in out.iter_mut().zip(x) {
+            *o = self.log_observation(t, xi, y, u);
+        }
+    }
+
     /// Draws `x_0 ~ q_0(· | y_0, u_0)` (guided/auxiliary filters). Default: `p_0`.
     fn sample_initial_proposal(&self, _y: &Self::Obs, u: &[f64], rng: &mut SmcRng) -> Self::State {
         self.sample_initial(u, rng)

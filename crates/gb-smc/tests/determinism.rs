@@ -55,6 +55,54 @@ fn filter_is_thread_count_invariant() {
 }
 
 #[test]
+fn bootstrap_fast_path_is_thread_count_invariant() {
+    // The benchmark configuration (bootstrap, systematic resampling at every
+    // step, no history): batch moves, resampling inside the parallel chunk
+    // tasks. Also N not a multiple of the chunk size, and adaptive resampling.
+    let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+    let (_, y) = model.simulate(80, 11);
+    let obs = Observations::new(&y);
+    for (n, tau) in [(10_000usize, 1.0), (9_000, 1.0), (6_001, 0.5)] {
+        let cfg = FilterConfig::new(n)
+            .resampling(Resampling::Systematic)
+            .ess_threshold(tau)
+            .seed(3);
+        let pf = cfg.clone().build().unwrap();
+        let a = pool(1).install(|| pf.run(&model, &obs).unwrap());
+        let b = pool(2).install(|| pf.run(&model, &obs).unwrap());
+        let c = pool(3).install(|| pf.run(&model, &obs).unwrap());
+        let d = cfg
+            .clone()
+            .parallel(false)
+            .build()
+            .unwrap()
+            .run(&model, &obs)
+            .unwrap();
+        for o in [&b, &c, &d] {
+            assert_eq!(a.log_likelihood.to_bits(), o.log_likelihood.to_bits());
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&a.log_likelihood_increments),
+                bits(&o.log_likelihood_increments)
+            );
+            assert_eq!(bits(&a.ess), bits(&o.ess));
+        }
+        // and the estimate is sensible (T = 80: within a few nats of the exact value)
+        let exact = gb_smc::KalmanFilter::new(&model)
+            .filter(&y)
+            .unwrap()
+            .log_likelihood;
+        assert!(
+            (a.log_likelihood - exact).abs() < 2.0,
+            "{} vs {exact}",
+            a.log_likelihood
+        );
+        let e = cfg.seed(4).build().unwrap().run(&model, &obs).unwrap();
+        assert_ne!(a.log_likelihood, e.log_likelihood);
+    }
+}
+
+#[test]
 fn large_n_parallel_passes_are_thread_count_invariant() {
     // N above PAR_MIN_LIGHT: normalisation and resampling also run in parallel.
     let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();

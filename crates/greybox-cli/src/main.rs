@@ -50,7 +50,7 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model).\n\nExample:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm"
     )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
@@ -196,6 +196,69 @@ struct FitArgs {
     /// Model file to write.
     #[arg(short = 'o', long = "out", value_name = "FILE")]
     out: PathBuf,
+    /// `--model lmn` only: validity functions, gauss (normalised Gaussians, LOLIMOT) or tree (decision-tree sigmoids). Any of --weights/--splits/--prune/--focus/--max-leaves selects the full local model network (x = z = the order-n regressors).
+    #[arg(long, value_name = "gauss|tree")]
+    weights: Option<String>,
+    /// `--model lmn` only: axis (LOLIMOT) or oblique (HILOMOT, tree weights) splits.
+    #[arg(long, value_name = "axis|oblique")]
+    splits: Option<String>,
+    /// `--model lmn` only: remove splits that do not pay by AICc after growing.
+    #[arg(long)]
+    prune: bool,
+    /// `--model lmn` only: train for free-run simulation (NOE) or one-step prediction (NARX).
+    #[arg(long, value_name = "simulation|prediction")]
+    focus: Option<String>,
+    /// `--model lmn` only: largest number of local models.
+    #[arg(long, value_name = "N")]
+    max_leaves: Option<usize>,
+}
+
+/// The full local model network of `fit --model lmn` when any of its flags is given.
+fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_lmn::LmnParams>> {
+    use gb_lmn::{Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
+    if a.weights.is_none()
+        && a.splits.is_none()
+        && !a.prune
+        && a.focus.is_none()
+        && a.max_leaves.is_none()
+    {
+        return Ok(None);
+    }
+    if !s.network || s.hysteresis || s.robust_noise {
+        return Err(format!(
+            "--weights/--splits/--prune/--focus/--max-leaves need --model lmn, got '{}'",
+            a.model
+        ));
+    }
+    let weights = match a.weights.as_deref() {
+        None | Some("tree") => WeightKind::Tree,
+        Some("gauss") => WeightKind::Gaussian,
+        Some(w) => return Err(format!("--weights must be gauss or tree, got '{w}'")),
+    };
+    let splits = match a.splits.as_deref() {
+        None | Some("axis") => SplitKind::Axis,
+        Some("oblique") => SplitKind::Oblique,
+        Some(w) => return Err(format!("--splits must be axis or oblique, got '{w}'")),
+    };
+    let focus = match a.focus.as_deref() {
+        None | Some("simulation") => Focus::Simulation,
+        Some("prediction") => Focus::Prediction,
+        Some(w) => {
+            return Err(format!(
+                "--focus must be simulation or prediction, got '{w}'"
+            ))
+        }
+    };
+    let n = a.order;
+    let reg = RegressorSpec::arx(n, &vec![n; n_inputs], &vec![1; n_inputs]);
+    let p = LmnParams::new(reg)
+        .weights(weights)
+        .splits(splits)
+        .prune(a.prune)
+        .focus(focus)
+        .max_leaves(a.max_leaves.unwrap_or(20));
+    p.check().map_err(|e| e.to_string())?;
+    Ok(Some(p))
 }
 
 #[derive(Args)]
@@ -446,6 +509,7 @@ fn print_report(r: &Report) {
 fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     let structure = Structure::parse(&a.model, a.order).map_err(|e| e.to_string())?;
     let data = load(&a.train, &a.signals)?;
+    let lmn = lmn_params(&a, &structure, data.n_inputs())?;
     let min = 20 * (a.order + 1) * (data.n_inputs() + 1) + 50;
     data.check_identifiable(&a.train.display().to_string(), min)
         .map_err(|e| e.to_string())?;
@@ -453,8 +517,11 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
         quiet,
         &format!("fitting {} of order {}", structure.spec(), a.order),
     );
-    let m = GreyBoxModel::fit(structure, &data, None, None, &ModelFitOptions::default())
-        .map_err(|e| e.to_string())?;
+    let m = match &lmn {
+        Some(p) => GreyBoxModel::fit_lmn(structure, &data, p),
+        None => GreyBoxModel::fit(structure, &data, None, None, &ModelFitOptions::default()),
+    }
+    .map_err(|e| e.to_string())?;
     pb.finish_and_clear();
     let sim = m
         .simulate(&data.inputs, &data.output[..m.max_lag().min(data.len())])
@@ -465,6 +532,16 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     m.save(&a.out).map_err(|e| e.to_string())?;
     println!("model: {}", m.describe());
     println!("parameters: {}", m.n_parameters());
+    if let Some(l) = &m.lmn {
+        println!(
+            "leaves: {}, effective parameters {:.1}, chosen by {:?} ({:.4e}), pruned splits {}",
+            l.n_leaves(),
+            l.effective_parameters(),
+            l.summary.criterion,
+            l.summary.criterion_value,
+            l.summary.pruned
+        );
+    }
     println!("training NRMSE (free-run simulation): {nrmse:.4}");
     println!("saved to {}", a.out.display());
     Ok(())

@@ -1,0 +1,324 @@
+//! Free-run simulation RMSE of `LmnModel` on the standard real-data
+//! benchmarks in `../shared/data` (or `$GREYBOX_DATA`): trains on the
+//! standard training set, simulates the standard test set with the standard
+//! init window (the first 50 test samples initialise the output lags; the
+//! RMSE is computed on the samples after it), and the 2-D static test
+//! (oblique tree vs axis LOLIMOT at equal numbers of leaves).
+//!
+//! ```sh
+//! cargo run --release -p gb-lmn --example benchmarks               # all
+//! cargo run --release -p gb-lmn --example benchmarks -- silverbox  # one
+//! cargo run --release -p gb-lmn --example benchmarks -- tanks leaves=8 na=2
+//! ```
+//! Options (key=value) override the data set's default structure: `na`,
+//! `nb`, `nk` (x delays), `zy`, `zu` (z: output delays 1..zy, input delays
+//! nk..nk+zu−1), `degree`, `leaves`, `weights` (gauss|tree), `splits`
+//! (axis|oblique), `lm` (LM iterations), `ntrain` (first samples only),
+//! `smooth`, `crit` (aicc|bic|val), `prune` (0|1), `focus` (sim|pred).
+use gb_core::CsvTable;
+use gb_lmn::{Criterion, Experiment, Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
+use std::collections::HashMap;
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn data_dir() -> Option<PathBuf> {
+    let d = std::env::var_os("GREYBOX_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    d.is_dir().then_some(d)
+}
+
+fn load(p: PathBuf) -> Result<Experiment, String> {
+    let t = CsvTable::read(&p).map_err(|e| e.to_string())?;
+    let u = t.column("u").map_err(|e| e.to_string())?.to_vec();
+    let y = t.column("y").map_err(|e| e.to_string())?.to_vec();
+    Ok(Experiment::new(vec![u], y))
+}
+
+struct Setup {
+    name: &'static str,
+    train: &'static str,
+    test: &'static str,
+    init: usize,
+    unit: (&'static str, f64),
+    published: &'static str,
+    target: f64,
+    defaults: &'static [(&'static str, &'static str)],
+}
+
+const SETUPS: &[Setup] = &[
+    Setup {
+        name: "silverbox",
+        train: "silverbox/train_multisine.csv",
+        test: "silverbox/test_multisine.csv",
+        init: 50,
+        unit: ("mV", 1e3),
+        published: "LTI 6.96; pNARX 0.64; SOTA 0.36 mV",
+        target: 0.5e-3,
+        defaults: &[
+            ("na", "4"),
+            ("nb", "4"),
+            ("nk", "0"),
+            ("zy", "1"),
+            ("zu", "0"),
+            ("degree", "3"),
+            ("leaves", "1"),
+            ("lm", "30"),
+        ],
+    },
+    Setup {
+        name: "tanks",
+        train: "cascaded_tanks/train.csv",
+        test: "cascaded_tanks/test.csv",
+        init: 50,
+        unit: ("V", 1.0),
+        published: "pNARX 0.413; SOTA grey-box 0.191 V",
+        target: 0.35,
+        defaults: &[
+            ("na", "2"),
+            ("nb", "2"),
+            ("nk", "1"),
+            ("zy", "1"),
+            ("zu", "1"),
+            ("degree", "1"),
+            ("leaves", "8"),
+            ("lm", "60"),
+        ],
+    },
+    Setup {
+        name: "wh2009",
+        train: "wiener_hammerstein_2009/train.csv",
+        test: "wiener_hammerstein_2009/test.csv",
+        init: 50,
+        unit: ("mV", 1e3),
+        published: "pNARX 27.3; LSTM 4.45 mV",
+        target: 2e-3,
+        defaults: &[
+            ("na", "6"),
+            ("nb", "6"),
+            ("nk", "0"),
+            ("zy", "1"),
+            ("zu", "0"),
+            ("degree", "1"),
+            ("leaves", "8"),
+            ("lm", "20"),
+        ],
+    },
+];
+
+fn run(dir: &std::path::Path, s: &Setup, over: &HashMap<String, String>) -> Result<(), String> {
+    let mut o: HashMap<String, String> = s
+        .defaults
+        .iter()
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    o.extend(over.clone());
+    let g = |k: &str, d: &str| o.get(k).cloned().unwrap_or_else(|| d.to_string());
+    let num = |k: &str, d: &str| -> Result<usize, String> {
+        g(k, d).parse().map_err(|_| format!("{k}: not a number"))
+    };
+    let mut train = load(dir.join(s.train))?;
+    let test = load(dir.join(s.test))?;
+    let ntrain = num("ntrain", "0")?;
+    if ntrain > 0 && ntrain < train.len() {
+        train = train.slice(0..ntrain);
+    }
+    let (na, nb, nk) = (num("na", "2")?, num("nb", "2")?, num("nk", "1")?);
+    let (zy, zu) = (num("zy", "1")?, num("zu", "0")?);
+    let reg = RegressorSpec::arx(na, &[nb], &[nk])
+        .with_z((1..=zy).collect(), vec![(nk..nk + zu).collect()])
+        .with_degree(num("degree", "1")?);
+    let weights = match g("weights", "tree").as_str() {
+        "gauss" => WeightKind::Gaussian,
+        _ => WeightKind::Tree,
+    };
+    let splits = match g("splits", "axis").as_str() {
+        "oblique" => SplitKind::Oblique,
+        _ => SplitKind::Axis,
+    };
+    let crit = match g("crit", "aicc").as_str() {
+        "bic" => Criterion::Bic,
+        "val" => Criterion::Validation,
+        _ => Criterion::Aicc,
+    };
+    let focus = match g("focus", "sim").as_str() {
+        "pred" => Focus::Prediction,
+        _ => Focus::Simulation,
+    };
+    let smooth: f64 = g("smooth", "0.1").parse().map_err(|_| "smooth")?;
+    let params = LmnParams::new(reg)
+        .weights(weights)
+        .splits(splits)
+        .max_leaves(num("leaves", "8")?)
+        .criterion(crit)
+        .prune(g("prune", "0") == "1")
+        .focus(focus)
+        .smoothness(smooth)
+        .patience(num("patience", "3")?)
+        .lm_iterations(num("lm", "30")?);
+    let t0 = Instant::now();
+    let model = if crit == Criterion::Validation {
+        // validation: the last 20 % of the training record
+        let n = train.len();
+        let cut = n * 4 / 5;
+        let (fit, val) = (train.slice(0..cut), train.slice(cut..n));
+        params
+            .check()
+            .map_err(|e| e.to_string())?
+            .fit(&[fit], Some(&[val]))
+    } else {
+        params.fit(std::slice::from_ref(&train))
+    }
+    .map_err(|e| e.to_string())?;
+    let secs = t0.elapsed().as_secs_f64();
+    let sim = model.simulate(&test, s.init).map_err(|e| e.to_string())?;
+    let rmse = gb_core::metrics::rmse(&test.output[s.init..], &sim[s.init..])
+        .map_err(|e| e.to_string())?;
+    let tr_sim = model.simulate(&train, s.init).map_err(|e| e.to_string())?;
+    let tr_rmse = gb_core::metrics::rmse(&train.output[s.init..], &tr_sim[s.init..])
+        .map_err(|e| e.to_string())?;
+    let (u, f) = s.unit;
+    println!(
+        "{}: test free-run RMSE {:.4} {u} (target <= {:.3} {u}; published {}), train {:.4} {u}, fit {:.1} s",
+        s.name,
+        rmse * f,
+        s.target * f,
+        s.published,
+        tr_rmse * f,
+        secs
+    );
+    println!(
+        "  options {:?}\n  model: {}\n  leaves {}, parameters {}, effective {:.1}, LM {} it, rms {:.4} -> {:.4}",
+        {
+            let mut v: Vec<_> = o.iter().collect();
+            v.sort();
+            v
+        },
+        model.describe(),
+        model.n_leaves(),
+        model.n_parameters(),
+        model.effective_parameters(),
+        model.summary.lm_iterations,
+        model.summary.rms_before_lm,
+        model.summary.rms_after_lm
+    );
+    Ok(())
+}
+
+/// 2-D static test: y = sum of Gaussian bumps + noise, 2000 points; RMSE of
+/// axis LOLIMOT (normalised Gaussians) vs oblique tree at equal leaves,
+/// against the noise-free function on a 100 x 100 grid.
+fn static_2d(smooth: f64) {
+    use rand::{Rng, SeedableRng};
+    use rand_distr::{Distribution, StandardNormal};
+    let mut r = rand::rngs::SmallRng::seed_from_u64(2026);
+    let bumps = [
+        (0.3, 0.3, 1.0, 0.15),
+        (-0.4, 0.2, -0.8, 0.25),
+        (0.0, -0.5, 0.7, 0.2),
+        (-0.5, -0.6, 0.5, 0.1),
+    ];
+    let f = |a: f64, b: f64| -> f64 {
+        bumps
+            .iter()
+            .map(|(x, y, h, s)| h * (-((a - x).powi(2) + (b - y).powi(2)) / (2.0 * s * s)).exp())
+            .sum()
+    };
+    let n = 2000;
+    let noise = 0.05;
+    let (mut u1, mut u2, mut y) = (vec![], vec![], vec![]);
+    for _ in 0..n {
+        let a: f64 = r.random_range(-1.0..1.0);
+        let b: f64 = r.random_range(-1.0..1.0);
+        let e: f64 = StandardNormal.sample(&mut r);
+        u1.push(a);
+        u2.push(b);
+        y.push(f(a, b) + noise * e);
+    }
+    let train = Experiment::new(vec![u1, u2], y);
+    let (mut g1, mut g2, mut gy) = (vec![], vec![], vec![]);
+    for i in 0..100 {
+        for j in 0..100 {
+            let a = -0.99 + 0.02 * i as f64;
+            let b = -0.99 + 0.02 * j as f64;
+            g1.push(a);
+            g2.push(b);
+            gy.push(f(a, b));
+        }
+    }
+    let grid = Experiment::new(vec![g1, g2], gy);
+    println!("2-D static test (4 Gaussian bumps, {n} points, noise sd {noise}): RMSE vs the true function on a 100x100 grid");
+    println!("  leaves | axis LOLIMOT (Gaussian) | axis tree | oblique tree (HILOMOT) | Gauss+LM | oblique+LM");
+    for leaves in [4, 8, 12, 16, 24] {
+        let fit = |w: WeightKind, s: SplitKind, lm: usize| -> f64 {
+            let t0 = Instant::now();
+            let m = LmnParams::new(RegressorSpec::arx(0, &[1, 1], &[0, 0]))
+                .weights(w)
+                .splits(s)
+                .max_leaves(leaves)
+                .patience(1000)
+                .criterion(Criterion::Validation)
+                .focus(Focus::Prediction)
+                .lm_iterations(lm)
+                .smoothness(smooth)
+                .check()
+                .and_then(|p| {
+                    // grow to exactly `leaves` (validation on the training data never stops early)
+                    p.fit(
+                        std::slice::from_ref(&train),
+                        Some(std::slice::from_ref(&train)),
+                    )
+                });
+            let _ = t0;
+            match m {
+                Ok(m) if m.n_leaves() == leaves => m
+                    .predict(&grid)
+                    .ok()
+                    .and_then(|p| gb_core::metrics::rmse(&grid.output, &p).ok())
+                    .unwrap_or(f64::NAN),
+                _ => f64::NAN,
+            }
+        };
+        println!(
+            "  {leaves:>6} | {:>23.4} | {:>9.4} | {:>22.4} | {:>9.4} | {:>14.4}",
+            fit(WeightKind::Gaussian, SplitKind::Axis, 0),
+            fit(WeightKind::Tree, SplitKind::Axis, 0),
+            fit(WeightKind::Tree, SplitKind::Oblique, 0),
+            fit(WeightKind::Gaussian, SplitKind::Axis, 30),
+            fit(WeightKind::Tree, SplitKind::Oblique, 30)
+        );
+    }
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let which: Vec<&str> = args
+        .iter()
+        .filter(|a| !a.contains('='))
+        .map(String::as_str)
+        .collect();
+    let over: HashMap<String, String> = args
+        .iter()
+        .filter_map(|a| a.split_once('='))
+        .map(|(k, v)| (k.to_string(), v.to_string()))
+        .collect();
+    let all = which.is_empty();
+    if all || which.contains(&"static2d") {
+        static_2d(
+            over.get("smooth")
+                .and_then(|s| s.parse().ok())
+                .unwrap_or(0.2),
+        );
+    }
+    let Some(dir) = data_dir() else {
+        eprintln!("real-data benchmarks skipped: ../shared/data not found (set GREYBOX_DATA)");
+        return;
+    };
+    for s in SETUPS {
+        if all || which.contains(&s.name) {
+            if let Err(e) = run(&dir, s, &over) {
+                eprintln!("{}: error: {e}", s.name);
+            }
+        }
+    }
+}

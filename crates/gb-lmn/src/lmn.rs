@@ -1,0 +1,491 @@
+//! [`LmnModel`]: a local model network with separate x/z regressor spaces,
+//! polynomial local models and Gaussian or decision-tree weights.
+//!
+//! ŷ(k) = Σᵢ Φᵢ(z(k)) · θᵢᵀ φ(x(k), e(k))
+//!
+//! All signals are normalised (mean 0, standard deviation 1 over the training
+//! experiments); parameters live in those units.
+use crate::regressors::{Layout, NormExp};
+use crate::tree::{Partition, WScratch, WeightKind};
+use crate::{Experiment, LmnError, RegressorSpec, Scaling};
+use serde::{Deserialize, Serialize};
+
+/// Bound on |ŷ| (normalised units) beyond which a simulation counts as diverged.
+pub(crate) const DIVERGED: f64 = 1e3;
+
+/// How the number of local models was chosen.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum Criterion {
+    /// Corrected Akaike: N ln(SSE/N) + 2 n_eff + 2 n_eff (n_eff+1)/(N − n_eff − 1).
+    Aicc,
+    /// Bayesian: N ln(SSE/N) + n_eff ln N.
+    Bic,
+    /// Smallest error on validation experiments (simulation or one-step, by focus).
+    Validation,
+}
+
+/// What the model is trained for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[non_exhaustive]
+pub enum Focus {
+    /// One-step prediction (NARX, series-parallel): measured output lags.
+    Prediction,
+    /// Free-run simulation (NOE, parallel): the model's own output lags.
+    Simulation,
+}
+
+/// How a network was built and how well it fits (for reports).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FitSummary {
+    /// Criterion that chose the number of leaves.
+    pub criterion: Criterion,
+    /// Criterion value of the chosen network (validation: mean squared error, normalised).
+    pub criterion_value: f64,
+    /// (leaves, criterion value) after every split of the growth phase.
+    pub history: Vec<(usize, f64)>,
+    /// Splits removed by pruning.
+    pub pruned: usize,
+    /// Focus of the global optimisation.
+    pub focus: Focus,
+    /// Levenberg–Marquardt iterations of the global optimisation.
+    pub lm_iterations: usize,
+    /// Training RMS error (normalised units) of the focus before/after global optimisation.
+    pub rms_before_lm: f64,
+    /// See `rms_before_lm`.
+    pub rms_after_lm: f64,
+}
+
+/// A fitted local model network.
+///
+/// ```
+/// use gb_lmn::{Experiment, LmnParams, RegressorSpec};
+/// // static function of one input: y = |u|
+/// let u: Vec<f64> = (0..400).map(|k| -1.0 + 2.0 * k as f64 / 399.0).collect();
+/// let y: Vec<f64> = u.iter().map(|v| v.abs()).collect();
+/// let reg = RegressorSpec::arx(0, &[1], &[0]);
+/// let m = LmnParams::new(reg).max_leaves(4).fit(&[Experiment::new(vec![u.clone()], y.clone())]).unwrap();
+/// let p = m.predict(&Experiment::new(vec![u], y.clone())).unwrap();
+/// assert!(gb_core::metrics::rmse(&y, &p).unwrap() < 0.02);
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LmnModel {
+    /// Regressor structure.
+    pub regressors: RegressorSpec,
+    /// Normalisation of each input.
+    pub input_scaling: Vec<Scaling>,
+    /// Normalisation of the output.
+    pub output_scaling: Scaling,
+    /// Normalisation of each user column.
+    pub extra_scaling: Vec<Scaling>,
+    /// Partition tree and local models.
+    pub partition: Partition,
+    /// How it was built.
+    pub summary: FitSummary,
+}
+
+/// Evaluation scratch: regressors, basis, weights, gradients.
+#[derive(Debug, Clone)]
+pub(crate) struct Eval {
+    pub lay: Layout,
+    pub w: WScratch,
+    pub x: Vec<f64>,
+    pub z: Vec<f64>,
+    pub phi: Vec<f64>,
+    pub gx: Vec<f64>,
+    pub gz: Vec<f64>,
+}
+
+/// One split of the tree, for introspection.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SplitInfo {
+    /// Node index.
+    pub node: usize,
+    /// Depth (root 0).
+    pub depth: usize,
+    /// Axis dimension (None: oblique).
+    pub axis: Option<usize>,
+    /// Unit normal of the split hyperplane over z (normalised units).
+    pub direction: Vec<f64>,
+    /// Position: the hyperplane is directionᵀz = position.
+    pub position: f64,
+    /// Steepness ‖w‖ (inverse transition width; tree weights).
+    pub steepness: f64,
+}
+
+impl LmnModel {
+    /// Number of local models.
+    pub fn n_leaves(&self) -> usize {
+        self.partition.n_leaves()
+    }
+
+    /// Local parameters θᵢ of every leaf (normalised units), in leaf order.
+    pub fn local_parameters(&self) -> Vec<Vec<f64>> {
+        self.partition
+            .leaves()
+            .into_iter()
+            .map(|l| self.partition.nodes[l].theta.clone())
+            .collect()
+    }
+
+    /// The splits: direction, position and steepness.
+    pub fn splits(&self) -> Vec<SplitInfo> {
+        let mut depth = vec![0usize; self.partition.nodes.len()];
+        let mut out = Vec::new();
+        for n in self.partition.preorder() {
+            let nd = &self.partition.nodes[n];
+            if let Some(p) = nd.parent {
+                depth[n] = depth[p] + 1;
+            }
+            if let Some(s) = &nd.split {
+                let norm = s.w.iter().map(|v| v * v).sum::<f64>().sqrt().max(1e-300);
+                out.push(SplitInfo {
+                    node: n,
+                    depth: depth[n],
+                    axis: s.axis,
+                    direction: s.w.iter().map(|v| v / norm).collect(),
+                    position: -s.w0 / norm,
+                    steepness: norm,
+                });
+            }
+        }
+        out
+    }
+
+    /// Effective number of parameters: Σ over leaves of tr((XᵀQᵢX)⁻¹XᵀQᵢ²X)
+    /// (local estimation, Nelles 2020, sec. 13.3) plus the split parameters.
+    pub fn effective_parameters(&self) -> f64 {
+        let leaves: f64 = self
+            .partition
+            .leaves()
+            .iter()
+            .map(|&l| self.partition.nodes[l].n_eff)
+            .sum();
+        leaves + split_params(&self.partition)
+    }
+
+    /// Total number of parameters (local + split parameters).
+    pub fn n_parameters(&self) -> usize {
+        self.n_leaves() * self.regressors.n_local() + self.partition.n_split_parameters()
+    }
+
+    /// Samples at the start of an experiment that initialise the regressors.
+    pub fn max_lag(&self) -> usize {
+        self.regressors.max_lag()
+    }
+
+    /// One-line description.
+    pub fn describe(&self) -> String {
+        let kind = match self.partition.kind {
+            WeightKind::Gaussian => "normalised Gaussian",
+            WeightKind::Tree => "decision-tree sigmoid",
+        };
+        let oblique = self.splits().iter().any(|s| s.axis.is_none());
+        let r = &self.regressors;
+        let local = match r.degree {
+            1 => "affine".to_string(),
+            d => format!("polynomial degree {d}"),
+        };
+        format!(
+            "local model network, {} {} local models over x = {} regressors ({}{}), {} weights over z = {} regressors, {} splits, {:?} focus, chosen by {:?}",
+            self.n_leaves(),
+            local,
+            r.nx(),
+            format_delays(&r.x_output, &r.x_inputs),
+            if r.n_extra > 0 { format!(" + {} user columns", r.n_extra) } else { String::new() },
+            kind,
+            r.nz(),
+            if oblique { "oblique" } else { "axis-orthogonal" },
+            self.summary.focus,
+            self.summary.criterion,
+        )
+    }
+
+    /// Check internal consistency (after deserialisation).
+    pub fn check_consistency(&self) -> Result<(), LmnError> {
+        self.regressors.check()?;
+        let r = &self.regressors;
+        if self.input_scaling.len() != r.n_inputs()
+            || self.extra_scaling.len() != r.n_extra
+            || !self.partition.is_consistent(r.n_local(), r.nz())
+        {
+            return Err(LmnError::InvalidArgument(
+                "inconsistent network parameters".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    pub(crate) fn eval_scratch(&self) -> Eval {
+        let lay = Layout::new(&self.regressors);
+        Eval {
+            w: self.partition.scratch(),
+            x: vec![0.0; self.regressors.nx()],
+            z: vec![0.0; self.regressors.nz()],
+            phi: vec![0.0; lay.p],
+            gx: vec![0.0; self.regressors.nx()],
+            gz: vec![0.0; self.regressors.nz()],
+            lay,
+        }
+    }
+
+    /// Normalise an experiment (checks dimensions).
+    pub(crate) fn normalise(&self, e: &Experiment) -> Result<NormExp, LmnError> {
+        let r = &self.regressors;
+        if e.inputs.len() != r.n_inputs() || e.extra.len() != r.n_extra {
+            return Err(LmnError::Dimension(format!(
+                "model has {} inputs and {} user columns, data has {} and {}",
+                r.n_inputs(),
+                r.n_extra,
+                e.inputs.len(),
+                e.extra.len()
+            )));
+        }
+        let n = e.inputs.first().map_or(e.output.len(), Vec::len);
+        if e.inputs.iter().chain(&e.extra).any(|u| u.len() != n) {
+            return Err(LmnError::Dimension("signals of different lengths".into()));
+        }
+        Ok(NormExp {
+            u: e.inputs
+                .iter()
+                .zip(&self.input_scaling)
+                .map(|(u, s)| u.iter().map(|&v| s.to_norm(v)).collect())
+                .collect(),
+            y: e.output
+                .iter()
+                .map(|&v| self.output_scaling.to_norm(v))
+                .collect(),
+            e: e.extra
+                .iter()
+                .zip(&self.extra_scaling)
+                .map(|(u, s)| u.iter().map(|&v| s.to_norm(v)).collect())
+                .collect(),
+        })
+    }
+
+    /// Network output (normalised) at the regressors in `ev.x`, `ev.z`, `ev.phi`.
+    /// With `grad_p` the derivative w.r.t. all parameters (see
+    /// [`parameters`](Self::parameters)); with `grad_xz` ∂ŷ/∂x and ∂ŷ/∂z in
+    /// `ev.gx`, `ev.gz`.
+    #[inline]
+    pub(crate) fn eval(&self, ev: &mut Eval, grad_p: Option<&mut [f64]>, grad_xz: bool) -> f64 {
+        let part = &self.partition;
+        part.weights(&ev.z, &mut ev.w);
+        let mut y = 0.0;
+        for &l in &ev.w.leaves {
+            let ph = ev.w.phi[l];
+            if ph == 0.0 && grad_p.is_none() && !grad_xz {
+                continue;
+            }
+            let th = &part.nodes[l].theta;
+            let mut v = 0.0;
+            for (a, b) in th.iter().zip(&ev.phi) {
+                v += a * b;
+            }
+            ev.w.yc[l] = v;
+            y += ph * v;
+        }
+        let need_da = grad_p.is_some() || grad_xz;
+        if need_da {
+            ev.gz.fill(0.0);
+            part.weight_derivatives(&ev.z, &mut ev.w, &mut ev.gz);
+        }
+        if let Some(g) = grad_p {
+            let p = ev.lay.p;
+            for (i, &l) in ev.w.leaves.iter().enumerate() {
+                let ph = ev.w.phi[l];
+                let dst = &mut g[i * p..(i + 1) * p];
+                for (d, b) in dst.iter_mut().zip(&ev.phi) {
+                    *d = ph * b;
+                }
+            }
+            if part.kind == WeightKind::Tree {
+                let nz = ev.z.len();
+                let off = ev.w.leaves.len() * p;
+                for (i, &n) in ev.w.inner.iter().enumerate() {
+                    let da = ev.w.da[n];
+                    let dst = &mut g[off + i * (nz + 1)..off + (i + 1) * (nz + 1)];
+                    for (d, zd) in dst.iter_mut().zip(&ev.z) {
+                        *d = da * zd;
+                    }
+                    dst[nz] = da;
+                }
+            }
+        }
+        if grad_xz {
+            ev.gx.fill(0.0);
+            for &l in &ev.w.leaves {
+                let ph = ev.w.phi[l];
+                if ph != 0.0 {
+                    ev.lay
+                        .add_local_grad(&part.nodes[l].theta, &ev.x, ph, &mut ev.gx);
+                }
+            }
+        }
+        y
+    }
+
+    /// Flattened parameters: θ of every leaf (leaf order), then for tree
+    /// weights (w, w0) of every inner node (preorder).
+    pub fn parameters(&self) -> Vec<f64> {
+        let part = &self.partition;
+        let mut v = Vec::new();
+        for l in part.leaves() {
+            v.extend_from_slice(&part.nodes[l].theta);
+        }
+        if part.kind == WeightKind::Tree {
+            for n in part.inner() {
+                if let Some(s) = &part.nodes[n].split {
+                    v.extend_from_slice(&s.w);
+                    v.push(s.w0);
+                }
+            }
+        }
+        v
+    }
+
+    /// Set parameters from a vector laid out as [`parameters`](Self::parameters).
+    pub fn set_parameters(&mut self, p: &[f64]) -> Result<(), LmnError> {
+        let np = self.parameters().len();
+        if p.len() != np {
+            return Err(LmnError::Dimension(format!(
+                "{} parameters given, the network has {np}",
+                p.len()
+            )));
+        }
+        let pl = self.regressors.n_local();
+        let nz = self.regressors.nz();
+        let leaves = self.partition.leaves();
+        let inner = self.partition.inner();
+        let mut c = 0;
+        for l in leaves {
+            self.partition.nodes[l].theta.copy_from_slice(&p[c..c + pl]);
+            c += pl;
+        }
+        if self.partition.kind == WeightKind::Tree {
+            for n in inner {
+                if let Some(s) = &mut self.partition.nodes[n].split {
+                    s.w.copy_from_slice(&p[c..c + nz]);
+                    s.w0 = p[c + nz];
+                    c += nz + 1;
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Free-run simulation of a normalised experiment into `out`; the first
+    /// `k0` samples (≥ max_lag) are copied from `init` (normalised; missing
+    /// values start at 0, the mean). Returns false if it diverged.
+    pub(crate) fn simulate_norm(
+        &self,
+        ne: &NormExp,
+        init: &[f64],
+        k0: usize,
+        ev: &mut Eval,
+        out: &mut Vec<f64>,
+    ) -> bool {
+        let n = ne.u.first().map_or(ne.y.len(), Vec::len);
+        let k0 = k0.max(self.max_lag()).min(n);
+        out.clear();
+        out.resize(n, 0.0);
+        for k in 0..k0 {
+            out[k] = init.get(k).copied().unwrap_or(0.0);
+        }
+        for k in k0..n {
+            ev.lay.fill(k, out, &ne.u, &mut ev.x, &mut ev.z);
+            ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
+            let v = self.eval(ev, None, false);
+            if !v.is_finite() || v.abs() > DIVERGED {
+                return false;
+            }
+            out[k] = v;
+        }
+        true
+    }
+
+    /// Free-run simulation (physical units). The first `init_window` samples
+    /// of `e.output` initialise the output lags (at least `max_lag` samples
+    /// are taken from the record; inputs and user columns drive the rest).
+    pub fn simulate(&self, e: &Experiment, init_window: usize) -> Result<Vec<f64>, LmnError> {
+        let ne = self.normalise(e)?;
+        let n = e.output.len().max(ne.u.first().map_or(0, Vec::len));
+        let k0 = init_window.max(self.max_lag()).min(n);
+        let init: Vec<f64> = ne.y.iter().take(k0).copied().collect();
+        let mut ev = self.eval_scratch();
+        let mut out = Vec::with_capacity(n);
+        if !self.simulate_norm(&ne, &init, k0, &mut ev, &mut out) {
+            return Err(LmnError::Unstable(
+                "the simulation diverged on these inputs".into(),
+            ));
+        }
+        Ok(out
+            .iter()
+            .map(|&v| self.output_scaling.from_norm(v))
+            .collect())
+    }
+
+    /// One-step-ahead prediction (NARX, measured output lags), physical
+    /// units; the first `max_lag` samples are copied from the measurement.
+    pub fn predict(&self, e: &Experiment) -> Result<Vec<f64>, LmnError> {
+        let ne = self.normalise(e)?;
+        let n = ne.y.len();
+        let k0 = self.max_lag().min(n);
+        let mut ev = self.eval_scratch();
+        let mut out = e.output.clone();
+        for k in k0..n {
+            ev.lay.fill(k, &ne.y, &ne.u, &mut ev.x, &mut ev.z);
+            ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
+            out[k] = self
+                .output_scaling
+                .from_norm(self.eval(&mut ev, None, false));
+        }
+        Ok(out)
+    }
+
+    /// Largest spectral radius of the local models' autoregressive parts
+    /// (affine local models; 0 without output lags in x).
+    pub fn max_spectral_radius(&self) -> f64 {
+        let r = &self.regressors;
+        let na = r.x_output.iter().copied().max().unwrap_or(0);
+        if na == 0 {
+            return 0.0;
+        }
+        let mut worst: f64 = 0.0;
+        for l in self.partition.leaves() {
+            let th = &self.partition.nodes[l].theta;
+            let mut a = vec![0.0; na];
+            for (j, &d) in r.x_output.iter().enumerate() {
+                a[d - 1] += th[1 + j];
+            }
+            worst = worst.max(crate::network::spectral_radius(&a));
+        }
+        worst
+    }
+}
+
+/// Split parameters counted in the effective number of parameters: one per
+/// axis split (its dimension), nz + 1 per oblique split.
+pub(crate) fn split_params(p: &Partition) -> f64 {
+    let nz = p.nz() as f64;
+    p.inner()
+        .iter()
+        .map(|&n| match p.nodes[n].split.as_ref().and_then(|s| s.axis) {
+            Some(_) => 1.0,
+            None => nz + 1.0,
+        })
+        .sum()
+}
+
+fn format_delays(out: &[usize], inp: &[Vec<usize>]) -> String {
+    let mut parts = Vec::new();
+    if !out.is_empty() {
+        parts.push(format!("y{:?}", out));
+    }
+    for (j, d) in inp.iter().enumerate() {
+        if !d.is_empty() {
+            parts.push(format!("u{}{:?}", j + 1, d));
+        }
+    }
+    parts.join(" ")
+}

@@ -1,0 +1,1090 @@
+//! Deterministic identification: output-error (simulation-error) minimisation
+//! with analytic forward sensitivities, Levenberg–Marquardt, and a
+//! coarse-to-fine sparse refinement of the wavelet terms.
+//!
+//! Cost: `V(θ) = Σ_{t ≥ skip} (y_t − ŷ_t(θ))²` of the free-run simulation.
+//! Sensitivities `S_t = ∂x_t/∂θ` follow the model through time (Hauth 2008,
+//! ch. 5; Ljung 1999, §10.3):
+//!
+//! ```text
+//! S_{t+1} = (A + ∂f/∂x) S_t + ∂(Ax + Bu + f + h)/∂θ |_direct,
+//! ∂ŷ_t/∂θ = (C + ∂g/∂x) S_t + ∂(Cx + Du + g + h_y)/∂θ |_direct,
+//! ```
+//!
+//! and Levenberg–Marquardt solves `(JᵀJ + λ diag JᵀJ) δ = Jᵀe`.
+//!
+//! **Multiresolution refinement.** The wavelet terms start from the scaling
+//! functions of a coarse level `j₀` (a full tensor grid, value 0). For every
+//! finer level `j`, each candidate detail atom `λ` is scored by the decrease of
+//! the cost it would give alone, `(J_λᵀe)² / J_λᵀJ_λ` (one Gauss–Newton step),
+//! and only candidates whose score exceeds the information-criterion price of
+//! a parameter, `κ σ̂²` with `κ = ln N` (BIC), are added — finer coefficients
+//! only where they pay. After each refit, hard thresholding removes every
+//! coefficient with `c_λ² (JᵀJ)_λλ < κ σ̂²` (sparsity across scales, Mallat
+//! 2009, ch. 10). A level that does not lower the BIC
+//! `N ln(V/N) + p ln N` is discarded and the refinement stops.
+use crate::basis::{EvalScratch, MAX_DIMS};
+use crate::error::{ModelError, Result};
+use crate::model::{Signal, SparseStateSpace, Target};
+use serde::{Deserialize, Serialize};
+
+/// One free parameter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Param {
+    A(usize),
+    B(usize),
+    C(usize),
+    D(usize),
+    X0(usize),
+    Offset,
+    Coef(usize, usize),
+    Hyst(usize, usize),
+}
+
+/// Progress of a long computation.
+pub trait Observer {
+    /// `done` of `total` units of work finished; `message` says what runs.
+    fn progress(&mut self, done: usize, total: usize, message: &str);
+}
+
+/// An observer that ignores everything.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Silent;
+impl Observer for Silent {
+    fn progress(&mut self, _: usize, _: usize, _: &str) {}
+}
+
+impl<F: FnMut(usize, usize, &str)> Observer for F {
+    fn progress(&mut self, done: usize, total: usize, message: &str) {
+        self(done, total, message)
+    }
+}
+
+/// An indicatif progress bar on stderr; draws nothing when stderr is not a
+/// terminal.
+#[derive(Debug)]
+pub struct ProgressBar {
+    bar: indicatif::ProgressBar,
+}
+
+impl ProgressBar {
+    /// A new bar (hidden when stderr is not a terminal).
+    pub fn new() -> Self {
+        use std::io::IsTerminal;
+        let bar = if std::io::stderr().is_terminal() {
+            let b = indicatif::ProgressBar::new(1);
+            if let Ok(style) = indicatif::ProgressStyle::with_template(
+                "{elapsed_precise} [{bar:30}] {pos}/{len} {msg}",
+            ) {
+                b.set_style(style);
+            }
+            b
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        Self { bar }
+    }
+}
+
+impl Default for ProgressBar {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Observer for ProgressBar {
+    fn progress(&mut self, done: usize, total: usize, message: &str) {
+        self.bar.set_length(total as u64);
+        self.bar.set_position(done as u64);
+        self.bar.set_message(message.to_string());
+        if done >= total {
+            self.bar.finish_and_clear();
+        }
+    }
+}
+
+/// All free parameters of `m` (free matrix entries, then every stored coefficient).
+pub(crate) fn layout(m: &SparseStateSpace) -> Vec<Param> {
+    let s = &m.structure;
+    let mut p = Vec::new();
+    let push = |v: &[bool], f: fn(usize) -> Param, p: &mut Vec<Param>| {
+        p.extend(v.iter().enumerate().filter(|(_, &b)| b).map(|(i, _)| f(i)));
+    };
+    push(&s.a, Param::A, &mut p);
+    push(&s.b, Param::B, &mut p);
+    push(&s.c, Param::C, &mut p);
+    push(&s.d, Param::D, &mut p);
+    push(&s.x0, Param::X0, &mut p);
+    if s.y_offset {
+        p.push(Param::Offset);
+    }
+    for (k, t) in m.terms.iter().enumerate() {
+        p.extend((0..t.expansion.len()).map(|i| Param::Coef(k, i)));
+    }
+    for (k, h) in m.hysteresis.iter().enumerate() {
+        p.extend((0..h.everett.expansion().len()).map(|i| Param::Hyst(k, i)));
+    }
+    p
+}
+
+pub(crate) fn get_params(m: &SparseStateSpace, cols: &[Param]) -> Vec<f64> {
+    cols.iter()
+        .map(|p| match *p {
+            Param::A(i) => m.a[i],
+            Param::B(i) => m.b[i],
+            Param::C(i) => m.c[i],
+            Param::D(i) => m.d[i],
+            Param::X0(i) => m.x0[i],
+            Param::Offset => m.y_offset,
+            Param::Coef(k, i) => m.terms[k].expansion.coefficients()[i].value,
+            Param::Hyst(k, i) => m.hysteresis[k].everett.expansion().coefficients()[i].value,
+        })
+        .collect()
+}
+
+pub(crate) fn set_params(m: &mut SparseStateSpace, cols: &[Param], theta: &[f64]) -> Result<()> {
+    let mut coef: Vec<Vec<f64>> = m
+        .terms
+        .iter()
+        .map(|t| t.expansion.coefficients().iter().map(|c| c.value).collect())
+        .collect();
+    let mut hyst: Vec<Vec<f64>> = m
+        .hysteresis
+        .iter()
+        .map(|h| {
+            h.everett
+                .expansion()
+                .coefficients()
+                .iter()
+                .map(|c| c.value)
+                .collect()
+        })
+        .collect();
+    let (mut tc, mut th) = (false, false);
+    for (p, &v) in cols.iter().zip(theta) {
+        match *p {
+            Param::A(i) => m.a[i] = v,
+            Param::B(i) => m.b[i] = v,
+            Param::C(i) => m.c[i] = v,
+            Param::D(i) => m.d[i] = v,
+            Param::X0(i) => m.x0[i] = v,
+            Param::Offset => m.y_offset = v,
+            Param::Coef(k, i) => {
+                coef[k][i] = v;
+                tc = true;
+            }
+            Param::Hyst(k, i) => {
+                hyst[k][i] = v;
+                th = true;
+            }
+        }
+    }
+    if tc {
+        for (t, v) in m.terms.iter_mut().zip(&coef) {
+            t.expansion.set_values(v)?;
+        }
+    }
+    if th {
+        for (h, v) in m.hysteresis.iter_mut().zip(&hyst) {
+            h.everett.expansion_mut().set_values(v)?;
+        }
+    }
+    Ok(())
+}
+
+/// Sum of squared simulation errors from `skip` on (∞ when the simulation diverges).
+pub(crate) fn sse(m: &SparseStateSpace, inputs: &[Vec<f64>], y: &[f64], skip: usize) -> f64 {
+    match m.simulate(inputs) {
+        Ok(yh) => {
+            let v: f64 = y[skip..]
+                .iter()
+                .zip(&yh[skip..])
+                .map(|(a, b)| (a - b) * (a - b))
+                .sum();
+            if v.is_finite() {
+                v
+            } else {
+                f64::INFINITY
+            }
+        }
+        Err(_) => f64::INFINITY,
+    }
+}
+
+/// Result of one sensitivity pass.
+pub(crate) struct SensOut {
+    pub sse: f64,
+    /// Upper triangle of JᵀJ (row-major q×q) when requested.
+    pub jtj: Vec<f64>,
+    pub jte: Vec<f64>,
+    pub diag: Vec<f64>,
+}
+
+/// Hysteresis regressors per term (`N × K_k`), computed once per basis set.
+pub(crate) fn hysteresis_regressors(m: &SparseStateSpace, inputs: &[Vec<f64>]) -> Vec<Vec<f64>> {
+    m.hysteresis
+        .iter()
+        .map(|h| h.everett.regressors(&inputs[h.input]))
+        .collect()
+}
+
+/// Simulation with forward sensitivities for the parameters `cols`.
+pub(crate) fn sensitivities(
+    m: &SparseStateSpace,
+    cols: &[Param],
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    skip: usize,
+    full: bool,
+    hreg: &[Vec<f64>],
+) -> Result<SensOut> {
+    let n = m.n_states;
+    let nu = m.n_inputs;
+    let q = cols.len();
+    let len = y.len();
+    const NONE: usize = usize::MAX;
+    let mut a_col = vec![NONE; n * n];
+    let mut b_col = vec![NONE; n * nu];
+    let mut c_col = vec![NONE; n];
+    let mut d_col = vec![NONE; nu];
+    let mut x0_col = vec![NONE; n];
+    let mut off_col = NONE;
+    let mut coef_col: Vec<Vec<usize>> = m
+        .terms
+        .iter()
+        .map(|t| vec![NONE; t.expansion.len()])
+        .collect();
+    let mut hyst_col: Vec<Vec<usize>> = m
+        .hysteresis
+        .iter()
+        .map(|h| vec![NONE; h.everett.expansion().len()])
+        .collect();
+    for (c, p) in cols.iter().enumerate() {
+        match *p {
+            Param::A(i) => a_col[i] = c,
+            Param::B(i) => b_col[i] = c,
+            Param::C(i) => c_col[i] = c,
+            Param::D(i) => d_col[i] = c,
+            Param::X0(i) => x0_col[i] = c,
+            Param::Offset => off_col = c,
+            Param::Coef(k, i) => coef_col[k][i] = c,
+            Param::Hyst(k, i) => hyst_col[k][i] = c,
+        }
+    }
+    let hout = m.hysteresis_outputs(inputs)?;
+    let mut x = m.x0.clone();
+    let mut xn = vec![0.0; n];
+    let mut s = vec![0.0; n * q];
+    let mut sn = vec![0.0; n * q];
+    for i in 0..n {
+        if x0_col[i] != NONE {
+            s[i * q + x0_col[i]] = 1.0;
+        }
+    }
+    let mut jrow = vec![0.0; q];
+    let mut out = SensOut {
+        sse: 0.0,
+        jtj: if full { vec![0.0; q * q] } else { Vec::new() },
+        jte: vec![0.0; q],
+        diag: vec![0.0; q],
+    };
+    let mut u = vec![0.0; nu];
+    let mut hk = vec![0.0; m.hysteresis.len()];
+    let mut ev = EvalScratch::default();
+    let mut args = [0.0f64; MAX_DIMS];
+    let mut grad = [0.0f64; MAX_DIMS];
+    for t in 0..len {
+        for j in 0..nu {
+            u[j] = inputs[j][t];
+        }
+        for (k, v) in hk.iter_mut().enumerate() {
+            *v = hout[k][t];
+        }
+        // output and its sensitivity
+        let mut yh = m.y_offset;
+        jrow.fill(0.0);
+        for i in 0..n {
+            yh += m.c[i] * x[i];
+            let ci = m.c[i];
+            if ci != 0.0 {
+                for (jr, sv) in jrow.iter_mut().zip(&s[i * q..(i + 1) * q]) {
+                    *jr += ci * sv;
+                }
+            }
+            if c_col[i] != NONE {
+                jrow[c_col[i]] += x[i];
+            }
+        }
+        for j in 0..nu {
+            yh += m.d[j] * u[j];
+            if d_col[j] != NONE {
+                jrow[d_col[j]] += u[j];
+            }
+        }
+        if off_col != NONE {
+            jrow[off_col] += 1.0;
+        }
+        for (k, term) in m.terms.iter().enumerate() {
+            if term.target != Target::Output {
+                continue;
+            }
+            let d = term.args.len();
+            SparseStateSpace::gather(&term.args, &x, &u, &mut args);
+            yh += term
+                .expansion
+                .eval_with(&args[..d], Some(&mut grad[..d]), true, &mut ev);
+            for (dd, a) in term.args.iter().enumerate() {
+                if let Signal::State(i) = *a {
+                    let g = grad[dd];
+                    if g != 0.0 {
+                        for (jr, sv) in jrow.iter_mut().zip(&s[i * q..(i + 1) * q]) {
+                            *jr += g * sv;
+                        }
+                    }
+                }
+            }
+            for &(ix, v) in &ev.basis {
+                let c = coef_col[k][ix as usize];
+                if c != NONE {
+                    jrow[c] += v;
+                }
+            }
+        }
+        for (k, hy) in m.hysteresis.iter().enumerate() {
+            if hy.target == Target::Output {
+                yh += hk[k];
+                let kk = hyst_col[k].len();
+                for (i, &c) in hyst_col[k].iter().enumerate() {
+                    if c != NONE {
+                        jrow[c] += hreg[k][t * kk + i];
+                    }
+                }
+            }
+        }
+        if t >= skip {
+            let e = y[t] - yh;
+            out.sse += e * e;
+            for (c, &jv) in jrow.iter().enumerate() {
+                out.jte[c] += jv * e;
+                out.diag[c] += jv * jv;
+            }
+            if full {
+                for a in 0..q {
+                    let ja = jrow[a];
+                    if ja == 0.0 {
+                        continue;
+                    }
+                    let row = &mut out.jtj[a * q..(a + 1) * q];
+                    for b in a..q {
+                        row[b] += ja * jrow[b];
+                    }
+                }
+            }
+        }
+        // state update with sensitivities
+        for _ in 0..m.substeps {
+            for i in 0..n {
+                let mut v = 0.0;
+                let srow = &mut sn[i * q..(i + 1) * q];
+                srow.fill(0.0);
+                for j in 0..n {
+                    let aij = m.a[i * n + j];
+                    v += aij * x[j];
+                    if aij != 0.0 {
+                        for (o, sv) in srow.iter_mut().zip(&s[j * q..(j + 1) * q]) {
+                            *o += aij * sv;
+                        }
+                    }
+                    let c = a_col[i * n + j];
+                    if c != NONE {
+                        srow[c] += x[j];
+                    }
+                }
+                for j in 0..nu {
+                    v += m.b[i * nu + j] * u[j];
+                    let c = b_col[i * nu + j];
+                    if c != NONE {
+                        srow[c] += u[j];
+                    }
+                }
+                xn[i] = v;
+            }
+            for (k, term) in m.terms.iter().enumerate() {
+                let Target::State(i) = term.target else {
+                    continue;
+                };
+                let d = term.args.len();
+                SparseStateSpace::gather(&term.args, &x, &u, &mut args);
+                xn[i] += term
+                    .expansion
+                    .eval_with(&args[..d], Some(&mut grad[..d]), true, &mut ev);
+                for (dd, a) in term.args.iter().enumerate() {
+                    if let Signal::State(src) = *a {
+                        let g = grad[dd];
+                        if g != 0.0 {
+                            for c in 0..q {
+                                sn[i * q + c] += g * s[src * q + c];
+                            }
+                        }
+                    }
+                }
+                for &(ix, v) in &ev.basis {
+                    let c = coef_col[k][ix as usize];
+                    if c != NONE {
+                        sn[i * q + c] += v;
+                    }
+                }
+            }
+            for (k, hy) in m.hysteresis.iter().enumerate() {
+                if let Target::State(i) = hy.target {
+                    xn[i] += hk[k];
+                    let kk = hyst_col[k].len();
+                    for (ii, &c) in hyst_col[k].iter().enumerate() {
+                        if c != NONE {
+                            sn[i * q + c] += hreg[k][t * kk + ii];
+                        }
+                    }
+                }
+            }
+            std::mem::swap(&mut x, &mut xn);
+            std::mem::swap(&mut s, &mut sn);
+        }
+        if !x.iter().all(|v| v.is_finite() && v.abs() < 1e150) {
+            return Err(ModelError::Diverged(t));
+        }
+    }
+    Ok(out)
+}
+
+/// Options of the output-error identification (validated by [`OeParams::check`]).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OeParams {
+    /// Levenberg–Marquardt iterations per stage.
+    pub max_iter: usize,
+    /// Relative cost decrease below which LM stops.
+    pub tol: f64,
+    /// Coarse level `j₀` of the scaling-function grid of empty terms.
+    pub coarse_level: i32,
+    /// Finest detail level tried (`< j₀`: no refinement).
+    pub max_level: i32,
+    /// Price of a coefficient in units of σ̂² (`None`: `ln N`, BIC).
+    pub penalty: Option<f64>,
+    /// At most this many new detail coefficients per level and term.
+    pub max_new: usize,
+    /// Samples excluded from the cost at the start (transient).
+    pub skip: usize,
+    /// Hard-threshold coefficients that do not pay after each refit.
+    pub prune: bool,
+}
+
+impl Default for OeParams {
+    fn default() -> Self {
+        Self {
+            max_iter: 30,
+            tol: 1e-8,
+            coarse_level: 1,
+            max_level: 3,
+            penalty: None,
+            max_new: 24,
+            skip: 0,
+            prune: true,
+        }
+    }
+}
+
+/// Validated [`OeParams`]; [`fit`](OutputError::fit) runs the identification.
+#[derive(Debug, Clone, PartialEq)]
+pub struct OutputError {
+    params: OeParams,
+}
+
+impl OeParams {
+    /// Defaults: 30 LM iterations, levels 1 → 3, BIC price.
+    pub fn new() -> Self {
+        Self::default()
+    }
+    /// Sets the LM iterations per stage.
+    pub fn max_iter(mut self, v: usize) -> Self {
+        self.max_iter = v;
+        self
+    }
+    /// Sets the coarse level.
+    pub fn coarse_level(mut self, v: i32) -> Self {
+        self.coarse_level = v;
+        self
+    }
+    /// Sets the finest detail level.
+    pub fn max_level(mut self, v: i32) -> Self {
+        self.max_level = v;
+        self
+    }
+    /// Sets the price of a coefficient (units of σ̂²).
+    pub fn penalty(mut self, v: f64) -> Self {
+        self.penalty = Some(v);
+        self
+    }
+    /// Sets the number of leading samples left out of the cost.
+    pub fn skip(mut self, v: usize) -> Self {
+        self.skip = v;
+        self
+    }
+    /// Sets the number of new coefficients per level and term.
+    pub fn max_new(mut self, v: usize) -> Self {
+        self.max_new = v;
+        self
+    }
+    /// Sets the stopping tolerance.
+    pub fn tol(mut self, v: f64) -> Self {
+        self.tol = v;
+        self
+    }
+    /// Validates the options once.
+    pub fn check(self) -> Result<OutputError> {
+        if self.max_iter == 0 || !(self.tol.is_finite() && self.tol >= 0.0) {
+            return Err(ModelError::InvalidArgument(
+                "max_iter must be >= 1 and tol finite >= 0".into(),
+            ));
+        }
+        if !(-10..=12).contains(&self.coarse_level) || self.max_level > 14 {
+            return Err(ModelError::InvalidArgument(
+                "coarse_level must be in -10..=12 and max_level <= 14".into(),
+            ));
+        }
+        if let Some(p) = self.penalty {
+            if !(p.is_finite() && p >= 0.0) {
+                return Err(ModelError::InvalidArgument(
+                    "penalty must be finite and >= 0".into(),
+                ));
+            }
+        }
+        Ok(OutputError { params: self })
+    }
+}
+
+/// Which identification path produced a model.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum IdentificationPath {
+    /// Deterministic output-error path.
+    OutputError,
+    /// Sequential Monte Carlo path.
+    Smc,
+}
+
+/// One stage of the refinement.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StageReport {
+    /// `"linear"`, `"coarse j0"` or `"level j"`.
+    pub stage: String,
+    /// Non-zero wavelet coefficients after the stage.
+    pub coefficients: usize,
+    /// Training RMSE after the stage.
+    pub rmse: f64,
+    /// BIC after the stage.
+    pub bic: f64,
+    /// Whether the stage was kept.
+    pub accepted: bool,
+}
+
+/// What the output-error identification did.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OeReport {
+    /// Stages in order.
+    pub stages: Vec<StageReport>,
+    /// LM iterations in all.
+    pub iterations: usize,
+    /// Final training RMSE.
+    pub rmse: f64,
+    /// Gaussian log-likelihood of the training residuals at σ̂ = RMSE.
+    pub log_likelihood: f64,
+    /// Always [`IdentificationPath::OutputError`].
+    pub path: IdentificationPath,
+}
+
+struct Ctx<'a, 'o> {
+    inputs: &'a [Vec<f64>],
+    y: &'a [f64],
+    skip: usize,
+    obs: &'o mut dyn Observer,
+    done: usize,
+    total: usize,
+    iterations: usize,
+}
+
+impl OutputError {
+    /// The options.
+    pub fn params(&self) -> &OeParams {
+        &self.params
+    }
+
+    fn lm(
+        &self,
+        m: &mut SparseStateSpace,
+        cols: &[Param],
+        ctx: &mut Ctx,
+        stage: &str,
+    ) -> Result<f64> {
+        let q = cols.len();
+        let mut theta = get_params(m, cols);
+        let mut cost = sse(m, ctx.inputs, ctx.y, ctx.skip);
+        if !cost.is_finite() {
+            return Err(ModelError::Diverged(0));
+        }
+        if q == 0 {
+            return Ok(cost);
+        }
+        let hreg = hysteresis_regressors(m, ctx.inputs);
+        let mut lambda = 1e-3;
+        for _ in 0..self.params.max_iter {
+            ctx.iterations += 1;
+            ctx.done = (ctx.done + 1).min(ctx.total.saturating_sub(1));
+            let msg = format!(
+                "{stage}: rmse {:.3e}",
+                (cost / (ctx.y.len() - ctx.skip) as f64).sqrt()
+            );
+            ctx.obs.progress(ctx.done, ctx.total, &msg);
+            let so = sensitivities(m, cols, ctx.inputs, ctx.y, ctx.skip, true, &hreg)?;
+            let dmax = so.diag.iter().cloned().fold(0.0, f64::max).max(1e-300);
+            let mut improved = false;
+            for _ in 0..12 {
+                let mut h = nalgebra::DMatrix::<f64>::zeros(q, q);
+                for a in 0..q {
+                    for b in a..q {
+                        h[(a, b)] = so.jtj[a * q + b];
+                        h[(b, a)] = so.jtj[a * q + b];
+                    }
+                    h[(a, a)] += lambda * so.diag[a].max(1e-10 * dmax) + 1e-14 * dmax;
+                }
+                let g = nalgebra::DVector::from_column_slice(&so.jte);
+                let Some(ch) = h.cholesky() else {
+                    lambda *= 10.0;
+                    continue;
+                };
+                let delta = ch.solve(&g);
+                let trial: Vec<f64> = theta.iter().zip(delta.iter()).map(|(a, b)| a + b).collect();
+                if trial.iter().any(|v| !v.is_finite()) {
+                    lambda *= 10.0;
+                    continue;
+                }
+                set_params(m, cols, &trial)?;
+                let c = sse(m, ctx.inputs, ctx.y, ctx.skip);
+                if c < cost {
+                    let rel = (cost - c) / cost.max(1e-300);
+                    theta = trial;
+                    cost = c;
+                    lambda = (lambda / 3.0).max(1e-12);
+                    improved = rel > self.params.tol;
+                    break;
+                }
+                set_params(m, cols, &theta)?;
+                lambda *= 4.0;
+            }
+            if !improved {
+                break;
+            }
+        }
+        set_params(m, cols, &theta)?;
+        Ok(cost)
+    }
+
+    fn n_eff(&self, ctx: &Ctx) -> f64 {
+        (ctx.y.len() - ctx.skip) as f64
+    }
+
+    fn bic(&self, m: &SparseStateSpace, cost: f64, ctx: &Ctx) -> f64 {
+        let n = self.n_eff(ctx);
+        let p = (layout(m).len() - count_zero_coefficients(m)) as f64;
+        n * (cost / n).max(1e-300).ln() + p * n.ln()
+    }
+
+    fn penalty(&self, ctx: &Ctx) -> f64 {
+        self.params.penalty.unwrap_or_else(|| self.n_eff(ctx).ln())
+    }
+
+    /// Hard thresholding of coefficients that do not pay; returns how many were removed.
+    fn prune(&self, m: &mut SparseStateSpace, cost: f64, ctx: &Ctx) -> Result<usize> {
+        let cols = layout(m);
+        let hreg = hysteresis_regressors(m, ctx.inputs);
+        let so = sensitivities(m, &cols, ctx.inputs, ctx.y, ctx.skip, false, &hreg)?;
+        let sigma2 = cost / self.n_eff(ctx);
+        let price = self.penalty(ctx) * sigma2;
+        let theta = get_params(m, &cols);
+        let mut drop_coef: Vec<Vec<bool>> = m
+            .terms
+            .iter()
+            .map(|t| vec![false; t.expansion.len()])
+            .collect();
+        let mut drop_hyst: Vec<Vec<bool>> = m
+            .hysteresis
+            .iter()
+            .map(|h| vec![false; h.everett.expansion().len()])
+            .collect();
+        let mut removed = 0;
+        for (c, p) in cols.iter().enumerate() {
+            let worth = theta[c] * theta[c] * so.diag[c];
+            let zero = worth < price;
+            match *p {
+                Param::Coef(k, i) if zero => {
+                    drop_coef[k][i] = true;
+                    removed += 1;
+                }
+                Param::Hyst(k, i) if zero => {
+                    drop_hyst[k][i] = true;
+                    removed += 1;
+                }
+                _ => {}
+            }
+        }
+        for (t, d) in m.terms.iter_mut().zip(&drop_coef) {
+            t.expansion.retain(|i, _| !d[i]);
+        }
+        for (h, d) in m.hysteresis.iter_mut().zip(&drop_hyst) {
+            h.everett.expansion_mut().retain(|i, _| !d[i]);
+        }
+        Ok(removed)
+    }
+
+    /// Identifies `start` (its structure, fixed entries and terms) on the
+    /// record `inputs → y` by output error with coarse-to-fine sparse
+    /// refinement; see the module docs. Empty wavelet terms get the coarse
+    /// grid of level `j₀` first.
+    ///
+    /// ```
+    /// use gb_model::{OeParams, SparseStateSpace, Silent};
+    /// // true system x+ = 0.8 x + 0.5 u, y = x; start from a wrong linear model
+    /// let u: Vec<f64> = (0..300).map(|t| ((t * 7919) % 23) as f64 / 11.0 - 1.0).collect();
+    /// let truth = SparseStateSpace::linear(vec![0.8], vec![0.5], vec![1.0], vec![0.0])?;
+    /// let y = truth.simulate(&[u.clone()])?;
+    /// let mut start = SparseStateSpace::linear(vec![0.5], vec![1.0], vec![1.0], vec![0.0])?;
+    /// start.structure.c = vec![false];
+    /// start.structure.d = vec![false];
+    /// let (m, report) = OeParams::new().check()?.fit(start, &[u], &y, &mut Silent)?;
+    /// assert!((m.a[0] - 0.8).abs() < 1e-6 && report.rmse < 1e-8);
+    /// # Ok::<(), gb_model::ModelError>(())
+    /// ```
+    pub fn fit(
+        &self,
+        start: SparseStateSpace,
+        inputs: &[Vec<f64>],
+        y: &[f64],
+        obs: &mut dyn Observer,
+    ) -> Result<(SparseStateSpace, OeReport)> {
+        start.check()?;
+        let len = start.check_inputs(inputs)?;
+        if len != y.len() {
+            return Err(ModelError::Dimension(format!(
+                "{len} input samples, {} output samples",
+                y.len()
+            )));
+        }
+        if y.iter().any(|v| !v.is_finite()) || inputs.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(ModelError::InvalidArgument("data must be finite".into()));
+        }
+        let p = &self.params;
+        if len < p.skip + 10 {
+            return Err(ModelError::InvalidArgument(format!(
+                "{len} samples are too few (skip {})",
+                p.skip
+            )));
+        }
+        let levels = (p.max_level - p.coarse_level + 1).max(0) as usize;
+        let mut ctx = Ctx {
+            inputs,
+            y,
+            skip: p.skip,
+            obs,
+            done: 0,
+            total: p.max_iter * (3 + levels),
+            iterations: 0,
+        };
+        let mut m = start;
+        let mut stages = Vec::new();
+        let nonlinear = !m.terms.is_empty() || !m.hysteresis.is_empty();
+        // 1. the linear part alone
+        let lin_cols: Vec<Param> = layout(&m)
+            .into_iter()
+            .filter(|p| !matches!(p, Param::Coef(..) | Param::Hyst(..)))
+            .collect();
+        let mut cost = self.lm(&mut m, &lin_cols, &mut ctx, "linear")?;
+        let n_eff = self.n_eff(&ctx);
+        stages.push(StageReport {
+            stage: "linear".into(),
+            coefficients: m.n_coefficients(),
+            rmse: (cost / n_eff).sqrt(),
+            bic: self.bic(&m, cost, &ctx),
+            accepted: true,
+        });
+        if nonlinear {
+            // 2. coarse grid
+            for t in m.terms.iter_mut() {
+                if t.expansion.is_empty() {
+                    t.expansion.add_coarse_grid(p.coarse_level)?;
+                }
+            }
+            for h in m.hysteresis.iter_mut() {
+                if h.everett.expansion().is_empty() {
+                    h.everett.expansion_mut().add_coarse_grid(p.coarse_level)?;
+                }
+            }
+            let cols = layout(&m);
+            cost = self.lm(&mut m, &cols, &mut ctx, "coarse")?;
+            if p.prune && self.prune(&mut m, cost, &ctx)? > 0 {
+                let cols = layout(&m);
+                cost = self.lm(&mut m, &cols, &mut ctx, "coarse, thresholded")?;
+            }
+            let mut best_bic = self.bic(&m, cost, &ctx);
+            stages.push(StageReport {
+                stage: format!("coarse j0={}", p.coarse_level),
+                coefficients: m.n_coefficients(),
+                rmse: (cost / n_eff).sqrt(),
+                bic: best_bic,
+                accepted: true,
+            });
+            // 3. refinement, coarse to fine
+            for level in p.coarse_level..=p.max_level {
+                let before = m.clone();
+                let before_cost = cost;
+                let added = self.add_candidates(&mut m, level, cost, &mut ctx)?;
+                if added == 0 {
+                    stages.push(StageReport {
+                        stage: format!("level {level}"),
+                        coefficients: m.n_coefficients(),
+                        rmse: (cost / n_eff).sqrt(),
+                        bic: best_bic,
+                        accepted: false,
+                    });
+                    break;
+                }
+                let cols = layout(&m);
+                let stage = format!("level {level}");
+                cost = self
+                    .lm(&mut m, &cols, &mut ctx, &stage)
+                    .unwrap_or(f64::INFINITY);
+                if cost.is_finite() && p.prune && self.prune(&mut m, cost, &ctx)? > 0 {
+                    let cols = layout(&m);
+                    cost = self
+                        .lm(&mut m, &cols, &mut ctx, &stage)
+                        .unwrap_or(f64::INFINITY);
+                }
+                let bic = if cost.is_finite() {
+                    self.bic(&m, cost, &ctx)
+                } else {
+                    f64::INFINITY
+                };
+                let accepted = bic < best_bic;
+                stages.push(StageReport {
+                    stage,
+                    coefficients: m.n_coefficients(),
+                    rmse: (cost / n_eff).sqrt(),
+                    bic,
+                    accepted,
+                });
+                if !accepted {
+                    m = before;
+                    cost = before_cost;
+                    break;
+                }
+                best_bic = bic;
+            }
+            for t in m.terms.iter_mut() {
+                t.expansion.drop_zeros();
+            }
+            for h in m.hysteresis.iter_mut() {
+                h.everett.expansion_mut().drop_zeros();
+            }
+        }
+        let rmse = (cost / n_eff).sqrt();
+        m.measurement_noise = crate::model::NoiseModel::Gaussian { sd: rmse };
+        let log_likelihood =
+            -0.5 * n_eff * ((2.0 * std::f64::consts::PI * rmse * rmse).max(1e-300).ln() + 1.0);
+        ctx.obs.progress(ctx.total, ctx.total, "done");
+        Ok((
+            m,
+            OeReport {
+                stages,
+                iterations: ctx.iterations,
+                rmse,
+                log_likelihood,
+                path: IdentificationPath::OutputError,
+            },
+        ))
+    }
+
+    /// Scores the detail candidates of `level` and keeps those that pay.
+    fn add_candidates(
+        &self,
+        m: &mut SparseStateSpace,
+        level: i32,
+        cost: f64,
+        ctx: &mut Ctx,
+    ) -> Result<usize> {
+        let base_terms: Vec<usize> = m.terms.iter().map(|t| t.expansion.len()).collect();
+        let base_hyst: Vec<usize> = m
+            .hysteresis
+            .iter()
+            .map(|h| h.everett.expansion().len())
+            .collect();
+        let mut cand = m.clone();
+        for t in cand.terms.iter_mut() {
+            let c = t.expansion.detail_candidates(level);
+            t.expansion.extend_unchecked(c);
+        }
+        for h in cand.hysteresis.iter_mut() {
+            let c = h.everett.expansion().detail_candidates(level);
+            h.everett.expansion_mut().extend_unchecked(c);
+        }
+        let cols: Vec<Param> = layout(&cand)
+            .into_iter()
+            .filter(|p| match *p {
+                Param::Coef(k, i) => i >= base_terms[k],
+                Param::Hyst(k, i) => i >= base_hyst[k],
+                _ => false,
+            })
+            .collect();
+        if cols.is_empty() {
+            return Ok(0);
+        }
+        ctx.obs.progress(
+            ctx.done,
+            ctx.total,
+            &format!("level {level}: scoring {} candidates", cols.len()),
+        );
+        let hreg = hysteresis_regressors(&cand, ctx.inputs);
+        let so = sensitivities(&cand, &cols, ctx.inputs, ctx.y, ctx.skip, false, &hreg)?;
+        let price = self.penalty(ctx) * cost / self.n_eff(ctx);
+        // per term: candidates sorted by score
+        let mut keep_t: Vec<Vec<bool>> = cand
+            .terms
+            .iter()
+            .map(|t| vec![true; t.expansion.len()])
+            .collect();
+        let mut keep_h: Vec<Vec<bool>> = cand
+            .hysteresis
+            .iter()
+            .map(|h| vec![true; h.everett.expansion().len()])
+            .collect();
+        let mut scored: Vec<(f64, Param)> = Vec::new();
+        for (c, p) in cols.iter().enumerate() {
+            let score = if so.diag[c] > 0.0 {
+                so.jte[c] * so.jte[c] / so.diag[c]
+            } else {
+                0.0
+            };
+            match *p {
+                Param::Coef(k, i) => keep_t[k][i] = false,
+                Param::Hyst(k, i) => keep_h[k][i] = false,
+                _ => {}
+            }
+            if score > price {
+                scored.push((score, *p));
+            }
+        }
+        scored.sort_by(|a, b| b.0.total_cmp(&a.0));
+        let mut per_t = vec![0usize; keep_t.len()];
+        let mut per_h = vec![0usize; keep_h.len()];
+        let mut added = 0;
+        for (_, p) in scored {
+            match p {
+                Param::Coef(k, i) if per_t[k] < self.params.max_new => {
+                    keep_t[k][i] = true;
+                    per_t[k] += 1;
+                    added += 1;
+                }
+                Param::Hyst(k, i) if per_h[k] < self.params.max_new => {
+                    keep_h[k][i] = true;
+                    per_h[k] += 1;
+                    added += 1;
+                }
+                _ => {}
+            }
+        }
+        for (t, k) in cand.terms.iter_mut().zip(&keep_t) {
+            t.expansion.retain(|i, _| k[i]);
+        }
+        for (h, k) in cand.hysteresis.iter_mut().zip(&keep_h) {
+            h.everett.expansion_mut().retain(|i, _| k[i]);
+        }
+        *m = cand;
+        Ok(added)
+    }
+}
+
+fn count_zero_coefficients(m: &SparseStateSpace) -> usize {
+    m.terms
+        .iter()
+        .map(|t| t.expansion.len() - t.expansion.nnz())
+        .sum::<usize>()
+        + m.hysteresis
+            .iter()
+            .map(|h| h.everett.expansion().len() - h.everett.expansion().nnz())
+            .sum::<usize>()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::basis::SparseExpansion;
+    use crate::model::NonlinearTerm;
+
+    fn model_with_term() -> SparseStateSpace {
+        let mut m = SparseStateSpace::linear(
+            vec![0.9, 0.1, -0.2, 0.7],
+            vec![0.0, 0.5],
+            vec![1.0, 0.0],
+            vec![0.0],
+        )
+        .unwrap();
+        m.substeps = 2;
+        let mut e = SparseExpansion::new("bior2.2", vec![-2.0, -2.0], vec![2.0, 2.0]).unwrap();
+        e.add_coarse_grid(1).unwrap();
+        let n = e.len();
+        e.set_values(&(0..n).map(|i| 0.01 * (i as f64 - 4.0)).collect::<Vec<_>>())
+            .unwrap();
+        m.terms.push(NonlinearTerm {
+            target: Target::State(1),
+            args: vec![Signal::State(0), Signal::Input(0)],
+            expansion: e,
+        });
+        let mut g = SparseExpansion::new("db2", vec![-2.0], vec![2.0]).unwrap();
+        g.add_coarse_grid(1).unwrap();
+        let n = g.len();
+        g.set_values(&(0..n).map(|i| 0.02 * i as f64).collect::<Vec<_>>())
+            .unwrap();
+        m.terms.push(NonlinearTerm {
+            target: Target::Output,
+            args: vec![Signal::State(1)],
+            expansion: g,
+        });
+        m.structure.x0 = vec![true, true];
+        m.structure.y_offset = true;
+        m
+    }
+
+    #[test]
+    fn sensitivities_match_finite_differences() {
+        let m = model_with_term();
+        let u: Vec<Vec<f64>> = vec![(0..200).map(|t| (t as f64 * 0.37).sin() * 1.5).collect()];
+        let y: Vec<f64> = (0..200).map(|t| (t as f64 * 0.1).cos()).collect();
+        let cols = layout(&m);
+        let so = sensitivities(&m, &cols, &u, &y, 5, true, &[]).unwrap();
+        let theta = get_params(&m, &cols);
+        for c in 0..cols.len() {
+            let h = 1e-6;
+            let mut mp = m.clone();
+            let mut tp = theta.clone();
+            tp[c] += h;
+            set_params(&mut mp, &cols, &tp).unwrap();
+            let sp = sse(&mp, &u, &y, 5);
+            tp[c] -= 2.0 * h;
+            set_params(&mut mp, &cols, &tp).unwrap();
+            let sm = sse(&mp, &u, &y, 5);
+            // d(sse)/dθ = −2 Jᵀe
+            let fd = (sp - sm) / (2.0 * h);
+            let an = -2.0 * so.jte[c];
+            assert!(
+                (fd - an).abs() < 1e-4 * (1.0 + an.abs()),
+                "param {c} {:?}: fd {fd} vs analytic {an}",
+                cols[c]
+            );
+        }
+    }
+}

@@ -1,0 +1,273 @@
+//! Identification, files and the SMC path on small generated problems (fast).
+use gb_core::metrics;
+use gb_model::{
+    HysteresisTerm, IdentificationPath, ModelError, NoiseModel, NonlinearTerm, OeParams, Signal,
+    Silent, SmcParams, SparseExpansion, SparseStateSpace, Structure, Target, WaveletEverett,
+};
+use gb_preisach::{InitialState, ParametricEverett, Preisach};
+use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+const H: f64 = 0.0125;
+
+fn input(n: usize, seed: u64, amp: f64) -> Vec<f64> {
+    let mut r = gb_core::rng::seeded(seed);
+    let comps: Vec<(f64, f64)> = (1..=30)
+        .map(|k| (k as f64 * 0.03, r.random::<f64>() * std::f64::consts::TAU))
+        .collect();
+    let raw: Vec<f64> = (0..n)
+        .map(|t| {
+            comps
+                .iter()
+                .map(|(f, ph)| (std::f64::consts::TAU * f * t as f64 * 0.05 + ph).sin())
+                .sum::<f64>()
+        })
+        .collect();
+    let s = metrics::std(&raw);
+    raw.iter().map(|v| amp * v / s).collect()
+}
+
+/// Second-order mechanical structure with known kinematics p⁺ = p + h v.
+fn mechanical(a21: f64, a22: f64, b2: f64) -> SparseStateSpace {
+    let mut m = SparseStateSpace::linear(
+        vec![1.0, H, a21, a22],
+        vec![0.0, b2],
+        vec![1.0, 0.0],
+        vec![0.0],
+    )
+    .unwrap();
+    m.substeps = 4;
+    m.structure = Structure {
+        a: vec![false, false, true, true],
+        b: vec![false, true],
+        c: vec![false, false],
+        d: vec![false],
+        x0: vec![false, false],
+        y_offset: false,
+    };
+    m
+}
+
+fn add_noise(y: &[f64], frac: f64, seed: u64) -> Vec<f64> {
+    let mut r = gb_core::rng::seeded(seed);
+    let s = frac * metrics::std(y);
+    y.iter()
+        .map(|v| {
+            let e: f64 = StandardNormal.sample(&mut r);
+            v + s * e
+        })
+        .collect()
+}
+
+/// The true system is in the model class: a cubic spring on the velocity row
+/// (hidden velocity). The wavelet term must find it; the linear model cannot.
+#[test]
+fn output_error_identifies_a_hidden_state_nonlinearity() {
+    let mut truth = mechanical(-H * 4.0, 1.0 - H * 0.6, H);
+    // f(p) = −h k₃ p³ tabulated on a fine hat grid (the truth, not in the start)
+    let mut f = SparseExpansion::new("bior2.2", vec![-1.5], vec![1.5]).unwrap();
+    f.add_coarse_grid(5).unwrap();
+    let c = f.phi_center();
+    let norm = 2f64.powf(2.5);
+    let vals: Vec<f64> = f
+        .coefficients()
+        .iter()
+        .map(|co| {
+            let p = -1.5 + 3.0 * (co.shifts[0] as f64 + c) / 32.0;
+            -H * 6.0 * p * p * p / norm
+        })
+        .collect();
+    f.set_values(&vals).unwrap();
+    truth.terms.push(NonlinearTerm {
+        target: Target::State(1),
+        args: vec![Signal::State(0)],
+        expansion: f,
+    });
+    let u = input(3000, 1, 1.0);
+    let y0 = truth.simulate(std::slice::from_ref(&u)).unwrap();
+    let y = add_noise(&y0, 0.01, 2);
+    let (uf, yf) = (vec![u[..2000].to_vec()], &y[..2000]);
+    let fit = OeParams::new()
+        .max_iter(30)
+        .coarse_level(1)
+        .max_level(3)
+        .check()
+        .unwrap();
+    let (lin, _) = fit
+        .fit(mechanical(-H * 2.0, 1.0 - H, 0.5 * H), &uf, yf, &mut Silent)
+        .unwrap();
+    let mut start = mechanical(-H * 2.0, 1.0 - H, 0.5 * H);
+    let pmax = y0.iter().fold(0.0f64, |a, v| a.max(v.abs())) * 1.1;
+    start.terms.push(NonlinearTerm {
+        target: Target::State(1),
+        args: vec![Signal::State(0)],
+        expansion: SparseExpansion::new("bior2.2", vec![-pmax], vec![pmax]).unwrap(),
+    });
+    let (m, report) = fit.fit(start, &uf, yf, &mut Silent).unwrap();
+    let e_lin = metrics::nrmse(
+        &y0[2000..],
+        &lin.simulate(std::slice::from_ref(&u)).unwrap()[2000..],
+    )
+    .unwrap();
+    let e_nl = metrics::nrmse(
+        &y0[2000..],
+        &m.simulate(std::slice::from_ref(&u)).unwrap()[2000..],
+    )
+    .unwrap();
+    assert!(e_lin > 0.1, "linear model too good: {e_lin}");
+    assert!(
+        e_nl < 0.03,
+        "wavelet model NRMSE {e_nl}, stages {:?}",
+        report.stages
+    );
+    assert!(report.stages.len() >= 3);
+    // sparse: far fewer coefficients than the full level-3 grid (≈ 3·2^3)
+    let nnz = m.terms[0].expansion.nnz();
+    assert!(nnz > 0 && nnz < 20, "{nnz} coefficients");
+    // identified function against the truth inside the data range
+    let tf = &truth.terms[0].expansion;
+    let mf = &m.terms[0].expansion;
+    for i in 0..=10 {
+        let p = -0.6 * pmax / 1.1 + 1.2 * pmax / 1.1 * i as f64 / 10.0;
+        let truth_r = -(truth.a[2] * p + tf.eval(&[p]));
+        let ident_r = -(m.a[2] * p + mf.eval(&[p]));
+        assert!(
+            (truth_r - ident_r).abs() < 0.05 * H * (4.0 + 6.0 * 0.4),
+            "p {p}: {truth_r} vs {ident_r}"
+        );
+    }
+}
+
+/// A Preisach component with a wavelet Everett function driven by the input.
+#[test]
+fn output_error_identifies_a_preisach_component() {
+    let everett = ParametricEverett::gaussian(1.0, 0.25, 0.2, -0.25, 0.2).unwrap();
+    let u = input(2500, 3, 0.45);
+    let force = Preisach::new(everett)
+        .simulate(&u, &InitialState::NegativeSaturation)
+        .unwrap();
+    let truth = mechanical(-H * 4.0, 1.0 - H * 0.8, H);
+    let y0 = truth.simulate(std::slice::from_ref(&force)).unwrap();
+    let y = add_noise(&y0, 0.005, 4);
+    let (uf, yf) = (vec![u[..1800].to_vec()], &y[..1800]);
+    let umax = u.iter().fold(0.0f64, |a, v| a.max(v.abs())) * 1.05;
+    let mut start = mechanical(-H * 3.0, 1.0 - H, H);
+    start.hysteresis.push(HysteresisTerm {
+        target: Target::State(1),
+        input: 0,
+        everett: WaveletEverett::new(
+            SparseExpansion::new("bior2.2", vec![-umax, -umax], vec![umax, umax]).unwrap(),
+        )
+        .unwrap(),
+    });
+    let fit = OeParams::new()
+        .max_iter(25)
+        .coarse_level(2)
+        .max_level(2)
+        .check()
+        .unwrap();
+    let (m, _) = fit.fit(start, &uf, yf, &mut Silent).unwrap();
+    let sim = m.simulate(std::slice::from_ref(&u)).unwrap();
+    let e = metrics::nrmse(&y0[1800..], &sim[1800..]).unwrap();
+    assert!(e < 0.05, "validation NRMSE {e}");
+    // the file keeps the Preisach component
+    let back = SparseStateSpace::from_bytes(&m.to_bytes().unwrap()).unwrap();
+    assert_eq!(back.simulate(std::slice::from_ref(&u)).unwrap(), sim);
+}
+
+#[test]
+fn model_files_are_checked() {
+    let m = mechanical(-0.05, 0.99, 0.01);
+    let bytes = m.to_bytes().unwrap();
+    assert!(matches!(
+        SparseStateSpace::from_bytes(b"GBM\x01\x01\x00\x00\x00"),
+        Err(ModelError::Format(_))
+    ));
+    assert!(matches!(
+        SparseStateSpace::from_bytes(&bytes[..bytes.len() - 3]),
+        Err(ModelError::Format(_))
+    ));
+    let mut v = bytes.clone();
+    v[4] = 9;
+    assert!(matches!(
+        SparseStateSpace::from_bytes(&v),
+        Err(ModelError::Format(_))
+    ));
+    // inconsistent content is rejected after decoding
+    let mut bad = m.clone();
+    bad.a.pop();
+    let raw = bad.to_bytes().unwrap();
+    assert!(SparseStateSpace::from_bytes(&raw).is_err());
+}
+
+#[test]
+fn options_and_data_are_validated() {
+    assert!(OeParams::new().max_iter(0).check().is_err());
+    assert!(OeParams::new().penalty(f64::NAN).check().is_err());
+    assert!(SmcParams::new().iterations(10, 10).check().is_err());
+    let fit = OeParams::new().check().unwrap();
+    let m = mechanical(-0.05, 0.99, 0.01);
+    let u = vec![vec![0.0; 100]];
+    let mut y = vec![0.0; 100];
+    y[3] = f64::NAN;
+    assert!(fit.fit(m.clone(), &u, &y, &mut Silent).is_err());
+    assert!(fit.fit(m.clone(), &u, &y[..50], &mut Silent).is_err());
+    assert!(m.simulate(&[vec![0.0; 5], vec![0.0; 5]]).is_err());
+    // unstable models report divergence instead of NaN
+    let bad = SparseStateSpace::linear(vec![3.0], vec![1.0], vec![1.0], vec![0.0]).unwrap();
+    assert!(matches!(
+        bad.simulate(&[vec![1.0; 2000]]),
+        Err(ModelError::Diverged(_))
+    ));
+}
+
+/// The SMC path runs PMMH from the output-error model with Student-t noise and
+/// reports a finite particle likelihood and the path it took.
+#[test]
+fn smc_path_reports_path_and_likelihood() {
+    let truth = mechanical(-H * 4.0, 1.0 - H * 0.6, H);
+    let u = input(300, 5, 1.0);
+    let y0 = truth.simulate(std::slice::from_ref(&u)).unwrap();
+    // heavy-tailed measurement noise
+    let mut r = gb_core::rng::seeded(9);
+    let y: Vec<f64> = y0
+        .iter()
+        .map(|v| {
+            let e: f64 = StandardNormal.sample(&mut r);
+            let big = if r.random::<f64>() < 0.05 { 10.0 } else { 1.0 };
+            v + 0.01 * big * e
+        })
+        .collect();
+    let (oe, _) = OeParams::new()
+        .check()
+        .unwrap()
+        .fit(
+            mechanical(-H * 3.0, 1.0 - H, H),
+            std::slice::from_ref(&u),
+            &y,
+            &mut Silent,
+        )
+        .unwrap();
+    let smc = SmcParams::new()
+        .particles(64)
+        .iterations(40, 10)
+        .coefficients(0)
+        .measurement(NoiseModel::StudentT {
+            nu: 3.0,
+            scale: 1.0,
+        })
+        .seed(3)
+        .check()
+        .unwrap();
+    let (m, rep) = smc
+        .fit(&oe, std::slice::from_ref(&u), &y, &mut Silent)
+        .unwrap();
+    assert!(rep.log_likelihood.is_finite() && rep.log_likelihood_oe.is_finite());
+    assert!(rep.log_likelihood >= rep.log_likelihood_oe);
+    assert!(matches!(
+        rep.path,
+        IdentificationPath::Smc | IdentificationPath::OutputError
+    ));
+    assert!(matches!(m.measurement_noise, NoiseModel::StudentT { .. }));
+    assert_eq!(rep.posterior_mean.len(), 2);
+}
