@@ -371,7 +371,7 @@ fn psi_of(rows: &Rows, st: &LeafSt, w: &[f64], w0: f64, psi: &mut [f64]) {
         for (wd, zd) in w.iter().zip(zr) {
             a += wd * zd;
         }
-        psi[i] = 1.0 / (1.0 + (-a).exp());
+        psi[i] = 1.0 / (1.0 + crate::tree::fast_exp(-a));
     }
 }
 

@@ -274,7 +274,7 @@ impl LmnModel {
         let mut y = 0.0;
         for &l in &ev.w.leaves {
             let ph = ev.w.phi[l];
-            if ph == 0.0 && grad_p.is_none() && !grad_xz {
+            if ph < crate::tree::TINY && grad_p.is_none() && !grad_xz {
                 continue;
             }
             let th = &part.nodes[l].theta;
@@ -392,6 +392,9 @@ impl LmnModel {
         for k in 0..k0 {
             out[k] = init.get(k).copied().unwrap_or(0.0);
         }
+        if self.partition.kind == WeightKind::Tree {
+            return self.simulate_tree(ne, k0, ev, out);
+        }
         for k in k0..n {
             ev.lay.fill(k, out, &ne.u, &mut ev.x, &mut ev.z);
             ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
@@ -400,6 +403,114 @@ impl LmnModel {
                 return false;
             }
             out[k] = v;
+        }
+        true
+    }
+
+    /// The simulation hot loop for tree weights on flat arrays: all split
+    /// activations, then all exponentials in one vectorisable pass, then the
+    /// products down the tree and the local models.
+    fn simulate_tree(&self, ne: &NormExp, k0: usize, ev: &mut Eval, out: &mut [f64]) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                return unsafe { self.simulate_tree_avx2(ne, k0, ev, out) };
+            }
+        }
+        self.simulate_tree_body::<false>(ne, k0, ev, out)
+    }
+
+    /// [`simulate_tree`](Self::simulate_tree) compiled for AVX2 + FMA (4-wide
+    /// exponentials).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn simulate_tree_avx2(
+        &self,
+        ne: &NormExp,
+        k0: usize,
+        ev: &mut Eval,
+        out: &mut [f64],
+    ) -> bool {
+        self.simulate_tree_body::<true>(ne, k0, ev, out)
+    }
+
+    #[inline(always)]
+    fn simulate_tree_body<const FMA: bool>(
+        &self,
+        ne: &NormExp,
+        k0: usize,
+        ev: &mut Eval,
+        out: &mut [f64],
+    ) -> bool {
+        let part = &self.partition;
+        let nz = ev.z.len();
+        let p = ev.lay.p;
+        let inner = &ev.w.inner;
+        let ni = inner.len();
+        let mut w = Vec::with_capacity(ni * nz);
+        let mut w0 = Vec::with_capacity(ni);
+        let mut kids = Vec::with_capacity(ni);
+        for &i in inner {
+            if let Some(sp) = &part.nodes[i].split {
+                w.extend_from_slice(&sp.w);
+                w0.push(sp.w0);
+                kids.push((i, sp.left, sp.right));
+            }
+        }
+        if kids.len() != ni {
+            return false;
+        }
+        let leaves = &ev.w.leaves;
+        let mut theta = Vec::with_capacity(leaves.len() * p);
+        for &l in leaves {
+            theta.extend_from_slice(&part.nodes[l].theta);
+        }
+        let mut ea = vec![0.0; ni];
+        let mut phi = vec![0.0; part.nodes.len()];
+        let mut lw = vec![0.0; leaves.len()];
+        let n = out.len();
+        for k in k0..n {
+            ev.lay.fill(k, out, &ne.u, &mut ev.x, &mut ev.z);
+            ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
+            let z = &ev.z;
+            for ((e, wi), b) in ea.iter_mut().zip(w.chunks_exact(nz.max(1))).zip(&w0) {
+                let mut a = *b;
+                for (wd, zd) in wi.iter().zip(z) {
+                    a += wd * zd;
+                }
+                *e = -a;
+            }
+            for e in ea.iter_mut() {
+                *e = crate::tree::fast_exp_g::<FMA>(*e);
+            }
+            phi[0] = 1.0;
+            for (e, &(i, l, r)) in ea.iter().zip(&kids) {
+                let pn = phi[i];
+                let pr = pn / (1.0 + e);
+                phi[r] = pr;
+                phi[l] = pn - pr;
+            }
+            for (v, &l) in lw.iter_mut().zip(leaves) {
+                *v = phi[l];
+            }
+            let mut y = 0.0;
+            for (th, &ph) in theta.chunks_exact(p).zip(&lw) {
+                let mut v = 0.0;
+                for (a, b) in th.iter().zip(&ev.phi) {
+                    v += a * b;
+                }
+                y += ph * v;
+            }
+            if !y.is_finite() || y.abs() > DIVERGED {
+                return false;
+            }
+            out[k] = y;
         }
         true
     }
