@@ -467,13 +467,18 @@ impl LmnModel {
             return false;
         }
         let leaves = &ev.w.leaves;
-        let mut theta = Vec::with_capacity(leaves.len() * p);
-        for &l in leaves {
-            theta.extend_from_slice(&part.nodes[l].theta);
+        let nl = leaves.len();
+        // local parameters transposed (p × leaves): L = Θᵀφ vectorises over leaves
+        let mut theta_t = vec![0.0; p * nl];
+        for (c, &l) in leaves.iter().enumerate() {
+            for (j, v) in part.nodes[l].theta.iter().enumerate() {
+                theta_t[j * nl + c] = *v;
+            }
         }
         let mut ea = vec![0.0; ni];
         let mut phi = vec![0.0; part.nodes.len()];
-        let mut lw = vec![0.0; leaves.len()];
+        let mut lw = vec![0.0; nl];
+        let mut loc = vec![0.0; nl];
         let n = out.len();
         for k in k0..n {
             ev.lay.fill(k, out, &ne.u, &mut ev.x, &mut ev.z);
@@ -486,26 +491,29 @@ impl LmnModel {
                 }
                 *e = -a;
             }
+            // ψ = 1 / (1 + e^{−a}) for all splits in one pass
             for e in ea.iter_mut() {
-                *e = crate::tree::fast_exp_g::<FMA>(*e);
+                *e = 1.0 / (1.0 + crate::tree::fast_exp_g::<FMA>(*e));
             }
             phi[0] = 1.0;
-            for (e, &(i, l, r)) in ea.iter().zip(&kids) {
+            for (psi, &(i, l, r)) in ea.iter().zip(&kids) {
                 let pn = phi[i];
-                let pr = pn / (1.0 + e);
+                let pr = pn * psi;
                 phi[r] = pr;
                 phi[l] = pn - pr;
             }
             for (v, &l) in lw.iter_mut().zip(leaves) {
                 *v = phi[l];
             }
-            let mut y = 0.0;
-            for (th, &ph) in theta.chunks_exact(p).zip(&lw) {
-                let mut v = 0.0;
-                for (a, b) in th.iter().zip(&ev.phi) {
-                    v += a * b;
+            loc.fill(0.0);
+            for (row, f) in theta_t.chunks_exact(nl).zip(&ev.phi) {
+                for (o, t) in loc.iter_mut().zip(row) {
+                    *o += t * f;
                 }
-                y += ph * v;
+            }
+            let mut y = 0.0;
+            for (a, b) in lw.iter().zip(&loc) {
+                y += a * b;
             }
             if !y.is_finite() || y.abs() > DIVERGED {
                 return false;

@@ -293,3 +293,32 @@ fn several_experiments_and_user_columns_round_trip() {
         .fit(&[Experiment::new(vec![vec![0.0; 5]], vec![0.0; 5])])
         .is_err());
 }
+
+#[test]
+fn fast_tree_simulation_agrees_with_the_generic_evaluation() {
+    let e = nl_system(800, 0.02, 10);
+    let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
+    let m = LmnParams::new(reg)
+        .splits(SplitKind::Oblique)
+        .max_leaves(6)
+        .patience(10)
+        .criterion(Criterion::Validation)
+        .focus(Focus::Prediction)
+        .lm_iterations(0)
+        .check()
+        .unwrap()
+        .fit(std::slice::from_ref(&e), Some(std::slice::from_ref(&e)))
+        .unwrap();
+    assert_eq!(m.n_leaves(), 6);
+    let sim = m.simulate(&e, 0).unwrap();
+    // one-step predictions with the simulated output as "measurement" reproduce it
+    let again = m
+        .predict(&Experiment::new(e.inputs.clone(), sim.clone()))
+        .unwrap();
+    for k in m.max_lag()..sim.len() {
+        assert!(
+            (sim[k] - again[k]).abs() < 1e-12 * (1.0 + sim[k].abs()),
+            "k {k}"
+        );
+    }
+}
