@@ -15,7 +15,7 @@
 use crate::error::{Result, SmcError};
 use crate::model::{Observations, StateSpaceModel, StateVector};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{domain, stream, CHUNK, PAR_MIN, PAR_MIN_LIGHT};
+use crate::rng::{domain, stream, CHUNK, FILTER_PAR_MIN, PAR_MIN_LIGHT};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -49,7 +49,9 @@ pub struct FilterConfig {
     pub seed: u64,
     /// Keep all particles, weights and ancestors (needed by the smoothers).
     pub store_history: bool,
-    /// Use rayon over particle chunks (results do not depend on it).
+    /// Use rayon over particle chunks from
+    /// [`FILTER_PAR_MIN`](crate::rng::FILTER_PAR_MIN) particles up (results do
+    /// not depend on it).
     pub parallel: bool,
 }
 
@@ -670,7 +672,7 @@ fn task<M: StateSpaceModel>(isa: Isa, ctx: &Ctx<'_, M>, item: Item<'_, M::State>
     }
 }
 
-/// Runs all output chunks of one step (rayon above `PAR_MIN` particles).
+/// Runs all output chunks of one step (rayon from `FILTER_PAR_MIN` particles up).
 #[allow(clippy::too_many_arguments)]
 fn run_step<M: StateSpaceModel>(
     isa: Isa,
@@ -683,7 +685,7 @@ fn run_step<M: StateSpaceModel>(
     anc: &mut [usize],
     stats: &mut Vec<ChunkStat>,
 ) {
-    if parallel && x.len() >= PAR_MIN {
+    if parallel && x.len() >= FILTER_PAR_MIN {
         x.par_chunks_mut(CHUNK)
             .zip(lw.par_chunks_mut(CHUNK))
             .zip(w.par_chunks_mut(CHUNK))
@@ -801,7 +803,7 @@ impl ParticleFilter {
 
     /// Runs the filter with reusable buffers, calling `observer` at every step.
     ///
-    /// With `parallel` and `N ≥ 4096` (one rayon fork-join per time step), the
+    /// With `parallel` and `N ≥ FILTER_PAR_MIN` (16 384; one rayon fork-join per time step), the
     /// run is moved onto a rayon worker when called from outside the pool, so
     /// that the thread driving the time loop takes part in every step instead of
     /// sleeping on a latch and being woken at every step; `observer` then runs
@@ -819,7 +821,7 @@ impl ParticleFilter {
     {
         let isa = Isa::detect();
         if self.config.parallel
-            && self.config.n_particles >= PAR_MIN
+            && self.config.n_particles >= FILTER_PAR_MIN
             && rayon::current_thread_index().is_none()
         {
             rayon::scope(|_| self.run_impl(isa, model, obs, ws, observer))
@@ -946,7 +948,7 @@ impl ParticleFilter {
                 // log η_t(x_{t-1}^i)
                 let (x, aux) = (&ws.x, &mut ws.aux);
                 let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
-                if par && n >= PAR_MIN {
+                if par && n >= FILTER_PAR_MIN {
                     aux.par_iter_mut().zip(x.par_iter()).for_each(map);
                 } else {
                     aux.iter_mut().zip(x.iter()).for_each(map);
