@@ -9,6 +9,7 @@
 //! cargo run --release -p gb-lmn --example benchmarks               # all
 //! cargo run --release -p gb-lmn --example benchmarks -- silverbox  # one
 //! cargo run --release -p gb-lmn --example benchmarks -- tanks leaves=8 na=2
+//! cargo run --release -p gb-lmn --example benchmarks -- speed      # speed figures
 //! ```
 //! Options (key=value) override the data set's default structure: `na`,
 //! `nb`, `nk` (x delays), `zy`, `zu` (z: output delays 1..zy, input delays
@@ -67,6 +68,25 @@ const SETUPS: &[Setup] = &[
         ],
     },
     Setup {
+        name: "silverbox-lmn",
+        train: "silverbox/train_multisine.csv",
+        test: "silverbox/test_multisine.csv",
+        init: 50,
+        unit: ("mV", 1e3),
+        published: "LTI 6.96; pNARX 0.64; SOTA 0.36 mV",
+        target: 0.5e-3,
+        defaults: &[
+            ("na", "4"),
+            ("nb", "4"),
+            ("nk", "0"),
+            ("zy", "1"),
+            ("zu", "0"),
+            ("degree", "1"),
+            ("leaves", "12"),
+            ("lm", "40"),
+        ],
+    },
+    Setup {
         name: "tanks",
         train: "cascaded_tanks/train.csv",
         test: "cascaded_tanks/test.csv",
@@ -79,9 +99,10 @@ const SETUPS: &[Setup] = &[
             ("nb", "2"),
             ("nk", "1"),
             ("zy", "1"),
-            ("zu", "1"),
+            ("zu", "0"),
             ("degree", "1"),
-            ("leaves", "8"),
+            ("leaves", "4"),
+            ("smooth", "0.3"),
             ("lm", "60"),
         ],
     },
@@ -94,14 +115,15 @@ const SETUPS: &[Setup] = &[
         published: "pNARX 27.3; LSTM 4.45 mV",
         target: 2e-3,
         defaults: &[
-            ("na", "6"),
-            ("nb", "6"),
+            ("na", "5"),
+            ("nb", "5"),
             ("nk", "0"),
             ("zy", "1"),
             ("zu", "0"),
-            ("degree", "1"),
-            ("leaves", "8"),
-            ("lm", "20"),
+            ("degree", "3"),
+            ("leaves", "1"),
+            ("lm", "40"),
+            ("ntrain", "30000"),
         ],
     },
 ];

@@ -1075,20 +1075,42 @@ impl ValidLmnParams {
         }
         part.compact();
         model.partition = part;
-        model.summary.history = history;
+        model.summary.history = history.clone();
         model.summary.criterion_value = value;
         if o.lm_iterations > 0 {
-            let rep = crate::narx::optimise(
-                &mut model,
-                &nexps,
-                o.focus,
-                o.lm_iterations,
-                o.stability_guard,
-                o.optimise_splits,
-            )?;
-            model.summary.lm_iterations = rep.0;
-            model.summary.rms_before_lm = rep.1;
-            model.summary.rms_after_lm = rep.2;
+            // a network grown on one-step errors may diverge in simulation:
+            // then fall back to the next networks of the growth history
+            let mut order: Vec<usize> = (0..history.len()).collect();
+            order.sort_by(|a, b| history[*a].1.total_cmp(&history[*b].1));
+            let mut tries = order.into_iter().filter(|&i| i != bi).take(3);
+            loop {
+                match crate::narx::optimise(
+                    &mut model,
+                    &nexps,
+                    o.focus,
+                    o.lm_iterations,
+                    o.stability_guard,
+                    o.optimise_splits,
+                ) {
+                    Ok(rep) => {
+                        model.summary.lm_iterations = rep.0;
+                        model.summary.rms_before_lm = rep.1;
+                        model.summary.rms_after_lm = rep.2;
+                        break;
+                    }
+                    Err(LmnError::Unstable(m)) => {
+                        let Some(i) = tries.next() else {
+                            return Err(LmnError::Unstable(m));
+                        };
+                        let mut p = grown.snapshots[i].0.clone();
+                        p.compact();
+                        model.partition = p;
+                        model.summary.criterion_value = history[i].1;
+                        model.summary.pruned = 0;
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
         }
         Ok(model)
     }
