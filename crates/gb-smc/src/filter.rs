@@ -590,21 +590,23 @@ fn finish_chunk(lc: &[f64], wc: &mut [f64], pc: &mut [f64]) -> ChunkStat {
 pub(crate) fn prefix_sums(w: &[f64], p: &mut [f64]) -> f64 {
     const B: usize = 64;
     const NB: usize = 8;
-    if w.len() == B * NB && p.len() == B * NB {
-        // the same sums, eight independent chains interleaved
-        let mut c = [0.0f64; NB];
-        for r in 0..B {
-            for l in 0..NB {
-                c[l] += w[l * B + r];
-                p[l * B + r] = c[l];
+    for (wg, pg) in w.chunks(B * NB).zip(p.chunks_mut(B * NB)) {
+        if wg.len() == B * NB && pg.len() == B * NB {
+            // the same sums, eight independent chains interleaved
+            let mut c = [0.0f64; NB];
+            for r in 0..B {
+                for l in 0..NB {
+                    c[l] += wg[l * B + r];
+                    pg[l * B + r] = c[l];
+                }
             }
-        }
-    } else {
-        for (wb, pb) in w.chunks(B).zip(p.chunks_mut(B)) {
-            let mut c = 0.0;
-            for (x, q) in wb.iter().zip(pb.iter_mut()) {
-                c += x;
-                *q = c;
+        } else {
+            for (wb, pb) in wg.chunks(B).zip(pg.chunks_mut(B)) {
+                let mut c = 0.0;
+                for (x, q) in wb.iter().zip(pb.iter_mut()) {
+                    c += x;
+                    *q = c;
+                }
             }
         }
     }
@@ -1228,7 +1230,7 @@ mod tests {
                 (Resampling::Systematic, 0.5),
                 (Resampling::Stratified, 1.0),
             ] {
-                let pf = FilterConfig::new(1500)
+                let pf = FilterConfig::new(5000)
                     .kind(kind)
                     .resampling(rs)
                     .ess_threshold(tau)

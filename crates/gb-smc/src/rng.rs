@@ -13,7 +13,7 @@ pub type SmcRng = Xoshiro256PlusPlus;
 
 /// Particles per random stream / parallel work item (fixed, so that results
 /// do not depend on the thread count).
-pub const CHUNK: usize = 512;
+pub const CHUNK: usize = 2048;
 
 /// Smallest particle count for which IF2's particle passes use rayon (below it
 /// the thread hand-off costs more than it saves; results are identical either
