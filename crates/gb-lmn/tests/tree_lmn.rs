@@ -322,3 +322,20 @@ fn fast_tree_simulation_agrees_with_the_generic_evaluation() {
         );
     }
 }
+
+#[test]
+fn output_error_construction_never_simulates_worse_on_the_data() {
+    let e = nl_system(1500, 0.02, 11);
+    let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
+    let p = LmnParams::new(reg).max_leaves(6).lm_iterations(10);
+    let rms = |m: &LmnModel| {
+        let s = m.simulate(&e, 0).unwrap();
+        gb_core::metrics::rmse(&e.output[2..], &s[2..]).unwrap()
+    };
+    let a = p.clone().fit(std::slice::from_ref(&e)).unwrap();
+    let b = p
+        .noe_construction(true)
+        .fit(std::slice::from_ref(&e))
+        .unwrap();
+    assert!(rms(&b) <= rms(&a) + 1e-12, "{} vs {}", rms(&b), rms(&a));
+}
