@@ -1025,12 +1025,12 @@ impl ValidLmnParams {
         };
         let nexps: Vec<NormExp> = train
             .iter()
-            .map(|e| model.normalise(e))
+            .map(|e| model.normalise_full(e))
             .collect::<Result<_, _>>()?;
         let nval: Vec<NormExp> = match val {
             Some(v) => v
                 .iter()
-                .map(|e| model.normalise(e))
+                .map(|e| model.normalise_full(e))
                 .collect::<Result<_, _>>()?,
             None => vec![],
         };

@@ -263,6 +263,22 @@ impl LmnModel {
         })
     }
 
+    /// [`normalise`](Self::normalise) for data with a full output record
+    /// (fitting, prediction, pruning, refinement): the output must be as
+    /// long as the inputs.
+    pub(crate) fn normalise_full(&self, e: &Experiment) -> Result<NormExp, LmnError> {
+        if let Some(u) = e.inputs.first() {
+            if u.len() != e.output.len() {
+                return Err(LmnError::Dimension(format!(
+                    "the output has {} samples, the inputs {}",
+                    e.output.len(),
+                    u.len()
+                )));
+            }
+        }
+        self.normalise(e)
+    }
+
     /// Network output (normalised) at the regressors in `ev.x`, `ev.z`, `ev.phi`.
     /// With `grad_p` the derivative w.r.t. all parameters (see
     /// [`parameters`](Self::parameters)); with `grad_xz` ∂ŷ/∂x and ∂ŷ/∂z in
@@ -528,7 +544,7 @@ impl LmnModel {
     /// are taken from the record; inputs and user columns drive the rest).
     pub fn simulate(&self, e: &Experiment, init_window: usize) -> Result<Vec<f64>, LmnError> {
         let ne = self.normalise(e)?;
-        let n = e.output.len().max(ne.u.first().map_or(0, Vec::len));
+        let n = ne.u.first().map_or(e.output.len(), Vec::len);
         let k0 = init_window.max(self.max_lag()).min(n);
         let init: Vec<f64> = ne.y.iter().take(k0).copied().collect();
         let mut ev = self.eval_scratch();
@@ -547,7 +563,7 @@ impl LmnModel {
     /// One-step-ahead prediction (NARX, measured output lags), physical
     /// units; the first `max_lag` samples are copied from the measurement.
     pub fn predict(&self, e: &Experiment) -> Result<Vec<f64>, LmnError> {
-        let ne = self.normalise(e)?;
+        let ne = self.normalise_full(e)?;
         let n = ne.y.len();
         let k0 = self.max_lag().min(n);
         let mut ev = self.eval_scratch();

@@ -339,3 +339,31 @@ fn output_error_construction_never_simulates_worse_on_the_data() {
         .unwrap();
     assert!(rms(&b) <= rms(&a) + 1e-12, "{} vs {}", rms(&b), rms(&a));
 }
+
+#[test]
+fn mismatched_lengths_are_errors_not_panics() {
+    let e = nl_system(300, 0.02, 12);
+    let m = LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+        .max_leaves(2)
+        .lm_iterations(2)
+        .fit(std::slice::from_ref(&e))
+        .unwrap();
+    let mut long = e.clone();
+    long.output.extend_from_slice(&[0.0; 10]);
+    assert!(m.predict(&long).is_err());
+    assert!(m
+        .clone()
+        .prune(std::slice::from_ref(&long), Criterion::Bic)
+        .is_err());
+    assert!(LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+        .fit(std::slice::from_ref(&long))
+        .is_err());
+    // simulation needs only the inputs; the output may be just the init window
+    let init = Experiment::new(e.inputs.clone(), e.output[..5].to_vec());
+    assert_eq!(m.simulate(&init, 5).unwrap().len(), 300);
+    let mut nan = e.clone();
+    nan.output[7] = f64::NAN;
+    assert!(LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+        .fit(std::slice::from_ref(&nan))
+        .is_err());
+}
