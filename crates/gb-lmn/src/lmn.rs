@@ -491,18 +491,81 @@ impl LmnModel {
                 theta_t[j * nl + c] = *v;
             }
         }
-        let mut ea = vec![0.0; ni];
-        let mut phi = vec![0.0; part.nodes.len()];
+        // each leaf's path as indices into pq = [1−ψ₀, ψ₀, 1−ψ₁, ψ₁, …]:
+        // its weight is a product of independent factors (no chain through memory)
+        let mut pos = vec![usize::MAX; part.nodes.len()];
+        for (c, &(i, _, _)) in kids.iter().enumerate() {
+            pos[i] = c;
+        }
+        let mut paths: Vec<u32> = Vec::new();
+        let mut starts = vec![0usize];
+        for &l in leaves.iter() {
+            let mut node = l;
+            while let Some(par) = part.nodes[node].parent {
+                let c = pos[par];
+                if c == usize::MAX {
+                    return false;
+                }
+                paths.push((2 * c + usize::from(kids[c].2 == node)) as u32);
+                node = par;
+            }
+            starts.push(paths.len());
+        }
+        // depth-major path table, padded with an index of a constant 1.0, so
+        // that the products run over all leaves at once
+        let depth = (0..nl)
+            .map(|c| starts[c + 1] - starts[c])
+            .max()
+            .unwrap_or(0);
+        let one = 2 * ni;
+        let mut table = vec![one as u32; depth * nl];
+        for c in 0..nl {
+            for (d, &i) in paths[starts[c]..starts[c + 1]].iter().enumerate() {
+                table[d * nl + c] = i;
+            }
+        }
+        // activations padded to a multiple of 4 (whole vectors, no scalar tail)
+        let ni4 = ni.div_ceil(4) * 4;
+        let mut ea = vec![0.0; ni4];
+        let mut pq = vec![1.0; 2 * ni + 1];
         let mut lw = vec![0.0; nl];
         let mut loc = vec![0.0; nl];
         let n = out.len();
+        // taps as (signal, delay): signal 0 = output, j + 1 = input j
+        let code = |t: &crate::regressors::Tap| match t.signal {
+            crate::regressors::Signal::Output => (0usize, t.delay),
+            crate::regressors::Signal::Input(j) => (j + 1, t.delay),
+        };
+        let xs: Vec<(usize, usize)> = ev.lay.x.iter().map(code).collect();
+        let zs: Vec<(usize, usize)> = ev.lay.z.iter().map(code).collect();
+        let affine = ev.lay.mono.is_empty() && ne.e.is_empty();
+        let mut z = vec![0.0; nz];
+        let phi_b = &mut ev.phi;
         for k in k0..n {
-            ev.lay.fill(k, out, &ne.u, &mut ev.x, &mut ev.z);
-            ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
-            let z = &ev.z;
+            let tap = |sig: usize, d: usize, out: &[f64]| {
+                if sig == 0 {
+                    out[k - d]
+                } else {
+                    ne.u[sig - 1][k - d]
+                }
+            };
+            if affine {
+                phi_b[0] = 1.0;
+                for (f, &(sig, d)) in phi_b[1..].iter_mut().zip(&xs) {
+                    *f = tap(sig, d, out);
+                }
+            } else {
+                for (f, &(sig, d)) in ev.x.iter_mut().zip(&xs) {
+                    *f = tap(sig, d, out);
+                }
+                ev.lay.basis(&ev.x, &ne.e, k, phi_b);
+            }
+            for (f, &(sig, d)) in z.iter_mut().zip(&zs) {
+                *f = tap(sig, d, out);
+            }
             for ((e, wi), b) in ea.iter_mut().zip(w.chunks_exact(nz.max(1))).zip(&w0) {
                 let mut a = *b;
-                for (wd, zd) in wi.iter().zip(z) {
+                for (wd, zd) in wi.iter().zip(&z) {
                     a += wd * zd;
                 }
                 *e = -a;
@@ -511,26 +574,35 @@ impl LmnModel {
             for e in ea.iter_mut() {
                 *e = 1.0 / (1.0 + crate::tree::fast_exp_g::<FMA>(*e));
             }
-            phi[0] = 1.0;
-            for (psi, &(i, l, r)) in ea.iter().zip(&kids) {
-                let pn = phi[i];
-                let pr = pn * psi;
-                phi[r] = pr;
-                phi[l] = pn - pr;
+            for (q, psi) in pq.chunks_exact_mut(2).zip(&ea) {
+                q[0] = 1.0 - psi;
+                q[1] = *psi;
             }
-            for (v, &l) in lw.iter_mut().zip(leaves) {
-                *v = phi[l];
+            lw.fill(1.0);
+            for row in table.chunks_exact(nl) {
+                for (v, &i) in lw.iter_mut().zip(row) {
+                    *v *= pq[i as usize];
+                }
             }
             loc.fill(0.0);
-            for (row, f) in theta_t.chunks_exact(nl).zip(&ev.phi) {
+            for (row, f) in theta_t.chunks_exact(nl).zip(phi_b.iter()) {
                 for (o, t) in loc.iter_mut().zip(row) {
                     *o += t * f;
                 }
             }
-            let mut y = 0.0;
-            for (a, b) in lw.iter().zip(&loc) {
-                y += a * b;
+            // four partial sums: a short dependency chain
+            let mut acc = [0.0; 4];
+            let (lw4, lwr) = lw.split_at(nl - nl % 4);
+            let (lo4, lor) = loc.split_at(nl - nl % 4);
+            for (a, b) in lw4.chunks_exact(4).zip(lo4.chunks_exact(4)) {
+                for i in 0..4 {
+                    acc[i] += a[i] * b[i];
+                }
             }
+            for (a, b) in lwr.iter().zip(lor) {
+                acc[0] += a * b;
+            }
+            let y = (acc[0] + acc[1]) + (acc[2] + acc[3]);
             if !y.is_finite() || y.abs() > DIVERGED {
                 return false;
             }
