@@ -85,7 +85,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         start.b = vec![0.0, 0.05, 0.0, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0];
         start.c = vec![0.0; 3];
         start.x0 = vec![0.0; 3];
-        start.process_noise.push(gb_model::NoiseModel::Gaussian { sd: 0.0 });
+        start
+            .process_noise
+            .push(gb_model::NoiseModel::Gaussian { sd: 0.0 });
         start.structure = Structure {
             a: vec![true, false, false, false, true, false, false, true, true],
             b: vec![false, true, false, false, false, true, false, false, false],
@@ -169,7 +171,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             expansion: SparseExpansion::new("bior2.2", vec![-vmax, wl], vec![vmax, wh])?,
         });
     }
-    if std::env::var("MR_PREISACH").map(|v| v == "1").unwrap_or(false) {
+    if std::env::var("MR_PREISACH")
+        .map(|v| v == "1")
+        .unwrap_or(false)
+    {
         // a Preisach operator of the displacement (seal friction, accumulator)
         let dmax = d.iter().fold(0.0f64, |a, x| a.max(x.abs())) * 1.05;
         start.hysteresis.push(gb_model::HysteresisTerm {
