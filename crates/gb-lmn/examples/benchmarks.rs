@@ -449,7 +449,7 @@ fn main() {
         static_2d(
             over.get("smooth")
                 .and_then(|s| s.parse().ok())
-                .unwrap_or(0.2),
+                .unwrap_or(0.1),
         );
     }
     let Some(dir) = data_dir() else {
