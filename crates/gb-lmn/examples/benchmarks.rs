@@ -16,7 +16,8 @@
 //! nk..nk+zu−1), `degree`, `leaves`, `weights` (gauss|tree), `splits`
 //! (axis|oblique), `lm` (LM iterations), `ntrain` (first samples only),
 //! `smooth`, `crit` (aicc|bic|val), `prune` (0|1), `focus` (sim|pred),
-//! `noe` (0|1: output-error construction), `patience`.
+//! `noe` (0|1: output-error construction), `patience`, `guard` (0|1:
+//! stability guard of the NOE training).
 use gb_core::CsvTable;
 use gb_lmn::{Criterion, Experiment, Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
 use std::collections::HashMap;
@@ -179,6 +180,7 @@ fn run(dir: &std::path::Path, s: &Setup, over: &HashMap<String, String>) -> Resu
         .smoothness(smooth)
         .patience(num("patience", "3")?)
         .noe_construction(g("noe", "0") == "1")
+        .stability_guard(g("guard", "1") == "1")
         .lm_iterations(num("lm", "30")?);
     let t0 = Instant::now();
     let model = if crit == Criterion::Validation {
