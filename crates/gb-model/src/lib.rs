@@ -50,4 +50,4 @@ pub use model::{
     FORMAT_VERSION, MAGIC,
 };
 pub use smc::{Smc, SmcParams, SmcReport};
-pub use structures::{second_order, second_order_parameters};
+pub use structures::{fit_state_space, second_order, second_order_parameters};

@@ -194,6 +194,8 @@ pub struct SparseStateSpace {
     pub process_noise: Vec<NoiseModel>,
     /// Measurement noise.
     pub measurement_noise: NoiseModel,
+    /// Names of the inputs and then the output (empty: unnamed).
+    pub signal_names: Vec<String>,
 }
 
 /// Scratch of the simulation loop.
@@ -233,6 +235,7 @@ impl SparseStateSpace {
             hysteresis: Vec::new(),
             process_noise: vec![NoiseModel::Gaussian { sd: 0.0 }; n],
             measurement_noise: NoiseModel::Gaussian { sd: 1.0 },
+            signal_names: Vec::new(),
         };
         model.check()?;
         Ok(model)
@@ -264,6 +267,12 @@ impl SparseStateSpace {
         dim("structure D", self.structure.d.len(), m)?;
         dim("structure x0", self.structure.x0.len(), n)?;
         dim("process noise", self.process_noise.len(), n)?;
+        if !self.signal_names.is_empty() && self.signal_names.len() != m + 1 {
+            return Err(ModelError::Dimension(format!(
+                "{} signal names for {m} inputs and one output",
+                self.signal_names.len()
+            )));
+        }
         if self.substeps == 0 || self.substeps > 1000 {
             return Err(ModelError::InvalidArgument(
                 "substeps must be in 1..=1000".into(),

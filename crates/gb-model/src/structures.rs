@@ -1,6 +1,10 @@
 //! Known-physics (grey-box) structures built from the best linear model.
+use crate::basis::SparseExpansion;
 use crate::error::{ModelError, Result};
-use crate::model::{SparseStateSpace, Structure};
+use crate::everett::WaveletEverett;
+use crate::identify::{Observer, OeParams, OeReport};
+use crate::linear::linear_from_oe;
+use crate::model::{HysteresisTerm, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
 
 /// Continuous-time `(ω², 2ζω, 1/m)` of a 2-state, 1-input discrete model with
 /// complex poles, from `s = ln λ / Ts` and the static gain (`1/m = ω²·G(1)`).
@@ -112,4 +116,52 @@ pub fn second_order(
     m.substeps = substeps;
     m.y_offset = 0.0;
     Ok(m)
+}
+
+/// A black-box start for data without known physics (the CLI's
+/// `--model state-space[+preisach]`): the best linear model of `order`
+/// (`gb-lmn` OE) in observer form, a 2-D wavelet term `f(x₁, u₁)` on the
+/// first state row, optionally a Preisach component of the first input on
+/// the output; identified by output error (levels 1–3, boxes fitted to the
+/// linear simulation). `names`: the inputs' and the output's names.
+pub fn fit_state_space(
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    order: usize,
+    preisach: bool,
+    names: Vec<String>,
+    obs: &mut dyn Observer,
+) -> Result<(SparseStateSpace, OeReport)> {
+    if inputs.is_empty() {
+        return Err(ModelError::InvalidArgument(
+            "the state-space model needs at least one input".into(),
+        ));
+    }
+    let mut m = linear_from_oe(inputs, y, order.max(1))?;
+    m.signal_names = names;
+    let (lo, hi) = inputs[0]
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+    let span = (hi - lo).max(1e-12);
+    // placeholder box; OeParams::adapt_boxes fits it to the linear simulation
+    m.terms.push(NonlinearTerm {
+        target: Target::State(0),
+        args: vec![Signal::State(0), Signal::Input(0)],
+        expansion: SparseExpansion::new("bior2.2", vec![-1.0, lo], vec![1.0, lo + span])?,
+    });
+    if preisach {
+        let (a, b) = (lo - 0.05 * span, hi + 0.05 * span);
+        m.hysteresis.push(HysteresisTerm {
+            target: Target::Output,
+            input: 0,
+            everett: WaveletEverett::new(SparseExpansion::new("bior2.2", vec![a, a], vec![b, b])?)?,
+        });
+    }
+    m.check()?;
+    OeParams::new()
+        .coarse_level(1)
+        .max_level(3)
+        .adapt_boxes(true)
+        .check()?
+        .fit(m, inputs, y, obs)
 }
