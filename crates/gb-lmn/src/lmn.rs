@@ -491,45 +491,12 @@ impl LmnModel {
                 theta_t[j * nl + c] = *v;
             }
         }
-        // each leaf's path as indices into pq = [1−ψ₀, ψ₀, 1−ψ₁, ψ₁, …]:
-        // its weight is a product of independent factors (no chain through memory)
-        let mut pos = vec![usize::MAX; part.nodes.len()];
-        for (c, &(i, _, _)) in kids.iter().enumerate() {
-            pos[i] = c;
-        }
-        let mut paths: Vec<u32> = Vec::new();
-        let mut starts = vec![0usize];
-        for &l in leaves.iter() {
-            let mut node = l;
-            while let Some(par) = part.nodes[node].parent {
-                let c = pos[par];
-                if c == usize::MAX {
-                    return false;
-                }
-                paths.push((2 * c + usize::from(kids[c].2 == node)) as u32);
-                node = par;
-            }
-            starts.push(paths.len());
-        }
-        // depth-major path table, padded with an index of a constant 1.0, so
-        // that the products run over all leaves at once
-        let depth = (0..nl)
-            .map(|c| starts[c + 1] - starts[c])
-            .max()
-            .unwrap_or(0);
-        let one = 2 * ni;
-        let mut table = vec![one as u32; depth * nl];
-        for c in 0..nl {
-            for (d, &i) in paths[starts[c]..starts[c + 1]].iter().enumerate() {
-                table[d * nl + c] = i;
-            }
-        }
         // activations padded to a multiple of 4 (whole vectors, no scalar tail)
         let ni4 = ni.div_ceil(4) * 4;
         let mut ea = vec![0.0; ni4];
-        let mut pq = vec![1.0; 2 * ni + 1];
         let mut lw = vec![0.0; nl];
         let mut loc = vec![0.0; nl];
+        let mut phi_n = vec![0.0; part.nodes.len()];
         let n = out.len();
         // taps as (signal, delay): signal 0 = output, j + 1 = input j
         let code = |t: &crate::regressors::Tap| match t.signal {
@@ -574,15 +541,16 @@ impl LmnModel {
             for e in ea.iter_mut() {
                 *e = 1.0 / (1.0 + crate::tree::fast_exp_g::<FMA>(*e));
             }
-            for (q, psi) in pq.chunks_exact_mut(2).zip(&ea) {
-                q[0] = 1.0 - psi;
-                q[1] = *psi;
+            // weights down the tree (preorder: parents first)
+            phi_n[0] = 1.0;
+            for (psi, &(i, l, r)) in ea.iter().zip(&kids) {
+                let pn = phi_n[i];
+                let pr = pn * psi;
+                phi_n[r] = pr;
+                phi_n[l] = pn - pr;
             }
-            lw.fill(1.0);
-            for row in table.chunks_exact(nl) {
-                for (v, &i) in lw.iter_mut().zip(row) {
-                    *v *= pq[i as usize];
-                }
+            for (v, &l) in lw.iter_mut().zip(leaves) {
+                *v = phi_n[l];
             }
             loc.fill(0.0);
             for (row, f) in theta_t.chunks_exact(nl).zip(phi_b.iter()) {
