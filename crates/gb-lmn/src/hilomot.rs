@@ -61,6 +61,7 @@ pub struct LmnParams {
     stability_guard: bool,
     optimise_splits: bool,
     patience: usize,
+    noe_construction: bool,
 }
 
 /// Validated [`LmnParams`].
@@ -86,6 +87,7 @@ impl LmnParams {
             stability_guard: true,
             optimise_splits: true,
             patience: 3,
+            noe_construction: false,
         }
     }
     /// Weight functions.
@@ -148,6 +150,14 @@ impl LmnParams {
         self.optimise_splits = o;
         self
     }
+    /// Simulation focus: after the first network is trained, grow a second
+    /// one with output lags taken from the first one's free-run simulation
+    /// (output-error construction) and keep the one that simulates better
+    /// (on the validation experiments if given, else on the training data).
+    pub fn noe_construction(mut self, on: bool) -> Self {
+        self.noe_construction = on;
+        self
+    }
     /// Stop growing after this many splits in a row that do not improve the criterion.
     pub fn patience(mut self, p: usize) -> Self {
         self.patience = p;
@@ -204,6 +214,17 @@ pub(crate) struct Rows {
 
 impl Rows {
     pub fn build(lay: &Layout, exps: &[NormExp], nx: usize) -> Self {
+        Self::build_from(lay, exps, nx, None)
+    }
+
+    /// Rows with output lags from `lags` (one signal per experiment, e.g. a
+    /// free-run simulation) instead of the measured outputs; targets stay measured.
+    pub fn build_from(
+        lay: &Layout,
+        exps: &[NormExp],
+        nx: usize,
+        lags: Option<&[Vec<f64>]>,
+    ) -> Self {
         let nz = lay.z.len();
         let p = lay.p;
         let mut a = Vec::new();
@@ -212,9 +233,10 @@ impl Rows {
         let mut x = vec![0.0; nx];
         let mut z = vec![0.0; nz];
         let mut phi = vec![0.0; p];
-        for e in exps {
+        for (i, e) in exps.iter().enumerate() {
+            let src = lags.and_then(|l| l.get(i)).unwrap_or(&e.y);
             for k in lay.max_lag..e.y.len() {
-                lay.fill(k, &e.y, &e.u, &mut x, &mut z);
+                lay.fill(k, src, &e.u, &mut x, &mut z);
                 lay.basis(&x, &e.e, k, &mut phi);
                 a.extend_from_slice(&phi);
                 zz.extend_from_slice(&z);
@@ -371,7 +393,7 @@ fn psi_of(rows: &Rows, st: &LeafSt, w: &[f64], w0: f64, psi: &mut [f64]) {
         for (wd, zd) in w.iter().zip(zr) {
             a += wd * zd;
         }
-        psi[i] = 1.0 / (1.0 + (-a).exp());
+        psi[i] = 1.0 / (1.0 + crate::tree::fast_exp(-a));
     }
 }
 
@@ -980,7 +1002,7 @@ impl ValidLmnParams {
                 )));
             }
         }
-        let mut model = LmnModel {
+        let model = LmnModel {
             regressors: r.clone(),
             input_scaling: (0..r.n_inputs())
                 .map(|j| Scaling::of(&cat(&|e| e.inputs.get(j))))
@@ -1003,12 +1025,12 @@ impl ValidLmnParams {
         };
         let nexps: Vec<NormExp> = train
             .iter()
-            .map(|e| model.normalise(e))
+            .map(|e| model.normalise_full(e))
             .collect::<Result<_, _>>()?;
         let nval: Vec<NormExp> = match val {
             Some(v) => v
                 .iter()
-                .map(|e| model.normalise(e))
+                .map(|e| model.normalise_full(e))
                 .collect::<Result<_, _>>()?,
             None => vec![],
         };
@@ -1021,14 +1043,56 @@ impl ValidLmnParams {
                 got: train.iter().map(Experiment::len).max().unwrap_or(0),
             });
         }
+        let first = self.build(&model, &rows, &nexps, &nval)?;
+        if !(o.noe_construction
+            && o.focus == Focus::Simulation
+            && r.max_output_lag() > 0
+            && o.lm_iterations > 0)
+        {
+            return Ok(first);
+        }
+        // NOE construction: grow again with output lags from the first
+        // network's free-run simulation, train, keep the better simulation
+        let mut ev = first.eval_scratch();
+        let mut sims = Vec::with_capacity(nexps.len());
+        for e in &nexps {
+            let mut out = Vec::new();
+            if !first.simulate_norm(e, &e.y, lay.max_lag, &mut ev, &mut out) {
+                return Ok(first);
+            }
+            sims.push(out);
+        }
+        let rows2 = Rows::build_from(&lay, &nexps, r.nx(), Some(&sims));
+        let judge = |m: &LmnModel| {
+            validation_mse(
+                m,
+                if nval.is_empty() { &nexps } else { &nval },
+                Focus::Simulation,
+            )
+        };
+        match self.build(&model, &rows2, &nexps, &nval) {
+            Ok(second) if judge(&second) < judge(&first) => Ok(second),
+            _ => Ok(first),
+        }
+    }
+
+    /// Grow, choose, prune and train one network on `rows`.
+    fn build(
+        &self,
+        template: &LmnModel,
+        rows: &Rows,
+        nexps: &[NormExp],
+        nval: &[NormExp],
+    ) -> Result<LmnModel, LmnError> {
+        let o = &self.0;
+        let mut model = template.clone();
         // score of a partition: information criterion or validation error
-        let template = model.clone();
         let score = |part: &Partition, sse: f64, neff: f64| -> f64 {
             match o.criterion {
                 Criterion::Validation => {
                     let mut m = template.clone();
                     m.partition = part.clone();
-                    validation_mse(&m, &nval, o.focus)
+                    validation_mse(&m, nval, o.focus)
                 }
                 c => info_criterion(c, sse, rows.n, neff),
             }
@@ -1048,8 +1112,8 @@ impl ValidLmnParams {
             worse < o.patience
         };
         let grown = match o.weights {
-            WeightKind::Gaussian => grow_gauss(&rows, o, &mut keep)?,
-            _ => grow_tree(&rows, o, &mut keep)?,
+            WeightKind::Gaussian => grow_gauss(rows, o, &mut keep)?,
+            _ => grow_tree(rows, o, &mut keep)?,
         };
         let (bi, _) = history
             .iter()
@@ -1066,7 +1130,7 @@ impl ValidLmnParams {
                 .cloned()
                 .ok_or_else(|| LmnError::Numerical("no network grown".into()))?;
             let start = score(&full, sse, neff);
-            let (removed, v) = crate::prune::prune(&mut full, &rows, o.ridge, start, &score);
+            let (removed, v) = crate::prune::prune(&mut full, rows, o.ridge, start, &score);
             if v <= value {
                 part = full;
                 value = v;
@@ -1075,20 +1139,42 @@ impl ValidLmnParams {
         }
         part.compact();
         model.partition = part;
-        model.summary.history = history;
+        model.summary.history = history.clone();
         model.summary.criterion_value = value;
         if o.lm_iterations > 0 {
-            let rep = crate::narx::optimise(
-                &mut model,
-                &nexps,
-                o.focus,
-                o.lm_iterations,
-                o.stability_guard,
-                o.optimise_splits,
-            )?;
-            model.summary.lm_iterations = rep.0;
-            model.summary.rms_before_lm = rep.1;
-            model.summary.rms_after_lm = rep.2;
+            // a network grown on one-step errors may diverge in simulation:
+            // then fall back to the next networks of the growth history
+            let mut order: Vec<usize> = (0..history.len()).collect();
+            order.sort_by(|a, b| history[*a].1.total_cmp(&history[*b].1));
+            let mut tries = order.into_iter().filter(|&i| i != bi).take(3);
+            loop {
+                match crate::narx::optimise(
+                    &mut model,
+                    nexps,
+                    o.focus,
+                    o.lm_iterations,
+                    o.stability_guard,
+                    o.optimise_splits,
+                ) {
+                    Ok(rep) => {
+                        model.summary.lm_iterations = rep.0;
+                        model.summary.rms_before_lm = rep.1;
+                        model.summary.rms_after_lm = rep.2;
+                        break;
+                    }
+                    Err(LmnError::Unstable(m)) => {
+                        let Some(i) = tries.next() else {
+                            return Err(LmnError::Unstable(m));
+                        };
+                        let mut p = grown.snapshots[i].0.clone();
+                        p.compact();
+                        model.partition = p;
+                        model.summary.criterion_value = history[i].1;
+                        model.summary.pruned = 0;
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
         }
         Ok(model)
     }

@@ -263,6 +263,22 @@ impl LmnModel {
         })
     }
 
+    /// [`normalise`](Self::normalise) for data with a full output record
+    /// (fitting, prediction, pruning, refinement): the output must be as
+    /// long as the inputs.
+    pub(crate) fn normalise_full(&self, e: &Experiment) -> Result<NormExp, LmnError> {
+        if let Some(u) = e.inputs.first() {
+            if u.len() != e.output.len() {
+                return Err(LmnError::Dimension(format!(
+                    "the output has {} samples, the inputs {}",
+                    e.output.len(),
+                    u.len()
+                )));
+            }
+        }
+        self.normalise(e)
+    }
+
     /// Network output (normalised) at the regressors in `ev.x`, `ev.z`, `ev.phi`.
     /// With `grad_p` the derivative w.r.t. all parameters (see
     /// [`parameters`](Self::parameters)); with `grad_xz` ∂ŷ/∂x and ∂ŷ/∂z in
@@ -274,7 +290,7 @@ impl LmnModel {
         let mut y = 0.0;
         for &l in &ev.w.leaves {
             let ph = ev.w.phi[l];
-            if ph == 0.0 && grad_p.is_none() && !grad_xz {
+            if ph < crate::tree::TINY && grad_p.is_none() && !grad_xz {
                 continue;
             }
             let th = &part.nodes[l].theta;
@@ -392,6 +408,9 @@ impl LmnModel {
         for k in 0..k0 {
             out[k] = init.get(k).copied().unwrap_or(0.0);
         }
+        if self.partition.kind == WeightKind::Tree {
+            return self.simulate_tree(ne, k0, ev, out);
+        }
         for k in k0..n {
             ev.lay.fill(k, out, &ne.u, &mut ev.x, &mut ev.z);
             ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
@@ -404,12 +423,168 @@ impl LmnModel {
         true
     }
 
+    /// The simulation hot loop for tree weights on flat arrays: all split
+    /// activations, then all exponentials in one vectorisable pass, then the
+    /// products down the tree and the local models.
+    fn simulate_tree(&self, ne: &NormExp, k0: usize, ev: &mut Eval, out: &mut [f64]) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::arch::is_x86_feature_detected!("avx2")
+                && std::arch::is_x86_feature_detected!("fma")
+            {
+                // SAFETY: the CPU supports AVX2 and FMA (checked just above).
+                return unsafe { self.simulate_tree_avx2(ne, k0, ev, out) };
+            }
+        }
+        self.simulate_tree_body::<false>(ne, k0, ev, out)
+    }
+
+    /// [`simulate_tree`](Self::simulate_tree) compiled for AVX2 + FMA (4-wide
+    /// exponentials).
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 and FMA.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn simulate_tree_avx2(
+        &self,
+        ne: &NormExp,
+        k0: usize,
+        ev: &mut Eval,
+        out: &mut [f64],
+    ) -> bool {
+        self.simulate_tree_body::<true>(ne, k0, ev, out)
+    }
+
+    #[inline(always)]
+    fn simulate_tree_body<const FMA: bool>(
+        &self,
+        ne: &NormExp,
+        k0: usize,
+        ev: &mut Eval,
+        out: &mut [f64],
+    ) -> bool {
+        let part = &self.partition;
+        let nz = ev.z.len();
+        let p = ev.lay.p;
+        let inner = &ev.w.inner;
+        let ni = inner.len();
+        let mut w = Vec::with_capacity(ni * nz);
+        let mut w0 = Vec::with_capacity(ni);
+        let mut kids = Vec::with_capacity(ni);
+        for &i in inner {
+            if let Some(sp) = &part.nodes[i].split {
+                w.extend_from_slice(&sp.w);
+                w0.push(sp.w0);
+                kids.push((i, sp.left, sp.right));
+            }
+        }
+        if kids.len() != ni {
+            return false;
+        }
+        let leaves = &ev.w.leaves;
+        let nl = leaves.len();
+        // local parameters transposed (p × leaves): L = Θᵀφ vectorises over leaves
+        let mut theta_t = vec![0.0; p * nl];
+        for (c, &l) in leaves.iter().enumerate() {
+            for (j, v) in part.nodes[l].theta.iter().enumerate() {
+                theta_t[j * nl + c] = *v;
+            }
+        }
+        // activations padded to a multiple of 4 (whole vectors, no scalar tail)
+        let ni4 = ni.div_ceil(4) * 4;
+        let mut ea = vec![0.0; ni4];
+        let mut lw = vec![0.0; nl];
+        let mut loc = vec![0.0; nl];
+        let mut phi_n = vec![0.0; part.nodes.len()];
+        let n = out.len();
+        // taps as (signal, delay): signal 0 = output, j + 1 = input j
+        let code = |t: &crate::regressors::Tap| match t.signal {
+            crate::regressors::Signal::Output => (0usize, t.delay),
+            crate::regressors::Signal::Input(j) => (j + 1, t.delay),
+        };
+        let xs: Vec<(usize, usize)> = ev.lay.x.iter().map(code).collect();
+        let zs: Vec<(usize, usize)> = ev.lay.z.iter().map(code).collect();
+        let affine = ev.lay.mono.is_empty() && ne.e.is_empty();
+        let mut z = vec![0.0; nz];
+        let phi_b = &mut ev.phi;
+        for k in k0..n {
+            let tap = |sig: usize, d: usize, out: &[f64]| {
+                if sig == 0 {
+                    out[k - d]
+                } else {
+                    ne.u[sig - 1][k - d]
+                }
+            };
+            if affine {
+                phi_b[0] = 1.0;
+                for (f, &(sig, d)) in phi_b[1..].iter_mut().zip(&xs) {
+                    *f = tap(sig, d, out);
+                }
+            } else {
+                for (f, &(sig, d)) in ev.x.iter_mut().zip(&xs) {
+                    *f = tap(sig, d, out);
+                }
+                ev.lay.basis(&ev.x, &ne.e, k, phi_b);
+            }
+            for (f, &(sig, d)) in z.iter_mut().zip(&zs) {
+                *f = tap(sig, d, out);
+            }
+            for ((e, wi), b) in ea.iter_mut().zip(w.chunks_exact(nz.max(1))).zip(&w0) {
+                let mut a = *b;
+                for (wd, zd) in wi.iter().zip(&z) {
+                    a += wd * zd;
+                }
+                *e = -a;
+            }
+            // ψ = 1 / (1 + e^{−a}) for all splits in one pass
+            for e in ea.iter_mut() {
+                *e = 1.0 / (1.0 + crate::tree::fast_exp_g::<FMA>(*e));
+            }
+            // weights down the tree (preorder: parents first)
+            phi_n[0] = 1.0;
+            for (psi, &(i, l, r)) in ea.iter().zip(&kids) {
+                let pn = phi_n[i];
+                let pr = pn * psi;
+                phi_n[r] = pr;
+                phi_n[l] = pn - pr;
+            }
+            for (v, &l) in lw.iter_mut().zip(leaves) {
+                *v = phi_n[l];
+            }
+            loc.fill(0.0);
+            for (row, f) in theta_t.chunks_exact(nl).zip(phi_b.iter()) {
+                for (o, t) in loc.iter_mut().zip(row) {
+                    *o += t * f;
+                }
+            }
+            // four partial sums: a short dependency chain
+            let mut acc = [0.0; 4];
+            let (lw4, lwr) = lw.split_at(nl - nl % 4);
+            let (lo4, lor) = loc.split_at(nl - nl % 4);
+            for (a, b) in lw4.chunks_exact(4).zip(lo4.chunks_exact(4)) {
+                for i in 0..4 {
+                    acc[i] += a[i] * b[i];
+                }
+            }
+            for (a, b) in lwr.iter().zip(lor) {
+                acc[0] += a * b;
+            }
+            let y = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+            if !y.is_finite() || y.abs() > DIVERGED {
+                return false;
+            }
+            out[k] = y;
+        }
+        true
+    }
+
     /// Free-run simulation (physical units). The first `init_window` samples
     /// of `e.output` initialise the output lags (at least `max_lag` samples
     /// are taken from the record; inputs and user columns drive the rest).
     pub fn simulate(&self, e: &Experiment, init_window: usize) -> Result<Vec<f64>, LmnError> {
         let ne = self.normalise(e)?;
-        let n = e.output.len().max(ne.u.first().map_or(0, Vec::len));
+        let n = ne.u.first().map_or(e.output.len(), Vec::len);
         let k0 = init_window.max(self.max_lag()).min(n);
         let init: Vec<f64> = ne.y.iter().take(k0).copied().collect();
         let mut ev = self.eval_scratch();
@@ -428,7 +603,7 @@ impl LmnModel {
     /// One-step-ahead prediction (NARX, measured output lags), physical
     /// units; the first `max_lag` samples are copied from the measurement.
     pub fn predict(&self, e: &Experiment) -> Result<Vec<f64>, LmnError> {
-        let ne = self.normalise(e)?;
+        let ne = self.normalise_full(e)?;
         let n = ne.y.len();
         let k0 = self.max_lag().min(n);
         let mut ev = self.eval_scratch();

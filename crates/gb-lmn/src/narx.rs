@@ -270,7 +270,7 @@ impl LmnModel {
     ) -> Result<RefineReport, LmnError> {
         let nexps = train
             .iter()
-            .map(|e| self.normalise(e))
+            .map(|e| self.normalise_full(e))
             .collect::<Result<Vec<_>, _>>()?;
         let (iterations, rms_before, rms_after) =
             optimise(self, &nexps, focus, max_iter, true, true)?;
@@ -294,7 +294,7 @@ impl LmnModel {
     ) -> Result<(f64, Vec<f64>), LmnError> {
         let nexps = train
             .iter()
-            .map(|e| self.normalise(e))
+            .map(|e| self.normalise_full(e))
             .collect::<Result<Vec<_>, _>>()?;
         let np = self.parameters().len();
         let (c, _, g, _) = total(self, &nexps, focus, np, true)

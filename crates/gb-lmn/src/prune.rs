@@ -132,7 +132,7 @@ impl LmnModel {
         }
         let nexps = train
             .iter()
-            .map(|e| self.normalise(e))
+            .map(|e| self.normalise_full(e))
             .collect::<Result<Vec<_>, _>>()?;
         let lay = Layout::new(&self.regressors);
         let rows = Rows::build(&lay, &nexps, self.regressors.nx());

@@ -293,3 +293,77 @@ fn several_experiments_and_user_columns_round_trip() {
         .fit(&[Experiment::new(vec![vec![0.0; 5]], vec![0.0; 5])])
         .is_err());
 }
+
+#[test]
+fn fast_tree_simulation_agrees_with_the_generic_evaluation() {
+    let e = nl_system(800, 0.02, 10);
+    let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
+    let m = LmnParams::new(reg)
+        .splits(SplitKind::Oblique)
+        .max_leaves(6)
+        .patience(10)
+        .criterion(Criterion::Validation)
+        .focus(Focus::Prediction)
+        .lm_iterations(0)
+        .check()
+        .unwrap()
+        .fit(std::slice::from_ref(&e), Some(std::slice::from_ref(&e)))
+        .unwrap();
+    assert_eq!(m.n_leaves(), 6);
+    let sim = m.simulate(&e, 0).unwrap();
+    // one-step predictions with the simulated output as "measurement" reproduce it
+    let again = m
+        .predict(&Experiment::new(e.inputs.clone(), sim.clone()))
+        .unwrap();
+    for k in m.max_lag()..sim.len() {
+        assert!(
+            (sim[k] - again[k]).abs() < 1e-12 * (1.0 + sim[k].abs()),
+            "k {k}"
+        );
+    }
+}
+
+#[test]
+fn output_error_construction_never_simulates_worse_on_the_data() {
+    let e = nl_system(1500, 0.02, 11);
+    let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
+    let p = LmnParams::new(reg).max_leaves(6).lm_iterations(10);
+    let rms = |m: &LmnModel| {
+        let s = m.simulate(&e, 0).unwrap();
+        gb_core::metrics::rmse(&e.output[2..], &s[2..]).unwrap()
+    };
+    let a = p.clone().fit(std::slice::from_ref(&e)).unwrap();
+    let b = p
+        .noe_construction(true)
+        .fit(std::slice::from_ref(&e))
+        .unwrap();
+    assert!(rms(&b) <= rms(&a) + 1e-12, "{} vs {}", rms(&b), rms(&a));
+}
+
+#[test]
+fn mismatched_lengths_are_errors_not_panics() {
+    let e = nl_system(300, 0.02, 12);
+    let m = LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+        .max_leaves(2)
+        .lm_iterations(2)
+        .fit(std::slice::from_ref(&e))
+        .unwrap();
+    let mut long = e.clone();
+    long.output.extend_from_slice(&[0.0; 10]);
+    assert!(m.predict(&long).is_err());
+    assert!(m
+        .clone()
+        .prune(std::slice::from_ref(&long), Criterion::Bic)
+        .is_err());
+    assert!(LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+        .fit(std::slice::from_ref(&long))
+        .is_err());
+    // simulation needs only the inputs; the output may be just the init window
+    let init = Experiment::new(e.inputs.clone(), e.output[..5].to_vec());
+    assert_eq!(m.simulate(&init, 5).unwrap().len(), 300);
+    let mut nan = e.clone();
+    nan.output[7] = f64::NAN;
+    assert!(LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+        .fit(std::slice::from_ref(&nan))
+        .is_err());
+}

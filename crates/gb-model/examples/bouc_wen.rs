@@ -13,8 +13,8 @@
 //! when given.
 use gb_core::{metrics, CsvTable};
 use gb_model::{
-    linear_from_oe, NonlinearTerm, OeParams, ProgressBar, Signal, SparseExpansion,
-    SparseStateSpace, Structure, Target,
+    linear_from_oe, second_order, second_order_parameters, NonlinearTerm, OeParams, ProgressBar,
+    Signal, SparseExpansion, Target,
 };
 use std::path::PathBuf;
 use std::time::Instant;
@@ -56,24 +56,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
 
     // 1. best linear model (gb-lmn OE, order 2) → natural frequency, damping, gain
     let lin = linear_from_oe(&[u[8192..16384].to_vec()], &y[8192..16384], 2)?;
-    let (a, b, c) = (&lin.a, &lin.b, &lin.c);
-    let tr = a[0] + a[3];
-    let det = a[0] * a[3] - a[1] * a[2];
-    // poles λ = tr/2 ± i sqrt(det − tr²/4), s = ln λ / Ts
-    let re = 0.5 * tr;
-    let im = (det - re * re).max(0.0).sqrt();
-    let mag = (re * re + im * im).sqrt();
-    let s_re = mag.ln() / ts;
-    let s_im = im.atan2(re) / ts;
-    let w2 = s_re * s_re + s_im * s_im;
-    let two_zeta_w = -2.0 * s_re;
-    // DC gain of the discrete model C (I − A)^{-1} B + D
-    let (i11, i12, i21, i22) = (1.0 - a[0], -a[1], -a[2], 1.0 - a[3]);
-    let idet = i11 * i22 - i12 * i21;
-    let x1 = (i22 * b[0] - i12 * b[1]) / idet;
-    let x2 = (-i21 * b[0] + i11 * b[1]) / idet;
-    let dc = c[0] * x1 + c[1] * x2 + lin.d[0];
-    let gain = w2 * dc; // 1/m
+    let (w2, two_zeta_w, gain) = second_order_parameters(&lin, ts)?;
     let lin_test = {
         let mut y2 = lin.simulate(&[[ut.clone(), ut.clone()].concat()])?;
         y2.drain(..ut.len());
@@ -88,27 +71,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
 
     // 2. grey-box start: m ÿ + c ẏ + k y + z = u, ż = k_z ẏ + f(ẏ, z), with
-    //    k = k_z = k_eff/2 (the linear model exactly), symplectic Euler sub-steps
-    let h = ts / substeps as f64;
-    let k = 0.5 * w2;
-    let cc = two_zeta_w;
-    let ac = [
-        [1.0 - h * h * k, h * (1.0 - h * cc), -h * h],
-        [-h * k, 1.0 - h * cc, -h],
-        [0.0, h * k, 1.0],
-    ];
-    let a0: Vec<f64> = ac.iter().flatten().copied().collect();
-    let b0 = vec![h * h * gain, h * gain, 0.0];
-    let mut start = SparseStateSpace::linear(a0, b0, vec![1.0, 0.0, 0.0], vec![0.0])?;
-    start.substeps = substeps;
-    start.structure = Structure {
-        a: vec![true; 9],
-        b: vec![true, true, false],
-        c: vec![false; 3],
-        d: vec![false],
-        x0: vec![true; 3],
-        y_offset: false,
-    };
+    //    k = k_z = k_eff/2 (equal to the linear model), all of A free
+    let mut start = second_order(&lin, ts, substeps, true)?;
     // box of (v, z) from the start model's simulated states, ±25 %
     let (_, xs) = start.simulate_states(std::slice::from_ref(&u))?;
     let vmax = xs.chunks(3).map(|x| x[1].abs()).fold(0.0, f64::max) * 1.25;

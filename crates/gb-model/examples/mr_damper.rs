@@ -77,6 +77,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         y_offset: true,
     };
     let extra = std::env::var("MR_Z2").map(|v| v == "1").unwrap_or(false);
+    let w2 = std::env::var("MR_W2").map(|v| v == "1").unwrap_or(false);
+    if w2 {
+        // second-order voltage dynamics: w1 ← Y, w2 ← w1 (states z, w1, w2)
+        start.n_states = 3;
+        start.a = vec![0.95, 0.0, 0.0, 0.0, 0.9, 0.0, 0.0, 0.1, 0.9];
+        start.b = vec![0.0, 0.05, 0.0, 0.0, 0.0, 0.1, 0.0, 0.0, 0.0];
+        start.c = vec![0.0; 3];
+        start.x0 = vec![0.0; 3];
+        start
+            .process_noise
+            .push(gb_model::NoiseModel::Gaussian { sd: 0.0 });
+        start.structure = Structure {
+            a: vec![true, false, false, false, true, false, false, true, true],
+            b: vec![false, true, false, false, false, true, false, false, false],
+            c: vec![true; 3],
+            d: vec![true; 3],
+            x0: vec![false; 3],
+            y_offset: true,
+        };
+    }
     if extra {
         // a second hysteretic state on a slower time scale
         start.n_states = 3;
@@ -105,7 +125,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let m = 0.25 * (hi - lo);
         (lo - m, hi + m)
     };
-    let ((zl, zh), (wl, wh)) = (span(0), span(1));
+    let ((zl, zh), (wl, wh)) = (span(0), span(if w2 { 2 } else { 1 }));
+    let wstate = if w2 { 2 } else { 1 };
     let vmax = v.iter().fold(0.0f64, |a, x| a.max(x.abs())) * 1.1;
     if extra {
         let (ql, qh) = span(2);
@@ -125,12 +146,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         // f(V, z, w) and g(V, z, w): the voltage changes the whole loop
         start.terms.push(NonlinearTerm {
             target: Target::State(0),
-            args: vec![Signal::Input(1), Signal::State(0), Signal::State(1)],
+            args: vec![Signal::Input(1), Signal::State(0), Signal::State(wstate)],
             expansion: SparseExpansion::new("bior2.2", vec![-vmax, zl, wl], vec![vmax, zh, wh])?,
         });
         start.terms.push(NonlinearTerm {
             target: Target::Output,
-            args: vec![Signal::Input(1), Signal::State(0), Signal::State(1)],
+            args: vec![Signal::Input(1), Signal::State(0), Signal::State(wstate)],
             expansion: SparseExpansion::new("bior2.2", vec![-vmax, zl, wl], vec![vmax, zh, wh])?,
         });
     } else {
@@ -150,8 +171,41 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             expansion: SparseExpansion::new("bior2.2", vec![-vmax, wl], vec![vmax, wh])?,
         });
     }
+    if std::env::var("MR_PREISACH")
+        .map(|v| v == "1")
+        .unwrap_or(false)
+    {
+        // a Preisach operator of the displacement (seal friction, accumulator)
+        let dmax = d.iter().fold(0.0f64, |a, x| a.max(x.abs())) * 1.05;
+        start.hysteresis.push(gb_model::HysteresisTerm {
+            target: Target::Output,
+            input: 0,
+            everett: gb_model::WaveletEverett::new(SparseExpansion::new(
+                "bior2.2",
+                vec![-dmax, -dmax],
+                vec![dmax, dmax],
+            )?)?,
+        });
+    }
+    if std::env::var("MR_WNL").map(|v| v == "1").unwrap_or(false) {
+        // nonlinear voltage dynamics (e.g. different rise and decay)
+        let ylo = volt.iter().cloned().fold(f64::MAX, f64::min);
+        let yhi = volt.iter().cloned().fold(f64::MIN, f64::max);
+        let m = 0.05 * (yhi - ylo);
+        start.terms.push(NonlinearTerm {
+            target: Target::State(1),
+            args: vec![Signal::Input(2), Signal::State(1)],
+            expansion: SparseExpansion::new("bior2.2", vec![ylo - m, wl], vec![yhi + m, wh])?,
+        });
+    }
     let fit = OeParams::new()
-        .max_iter(30)
+        .adapt_boxes(std::env::var("MR_ADAPT").map(|v| v != "0").unwrap_or(true))
+        .max_iter(
+            std::env::var("MR_ITER")
+                .ok()
+                .and_then(|v| v.parse().ok())
+                .unwrap_or(30),
+        )
         .coarse_level(
             std::env::var("MR_COARSE")
                 .ok()

@@ -87,7 +87,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     time("mechanical, 1-D wavelet spring", &msd, n)?;
     let hs = 1.0 / 6000.0;
     let mut bw = SparseStateSpace::linear(
-        vec![1.0, hs, 0.0, -hs * 2.5e4, 1.0, -hs, 0.0, hs * 2.5e4, 1.0],
+        vec![
+            1.0,
+            hs,
+            0.0,
+            -hs * 2.5e4,
+            1.0 - hs * 20.0,
+            -hs,
+            0.0,
+            hs * 2.5e4,
+            1.0 - hs * 5.0,
+        ],
         vec![0.0, hs * 0.5, 0.0],
         vec![1.0, 0.0, 0.0],
         vec![0.0],

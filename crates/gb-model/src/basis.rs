@@ -154,8 +154,9 @@ struct Group {
 /// piecewise-linear wavelets (exact multilinear interpolation).
 #[derive(Debug, Clone)]
 struct Grid {
-    n: Vec<usize>,
-    stride: Vec<usize>,
+    d: usize,
+    n: [usize; MAX_DIMS],
+    stride: [usize; MAX_DIMS],
     values: Vec<f64>,
 }
 
@@ -165,9 +166,9 @@ const MAX_GRID_NODES: usize = 1 << 20;
 impl Grid {
     /// Multilinear interpolation at the normalised point `s ∈ [0, 1]ᵈ`;
     /// gradient with respect to `s` into `grad`.
-    #[inline]
+    #[inline(always)]
     fn eval(&self, s: &[f64], grad: Option<&mut [f64; MAX_DIMS]>) -> f64 {
-        let d = self.n.len();
+        let d = self.d;
         let mut base = 0usize;
         let mut frac = [0.0f64; MAX_DIMS];
         let mut scale = [0.0f64; MAX_DIMS];
@@ -244,6 +245,27 @@ impl Grid {
                 total
             }
         }
+    }
+}
+
+/// Borrowed grid evaluator of an expansion (the simulation fast path).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct FastEval<'a> {
+    grid: &'a Grid,
+    lo: &'a [f64],
+    inv: &'a [f64],
+}
+
+impl FastEval<'_> {
+    /// `f(x)` for the first `d` entries of `x`.
+    #[inline(always)]
+    pub(crate) fn eval(&self, x: &[f64; MAX_DIMS], d: usize) -> f64 {
+        let mut s = [0.0f64; MAX_DIMS];
+        for i in 0..d {
+            let v = (x[i] - self.lo[i]) * self.inv[i];
+            s[i] = if v > 0.0 { v.min(1.0) } else { 0.0 };
+        }
+        self.grid.eval(&s[..d], None)
     }
 }
 
@@ -607,6 +629,15 @@ impl SparseExpansion {
         self.groups = groups;
     }
 
+    /// The grid evaluator, for piecewise-linear wavelets.
+    pub(crate) fn fast(&self) -> Option<FastEval<'_>> {
+        self.grid().map(|grid| FastEval {
+            grid,
+            lo: &self.lo,
+            inv: &self.inv_width,
+        })
+    }
+
     /// The fast-evaluation grid (built on first use), for piecewise-linear wavelets.
     fn grid(&self) -> Option<&Grid> {
         self.grid
@@ -638,7 +669,16 @@ impl SparseExpansion {
                     }
                     *v = self.eval_atoms(&x[..d], None, false, &mut scratch);
                 }
-                Some(Arc::new(Grid { n, stride, values }))
+                let mut na = [0usize; MAX_DIMS];
+                let mut sa = [0usize; MAX_DIMS];
+                na[..d].copy_from_slice(&n);
+                sa[..d].copy_from_slice(&stride);
+                Some(Arc::new(Grid {
+                    d,
+                    n: na,
+                    stride: sa,
+                    values,
+                }))
             })
             .as_deref()
     }

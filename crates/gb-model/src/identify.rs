@@ -475,6 +475,10 @@ pub struct OeParams {
     pub skip: usize,
     /// Hard-threshold coefficients that do not pay after each refit.
     pub prune: bool,
+    /// Re-fit the boxes of empty wavelet terms to the range of their
+    /// arguments (±25 %) in the simulation of the linear stage.
+    #[serde(default)]
+    pub adapt_boxes: bool,
 }
 
 impl Default for OeParams {
@@ -488,6 +492,7 @@ impl Default for OeParams {
             max_new: 24,
             skip: 0,
             prune: true,
+            adapt_boxes: false,
         }
     }
 }
@@ -531,6 +536,11 @@ impl OeParams {
     /// Sets the number of new coefficients per level and term.
     pub fn max_new(mut self, v: usize) -> Self {
         self.max_new = v;
+        self
+    }
+    /// Re-fit the boxes of empty terms after the linear stage.
+    pub fn adapt_boxes(mut self, yes: bool) -> Self {
+        self.adapt_boxes = yes;
         self
     }
     /// Sets the stopping tolerance.
@@ -813,6 +823,38 @@ impl OutputError {
             bic: self.bic(&m, cost, &ctx),
             accepted: true,
         });
+        if nonlinear && p.adapt_boxes {
+            let (_, xs) = m.simulate_states(inputs)?;
+            let n = m.n_states;
+            for t in m.terms.iter_mut() {
+                if !t.expansion.is_empty() {
+                    continue;
+                }
+                let mut lo = Vec::new();
+                let mut hi = Vec::new();
+                for (d, a) in t.args.iter().enumerate() {
+                    let (mut l, mut h) = (f64::MAX, f64::MIN);
+                    for k in 0..len {
+                        let v = match *a {
+                            Signal::State(i) => xs[k * n + i],
+                            Signal::Input(j) => inputs[j][k],
+                        };
+                        l = l.min(v);
+                        h = h.max(v);
+                    }
+                    let span = h - l;
+                    if span > 0.0 && span.is_finite() {
+                        lo.push(l - 0.25 * span);
+                        hi.push(h + 0.25 * span);
+                    } else {
+                        lo.push(t.expansion.lo()[d]);
+                        hi.push(t.expansion.hi()[d]);
+                    }
+                }
+                let w = t.expansion.wavelet().to_string();
+                t.expansion = crate::basis::SparseExpansion::new(&w, lo, hi)?;
+            }
+        }
         if nonlinear {
             // 2. coarse grid
             for t in m.terms.iter_mut() {

@@ -20,7 +20,8 @@
 //!   sensitivities, Levenberg–Marquardt and coarse-to-fine sparse refinement.
 //! * [`SmcParams`] → [`Smc::fit`]: the SMC path (particle filter likelihood,
 //!   PMMH with a Laplace sparsity prior, `gb-smc`).
-//! * [`linear_from_oe`]: the best linear model (`gb-lmn`) as state space.
+//! * [`linear_from_oe`]: the best linear model (`gb-lmn`) as state space;
+//!   [`second_order`]: the known mechanical structure equivalent to it.
 //!
 //! See `docs/model.md`.
 #![warn(missing_docs)]
@@ -34,6 +35,7 @@ mod identify;
 mod linear;
 mod model;
 mod smc;
+mod structures;
 
 pub use basis::{Coefficient, EvalScratch, SparseExpansion, MAX_DIMS, TABLE_RESOLUTION};
 pub use error::{ModelError, Result};
@@ -48,3 +50,4 @@ pub use model::{
     FORMAT_VERSION, MAGIC,
 };
 pub use smc::{Smc, SmcParams, SmcReport};
+pub use structures::{fit_state_space, second_order, second_order_parameters};

@@ -1,5 +1,5 @@
 //! The model class: wavelet-sparse grey-box state space with hidden states.
-use crate::basis::{EvalScratch, SparseExpansion, MAX_DIMS};
+use crate::basis::{EvalScratch, FastEval, SparseExpansion, MAX_DIMS};
 use crate::error::{ModelError, Result};
 use crate::everett::WaveletEverett;
 use gb_preisach::{InitialState, Preisach};
@@ -194,6 +194,8 @@ pub struct SparseStateSpace {
     pub process_noise: Vec<NoiseModel>,
     /// Measurement noise.
     pub measurement_noise: NoiseModel,
+    /// Names of the inputs and then the output (empty: unnamed).
+    pub signal_names: Vec<String>,
 }
 
 /// Scratch of the simulation loop.
@@ -233,6 +235,7 @@ impl SparseStateSpace {
             hysteresis: Vec::new(),
             process_noise: vec![NoiseModel::Gaussian { sd: 0.0 }; n],
             measurement_noise: NoiseModel::Gaussian { sd: 1.0 },
+            signal_names: Vec::new(),
         };
         model.check()?;
         Ok(model)
@@ -264,6 +267,12 @@ impl SparseStateSpace {
         dim("structure D", self.structure.d.len(), m)?;
         dim("structure x0", self.structure.x0.len(), n)?;
         dim("process noise", self.process_noise.len(), n)?;
+        if !self.signal_names.is_empty() && self.signal_names.len() != m + 1 {
+            return Err(ModelError::Dimension(format!(
+                "{} signal names for {m} inputs and one output",
+                self.signal_names.len()
+            )));
+        }
         if self.substeps == 0 || self.substeps > 1000 {
             return Err(ModelError::InvalidArgument(
                 "substeps must be in 1..=1000".into(),
@@ -414,6 +423,7 @@ impl SparseStateSpace {
         };
         let mut u = vec![0.0; self.n_inputs];
         let mut hk = vec![0.0; h.len()];
+        let fast = self.fast_terms();
         for t in 0..len {
             for (j, uj) in u.iter_mut().enumerate() {
                 *uj = inputs[j][t];
@@ -422,7 +432,7 @@ impl SparseStateSpace {
                 *v = h[k][t];
             }
             y[t] = self.output(&s.x, &u, &hk, &mut s.eval, &mut s.args);
-            self.advance(&u, &hk, &mut s);
+            self.advance_with(&u, &hk, &mut s, &fast);
             if !s.x.iter().all(|v| v.is_finite() && v.abs() < 1e150) {
                 return Err(ModelError::Diverged(t));
             }
@@ -444,6 +454,7 @@ impl SparseStateSpace {
         };
         let mut u = vec![0.0; self.n_inputs];
         let mut hk = vec![0.0; h.len()];
+        let fast = self.fast_terms();
         for t in 0..len {
             for (j, uj) in u.iter_mut().enumerate() {
                 *uj = inputs[j][t];
@@ -453,7 +464,7 @@ impl SparseStateSpace {
             }
             xs[t * n..(t + 1) * n].copy_from_slice(&s.x);
             y[t] = self.output(&s.x, &u, &hk, &mut s.eval, &mut s.args);
-            self.advance(&u, &hk, &mut s);
+            self.advance_with(&u, &hk, &mut s, &fast);
             if !s.x.iter().all(|v| v.is_finite() && v.abs() < 1e150) {
                 return Err(ModelError::Diverged(t));
             }
@@ -504,9 +515,26 @@ impl SparseStateSpace {
         y
     }
 
+    /// Grid evaluators of the state terms (`None`: atom evaluation).
+    pub(crate) fn fast_terms(&self) -> Vec<Option<FastEval<'_>>> {
+        self.terms.iter().map(|t| t.expansion.fast()).collect()
+    }
+
     /// All sub-steps of one sample: `s.x ← map^M(s.x)`.
     #[inline]
     pub(crate) fn advance(&self, u: &[f64], h: &[f64], s: &mut SimScratch) {
+        self.advance_with(u, h, s, &[]);
+    }
+
+    /// [`advance`](Self::advance) with precomputed grid evaluators.
+    #[inline]
+    pub(crate) fn advance_with(
+        &self,
+        u: &[f64],
+        h: &[f64],
+        s: &mut SimScratch,
+        fast: &[Option<FastEval<'_>>],
+    ) {
         let n = self.n_states;
         let m = self.n_inputs;
         for _ in 0..self.substeps {
@@ -522,12 +550,16 @@ impl SparseStateSpace {
                 }
                 s.xn[i] = v;
             }
-            for t in &self.terms {
+            for (k, t) in self.terms.iter().enumerate() {
                 if let Target::State(i) = t.target {
                     Self::gather(&t.args, &s.x, u, &mut s.args);
-                    s.xn[i] +=
-                        t.expansion
-                            .eval_with(&s.args[..t.args.len()], None, false, &mut s.eval);
+                    let d = t.args.len();
+                    s.xn[i] += match fast.get(k) {
+                        Some(Some(f)) => f.eval(&s.args, d),
+                        _ => t
+                            .expansion
+                            .eval_with(&s.args[..d], None, false, &mut s.eval),
+                    };
                 }
             }
             for (k, hy) in self.hysteresis.iter().enumerate() {

@@ -2,8 +2,11 @@
 //! x_t = 0.9 x_{t-1} + N(0, 1), y_t = x_t + N(0, 0.5²), N = 10 000, T = 1000,
 //! systematic resampling at every step, log-likelihood computed.
 //!
-//! Run: `cargo bench -p gb-smc --bench filter`. Throughput is reported in
-//! particle-steps ("elements") per second.
+//! Run: `cargo bench -p gb-smc --bench filter` (`RAYON_NUM_THREADS=1` for the
+//! single-thread figure). Throughput is reported in particle-steps
+//! ("elements") per second. The filter is the library's public API
+//! (`ParticleFilter::run_with` with a reused `FilterWorkspace`); the model is
+//! the library's `LinearGaussian`, monomorphised.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use gb_smc::{FilterConfig, FilterWorkspace, LinearGaussian, Observations, Resampling};
 use std::hint::black_box;

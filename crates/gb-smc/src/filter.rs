@@ -15,7 +15,7 @@
 use crate::error::{Result, SmcError};
 use crate::model::{Observations, StateSpaceModel, StateVector};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{domain, stream, CHUNK, PAR_MIN, PAR_MIN_LIGHT};
+use crate::rng::{domain, stream, CHUNK, FILTER_PAR_MIN, PAR_MIN_LIGHT};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -49,7 +49,9 @@ pub struct FilterConfig {
     pub seed: u64,
     /// Keep all particles, weights and ancestors (needed by the smoothers).
     pub store_history: bool,
-    /// Use rayon over particle chunks (results do not depend on it).
+    /// Use rayon over particle chunks from
+    /// [`FILTER_PAR_MIN`](crate::rng::FILTER_PAR_MIN) particles up (results do
+    /// not depend on it).
     pub parallel: bool,
 }
 
@@ -588,21 +590,23 @@ fn finish_chunk(lc: &[f64], wc: &mut [f64], pc: &mut [f64]) -> ChunkStat {
 pub(crate) fn prefix_sums(w: &[f64], p: &mut [f64]) -> f64 {
     const B: usize = 64;
     const NB: usize = 8;
-    if w.len() == B * NB && p.len() == B * NB {
-        // the same sums, eight independent chains interleaved
-        let mut c = [0.0f64; NB];
-        for r in 0..B {
-            for l in 0..NB {
-                c[l] += w[l * B + r];
-                p[l * B + r] = c[l];
+    for (wg, pg) in w.chunks(B * NB).zip(p.chunks_mut(B * NB)) {
+        if wg.len() == B * NB && pg.len() == B * NB {
+            // the same sums, eight independent chains interleaved
+            let mut c = [0.0f64; NB];
+            for r in 0..B {
+                for l in 0..NB {
+                    c[l] += wg[l * B + r];
+                    pg[l * B + r] = c[l];
+                }
             }
-        }
-    } else {
-        for (wb, pb) in w.chunks(B).zip(p.chunks_mut(B)) {
-            let mut c = 0.0;
-            for (x, q) in wb.iter().zip(pb.iter_mut()) {
-                c += x;
-                *q = c;
+        } else {
+            for (wb, pb) in wg.chunks(B).zip(pg.chunks_mut(B)) {
+                let mut c = 0.0;
+                for (x, q) in wb.iter().zip(pb.iter_mut()) {
+                    c += x;
+                    *q = c;
+                }
             }
         }
     }
@@ -670,7 +674,7 @@ fn task<M: StateSpaceModel>(isa: Isa, ctx: &Ctx<'_, M>, item: Item<'_, M::State>
     }
 }
 
-/// Runs all output chunks of one step (rayon above `PAR_MIN` particles).
+/// Runs all output chunks of one step (rayon from `FILTER_PAR_MIN` particles up).
 #[allow(clippy::too_many_arguments)]
 fn run_step<M: StateSpaceModel>(
     isa: Isa,
@@ -683,7 +687,7 @@ fn run_step<M: StateSpaceModel>(
     anc: &mut [usize],
     stats: &mut Vec<ChunkStat>,
 ) {
-    if parallel && x.len() >= PAR_MIN {
+    if parallel && x.len() >= FILTER_PAR_MIN {
         x.par_chunks_mut(CHUNK)
             .zip(lw.par_chunks_mut(CHUNK))
             .zip(w.par_chunks_mut(CHUNK))
@@ -801,7 +805,7 @@ impl ParticleFilter {
 
     /// Runs the filter with reusable buffers, calling `observer` at every step.
     ///
-    /// With `parallel` and `N ≥ 4096` (one rayon fork-join per time step), the
+    /// With `parallel` and `N ≥ FILTER_PAR_MIN` (16 384; one rayon fork-join per time step), the
     /// run is moved onto a rayon worker when called from outside the pool, so
     /// that the thread driving the time loop takes part in every step instead of
     /// sleeping on a latch and being woken at every step; `observer` then runs
@@ -819,7 +823,7 @@ impl ParticleFilter {
     {
         let isa = Isa::detect();
         if self.config.parallel
-            && self.config.n_particles >= PAR_MIN
+            && self.config.n_particles >= FILTER_PAR_MIN
             && rayon::current_thread_index().is_none()
         {
             rayon::scope(|_| self.run_impl(isa, model, obs, ws, observer))
@@ -946,7 +950,7 @@ impl ParticleFilter {
                 // log η_t(x_{t-1}^i)
                 let (x, aux) = (&ws.x, &mut ws.aux);
                 let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
-                if par && n >= PAR_MIN {
+                if par && n >= FILTER_PAR_MIN {
                     aux.par_iter_mut().zip(x.par_iter()).for_each(map);
                 } else {
                     aux.iter_mut().zip(x.iter()).for_each(map);
@@ -1226,7 +1230,7 @@ mod tests {
                 (Resampling::Systematic, 0.5),
                 (Resampling::Stratified, 1.0),
             ] {
-                let pf = FilterConfig::new(1500)
+                let pf = FilterConfig::new(5000)
                     .kind(kind)
                     .resampling(rs)
                     .ess_threshold(tau)

@@ -19,7 +19,8 @@ fn filter_is_thread_count_invariant() {
         FilterKind::Auxiliary,
     ] {
         for rs in [Resampling::Systematic, Resampling::Multinomial] {
-            let cfg = FilterConfig::new(5000)
+            // above FILTER_PAR_MIN: the steps run on rayon
+            let cfg = FilterConfig::new(17_000)
                 .kind(kind)
                 .resampling(rs)
                 .seed(9)
@@ -41,7 +42,7 @@ fn filter_is_thread_count_invariant() {
                 assert_eq!(ha.weights, ho.weights);
             }
             // a different seed gives a different estimate
-            let d = FilterConfig::new(5000)
+            let d = FilterConfig::new(17_000)
                 .kind(kind)
                 .resampling(rs)
                 .seed(10)
@@ -57,12 +58,20 @@ fn filter_is_thread_count_invariant() {
 #[test]
 fn bootstrap_fast_path_is_thread_count_invariant() {
     // The benchmark configuration (bootstrap, systematic resampling at every
-    // step, no history): batch moves, resampling inside the parallel chunk
-    // tasks. Also N not a multiple of the chunk size, and adaptive resampling.
+    // step, no history): batch moves, resampling inside the chunk tasks, on
+    // rayon (N ≥ FILTER_PAR_MIN) or serially (N = 10 000, the benchmark size,
+    // runs its steps on the calling thread; `parallel(false)` is compared too).
+    // Also N not a multiple of the chunk size, and adaptive resampling.
     let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
-    let (_, y) = model.simulate(80, 11);
+    let (_, y) = model.simulate(60, 11);
     let obs = Observations::new(&y);
-    for (n, tau) in [(10_000usize, 1.0), (9_000, 1.0), (6_001, 0.5)] {
+    const { assert!(16_500 >= gb_smc::rng::FILTER_PAR_MIN) };
+    for (n, tau) in [
+        (20_000usize, 1.0),
+        (17_001, 1.0),
+        (16_500, 0.5),
+        (10_000, 1.0),
+    ] {
         let cfg = FilterConfig::new(n)
             .resampling(Resampling::Systematic)
             .ess_threshold(tau)
@@ -87,7 +96,7 @@ fn bootstrap_fast_path_is_thread_count_invariant() {
             );
             assert_eq!(bits(&a.ess), bits(&o.ess));
         }
-        // and the estimate is sensible (T = 80: within a few nats of the exact value)
+        // and the estimate is sensible (T = 60: within a few nats of the exact value)
         let exact = gb_smc::KalmanFilter::new(&model)
             .filter(&y)
             .unwrap()

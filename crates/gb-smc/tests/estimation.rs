@@ -77,8 +77,8 @@ fn pmmh_observer_and_determinism() {
     let truth = LinearGaussian::ar1(TRUTH[0], TRUTH[1], 0.5).unwrap();
     let (_, y) = truth.simulate(50, 1);
     let obs = Observations::new(&y);
-    // 5000 particles: above PAR_MIN, so the inner filter runs in parallel
-    let mut cfg = PmmhConfig::new(5000, 25, vec![0.05, 0.08]);
+    // 17 000 particles: above FILTER_PAR_MIN, so the inner filter runs in parallel
+    let mut cfg = PmmhConfig::new(17_000, 25, vec![0.05, 0.08]);
     cfg.adapt_start = 10;
     cfg.seed = 3;
     let pmmh = Pmmh::new(cfg).unwrap();

@@ -75,7 +75,7 @@ fn filter_systematic_offspring_counts_are_floor_or_ceil() {
     use gb_smc::{FilterConfig, LinearGaussian, Observations};
     let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
     let (_, y) = model.simulate(40, 3);
-    for n in [7usize, 512, 3000, 5121] {
+    for n in [7usize, 512, 3000, 4096, 5121] {
         let pf = FilterConfig::new(n)
             .ess_threshold(1.0)
             .store_history(true)

@@ -1,0 +1,167 @@
+//! Known-physics (grey-box) structures built from the best linear model.
+use crate::basis::SparseExpansion;
+use crate::error::{ModelError, Result};
+use crate::everett::WaveletEverett;
+use crate::identify::{Observer, OeParams, OeReport};
+use crate::linear::linear_from_oe;
+use crate::model::{HysteresisTerm, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
+
+/// Continuous-time `(ω², 2ζω, 1/m)` of a 2-state, 1-input discrete model with
+/// complex poles, from `s = ln λ / Ts` and the static gain (`1/m = ω²·G(1)`).
+pub fn second_order_parameters(lin: &SparseStateSpace, ts: f64) -> Result<(f64, f64, f64)> {
+    if lin.n_states != 2 || lin.n_inputs != 1 || !(ts > 0.0 && ts.is_finite()) {
+        return Err(ModelError::InvalidArgument(
+            "a 2-state, 1-input model and a sample time > 0 are needed".into(),
+        ));
+    }
+    let a = &lin.a;
+    let tr = a[0] + a[3];
+    let det = a[0] * a[3] - a[1] * a[2];
+    let re = 0.5 * tr;
+    let disc = det - re * re;
+    if disc <= 0.0 || det <= 0.0 {
+        return Err(ModelError::InvalidArgument(
+            "the linear model has no complex pole pair (not an oscillator)".into(),
+        ));
+    }
+    let im = disc.sqrt();
+    let s_re = (re * re + im * im).sqrt().ln() / ts;
+    let s_im = im.atan2(re) / ts;
+    let w2 = s_re * s_re + s_im * s_im;
+    let (i11, i12, i21, i22) = (1.0 - a[0], -a[1], -a[2], 1.0 - a[3]);
+    let idet = i11 * i22 - i12 * i21;
+    if idet.abs() < 1e-300 {
+        return Err(ModelError::Numerical("integrating linear model".into()));
+    }
+    let x1 = (i22 * lin.b[0] - i12 * lin.b[1]) / idet;
+    let x2 = (-i21 * lin.b[0] + i11 * lin.b[1]) / idet;
+    let dc = lin.c[0] * x1 + lin.c[1] * x2 + lin.d[0];
+    Ok((w2, -2.0 * s_re, w2 * dc))
+}
+
+/// The second-order mechanical structure `ÿ = −ω² y − 2ζω ẏ + u/m (− z)`
+/// equivalent to `lin` (2 states, 1 input, sample time `ts`), discretised
+/// with `substeps` sub-steps; the output is the position.
+///
+/// * `hysteretic = false`: states `(y, v)`, the kinematics row
+///   `y⁺ = y + h v` fixed (explicit Euler), the velocity row and `b₂` free
+///   (known physics);
+/// * `hysteretic = true`: states `(y, v, z)` with a restoring force z of its
+///   own dynamics `ż = (ω²/2) v` (stiffness split equally between `k y` and
+///   z, so the start equals `lin`), symplectic Euler; all of `A`, `b₁, b₂`
+///   and `x₀` free — the
+///   Bouc-Wen shape, ready for a wavelet term `f(v, z)` on row 2.
+///
+/// ```
+/// let lin = gb_model::SparseStateSpace::linear(
+///     vec![1.6, 1.0, -0.8, 0.0], vec![0.1, 0.05], vec![1.0, 0.0], vec![0.0])?;
+/// let m = gb_model::second_order(&lin, 0.01, 4, true)?;
+/// assert_eq!(m.n_states, 3);
+/// let u = vec![(0..200).map(|t| (t as f64 * 0.1).sin()).collect::<Vec<f64>>()];
+/// let (a, b) = (lin.simulate(&u)?, m.simulate(&u)?);
+/// let e = gb_core::metrics::nrmse(&a, &b)?;
+/// assert!(e < 0.05, "{e}");
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn second_order(
+    lin: &SparseStateSpace,
+    ts: f64,
+    substeps: usize,
+    hysteretic: bool,
+) -> Result<SparseStateSpace> {
+    let (w2, cc, gain) = second_order_parameters(lin, ts)?;
+    let substeps = substeps.max(1);
+    let h = ts / substeps as f64;
+    let mut m = if hysteretic {
+        let k = 0.5 * w2;
+        let a = vec![
+            1.0 - h * h * k,
+            h * (1.0 - h * cc),
+            -h * h,
+            -h * k,
+            1.0 - h * cc,
+            -h,
+            0.0,
+            h * k,
+            1.0,
+        ];
+        let mut m = SparseStateSpace::linear(
+            a,
+            vec![h * h * gain, h * gain, 0.0],
+            vec![1.0, 0.0, 0.0],
+            vec![0.0],
+        )?;
+        m.structure = Structure {
+            a: vec![true; 9],
+            b: vec![true, true, false],
+            c: vec![false; 3],
+            d: vec![false],
+            x0: vec![true; 3],
+            y_offset: false,
+        };
+        m
+    } else {
+        let a = vec![1.0, h, -h * w2, 1.0 - h * cc];
+        let mut m = SparseStateSpace::linear(a, vec![0.0, h * gain], vec![1.0, 0.0], vec![0.0])?;
+        m.structure = Structure {
+            a: vec![false, false, true, true],
+            b: vec![false, true],
+            c: vec![false; 2],
+            d: vec![false],
+            x0: vec![false; 2],
+            y_offset: false,
+        };
+        m
+    };
+    m.substeps = substeps;
+    m.y_offset = 0.0;
+    Ok(m)
+}
+
+/// A black-box start for data without known physics (the CLI's
+/// `--model state-space[+preisach]`): the best linear model of `order`
+/// (`gb-lmn` OE) in observer form, a 2-D wavelet term `f(x₁, u₁)` on the
+/// first state row, optionally a Preisach component of the first input on
+/// the output; identified by output error (levels 1–3, boxes fitted to the
+/// linear simulation). `names`: the inputs' and the output's names.
+pub fn fit_state_space(
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    order: usize,
+    preisach: bool,
+    names: Vec<String>,
+    obs: &mut dyn Observer,
+) -> Result<(SparseStateSpace, OeReport)> {
+    if inputs.is_empty() {
+        return Err(ModelError::InvalidArgument(
+            "the state-space model needs at least one input".into(),
+        ));
+    }
+    let mut m = linear_from_oe(inputs, y, order.max(1))?;
+    m.signal_names = names;
+    let (lo, hi) = inputs[0]
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(a, b), v| (a.min(*v), b.max(*v)));
+    let span = (hi - lo).max(1e-12);
+    // placeholder box; OeParams::adapt_boxes fits it to the linear simulation
+    m.terms.push(NonlinearTerm {
+        target: Target::State(0),
+        args: vec![Signal::State(0), Signal::Input(0)],
+        expansion: SparseExpansion::new("bior2.2", vec![-1.0, lo], vec![1.0, lo + span])?,
+    });
+    if preisach {
+        let (a, b) = (lo - 0.05 * span, hi + 0.05 * span);
+        m.hysteresis.push(HysteresisTerm {
+            target: Target::Output,
+            input: 0,
+            everett: WaveletEverett::new(SparseExpansion::new("bior2.2", vec![a, a], vec![b, b])?)?,
+        });
+    }
+    m.check()?;
+    OeParams::new()
+        .coarse_level(1)
+        .max_level(3)
+        .adapt_boxes(true)
+        .check()?
+        .fit(m, inputs, y, obs)
+}
