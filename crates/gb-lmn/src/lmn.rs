@@ -594,10 +594,10 @@ impl LmnModel {
                 "the simulation diverged on these inputs".into(),
             ));
         }
-        Ok(out
-            .iter()
-            .map(|&v| self.output_scaling.from_norm(v))
-            .collect())
+        for v in out.iter_mut() {
+            *v = self.output_scaling.from_norm(*v);
+        }
+        Ok(out)
     }
 
     /// One-step-ahead prediction (NARX, measured output lags), physical

@@ -57,9 +57,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("linear OE (order 2, inputs D, V, Y): test free-run NRMSE {e_lin:.4}");
 
     // grey-box start: z a low-passed velocity, w a low-passed voltage
+    let az: f64 = std::env::var("MR_AZ")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(0.95);
     let mut start = SparseStateSpace::linear(
-        vec![0.95, 0.0, 0.0, 0.95],
-        vec![0.0, 0.05, 0.0, 0.0, 0.0, 0.05],
+        vec![az, 0.0, 0.0, 0.95],
+        vec![0.0, 1.0 - az, 0.0, 0.0, 0.0, 0.05],
         vec![0.0, 0.0],
         vec![0.0, 0.0, 0.0],
     )?;
