@@ -650,15 +650,14 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
             fit_s,
             samples: n,
             train_rows: train.len(),
-            class: match &class {
-                Some((f, text, rows, secs)) => Some((
+            class: class.as_ref().map(|(f, text, rows, secs)| {
+                (
                     score_class(f, d, t.init).ok().map(|v| v * b.factor),
                     text.clone(),
                     *rows,
                     *secs,
-                )),
-                None => None,
-            },
+                )
+            }),
         });
     }
     Ok(out)
