@@ -210,12 +210,12 @@ fn benchmarks() -> Vec<Benchmark> {
             integrating: false,
             class: Some(BestClass::Lmn {
                 na: 5,
-                nb: 5,
+                nb: 7,
                 nk: 0,
                 degree: 3,
                 leaves: 1,
                 lm: 40,
-                train_rows: 30000,
+                train_rows: 100000,
             }),
             tests: vec![TestSet {
                 name: "test",
