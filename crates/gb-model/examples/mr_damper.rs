@@ -15,6 +15,12 @@
 //! ```sh
 //! cargo run --release -p gb-model --example mr_damper [-- OUT_DIR]
 //! ```
+//!
+//! Variants (environment): `MR_3D=0` (2-D terms f(V, z), g(z, w), g(V, w)),
+//! `MR_W2=1` (second-order voltage filter), `MR_WNL=1` (nonlinear voltage
+//! filter), `MR_PREISACH=1` (Preisach operator of D on the force), `MR_Z2=1`
+//! (second hysteretic state), `MR_SUB`, `MR_LEVEL`, `MR_COARSE`, `MR_ITER`,
+//! `MR_AZ`, `MR_ADAPT=1`; see docs/model.md for their results.
 use gb_core::{metrics, CsvTable};
 use gb_model::{
     linear_from_oe, NonlinearTerm, OeParams, ProgressBar, Signal, SparseExpansion,
@@ -203,7 +209,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         });
     }
     let fit = OeParams::new()
-        .adapt_boxes(std::env::var("MR_ADAPT").map(|v| v != "0").unwrap_or(true))
+        .adapt_boxes(std::env::var("MR_ADAPT").map(|v| v == "1").unwrap_or(false))
         .max_iter(
             std::env::var("MR_ITER")
                 .ok()
