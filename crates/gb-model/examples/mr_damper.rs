@@ -16,6 +16,8 @@
 //! cargo run --release -p gb-model --example mr_damper [-- OUT_DIR]
 //! ```
 //!
+//! By default two more linear states model a resonance (150 Hz start) seen
+//! in the force (`MR_RES=0` without it; `MR_RES_HZ` its start frequency).
 //! Variants (environment): `MR_3D=0` (2-D terms f(V, z), g(z, w), g(V, w)),
 //! `MR_W2=1` (second-order voltage filter), `MR_WNL=1` (nonlinear voltage
 //! filter), `MR_PREISACH=1` (Preisach operator of D on the force), `MR_Z2=1`
@@ -125,6 +127,56 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             x0: vec![false; 3],
             y_offset: true,
         };
+    }
+    if std::env::var("MR_RES").map(|v| v != "0").unwrap_or(true) {
+        // two more linear states: a resonance (test rig / load cell) driven
+        // by the inputs and by z, seen in the force
+        let n0 = start.n_states;
+        let n1 = n0 + 2;
+        let freq: f64 = std::env::var("MR_RES_HZ")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(150.0);
+        let th = std::f64::consts::TAU * freq / 3004.8;
+        let r = 0.97;
+        let mut a = vec![0.0; n1 * n1];
+        let mut af = vec![false; n1 * n1];
+        for i in 0..n0 {
+            for j in 0..n0 {
+                a[i * n1 + j] = start.a[i * n0 + j];
+                af[i * n1 + j] = start.structure.a[i * n0 + j];
+            }
+        }
+        let (p, q) = (n0, n0 + 1);
+        a[p * n1 + p] = r * th.cos();
+        a[p * n1 + q] = -r * th.sin();
+        a[q * n1 + p] = r * th.sin();
+        a[q * n1 + q] = r * th.cos();
+        for i in [p, q] {
+            for j in [p, q] {
+                af[i * n1 + j] = true;
+            }
+            af[i * n1] = true; // driven by z
+        }
+        let m = start.n_inputs;
+        let mut b = start.b.clone();
+        let mut bf = start.structure.b.clone();
+        b.extend(vec![0.0; 2 * m]);
+        bf.extend(vec![true; 2 * m]);
+        b[p * m + 1] = 0.01;
+        start.n_states = n1;
+        start.a = a;
+        start.b = b;
+        start.c.extend([0.0, 0.0]);
+        start.x0.extend([0.0, 0.0]);
+        start.process_noise.extend([
+            gb_model::NoiseModel::Gaussian { sd: 0.0 },
+            gb_model::NoiseModel::Gaussian { sd: 0.0 },
+        ]);
+        start.structure.a = af;
+        start.structure.b = bf;
+        start.structure.c.extend([true, true]);
+        start.structure.x0.extend([false, false]);
     }
     let ns = start.n_states;
     let (_, xs) = start.simulate_states(&fit_in)?;
