@@ -16,8 +16,10 @@
 //! cargo run --release -p gb-model --example mr_damper [-- OUT_DIR]
 //! ```
 //!
-//! By default two more linear states model a resonance (150 Hz start) seen
-//! in the force (`MR_RES=0` without it; `MR_RES_HZ` its start frequency).
+//! By default two more states model a resonance (150 Hz start) seen in the
+//! force, driven by the inputs, z and a 3-D wavelet term of (V, z, w)
+//! (`MR_RES=0` without it, `MR_RESNL=0` without its nonlinear drive;
+//! `MR_RES_HZ` its start frequency).
 //! Variants (environment): `MR_3D=0` (2-D terms f(V, z), g(z, w), g(V, w)),
 //! `MR_W2=1` (second-order voltage filter), `MR_WNL=1` (nonlinear voltage
 //! filter), `MR_PREISACH=1` (Preisach operator of D on the force), `MR_Z2=1`
@@ -258,6 +260,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             target: Target::State(1),
             args: vec![Signal::Input(2), Signal::State(1)],
             expansion: SparseExpansion::new("bior2.2", vec![ylo - m, wl], vec![yhi + m, wh])?,
+        });
+    }
+    if ns >= 4 && std::env::var("MR_RESNL").map(|v| v != "0").unwrap_or(true) {
+        // the resonance driven by the nonlinear force as well
+        start.terms.push(NonlinearTerm {
+            target: Target::State(ns - 2),
+            args: vec![Signal::Input(1), Signal::State(0), Signal::State(1)],
+            expansion: SparseExpansion::new("bior2.2", vec![-vmax, zl, wl], vec![vmax, zh, wh])?,
         });
     }
     let fit = OeParams::new()
