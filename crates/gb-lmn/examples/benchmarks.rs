@@ -118,14 +118,13 @@ const SETUPS: &[Setup] = &[
         target: 2e-3,
         defaults: &[
             ("na", "5"),
-            ("nb", "5"),
+            ("nb", "7"),
             ("nk", "0"),
             ("zy", "1"),
             ("zu", "0"),
             ("degree", "3"),
             ("leaves", "1"),
             ("lm", "40"),
-            ("ntrain", "30000"),
         ],
     },
 ];

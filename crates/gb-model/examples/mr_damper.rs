@@ -15,6 +15,16 @@
 //! ```sh
 //! cargo run --release -p gb-model --example mr_damper [-- OUT_DIR]
 //! ```
+//!
+//! By default two more states model a resonance (150 Hz start) seen in the
+//! force, driven by the inputs, z and a 3-D wavelet term of (V, z, w)
+//! (`MR_RES=0` without it, `MR_RESNL=0` without its nonlinear drive;
+//! `MR_RES_HZ` its start frequency).
+//! Variants (environment): `MR_3D=0` (2-D terms f(V, z), g(z, w), g(V, w)),
+//! `MR_W2=1` (second-order voltage filter), `MR_WNL=1` (nonlinear voltage
+//! filter), `MR_PREISACH=1` (Preisach operator of D on the force), `MR_Z2=1`
+//! (second hysteretic state), `MR_SUB`, `MR_LEVEL`, `MR_COARSE`, `MR_ITER`,
+//! `MR_AZ`, `MR_ADAPT=1`; see docs/model.md for their results.
 use gb_core::{metrics, CsvTable};
 use gb_model::{
     linear_from_oe, NonlinearTerm, OeParams, ProgressBar, Signal, SparseExpansion,
@@ -120,6 +130,56 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             y_offset: true,
         };
     }
+    if std::env::var("MR_RES").map(|v| v != "0").unwrap_or(true) {
+        // two more linear states: a resonance (test rig / load cell) driven
+        // by the inputs and by z, seen in the force
+        let n0 = start.n_states;
+        let n1 = n0 + 2;
+        let freq: f64 = std::env::var("MR_RES_HZ")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(150.0);
+        let th = std::f64::consts::TAU * freq / 3004.8;
+        let r = 0.97;
+        let mut a = vec![0.0; n1 * n1];
+        let mut af = vec![false; n1 * n1];
+        for i in 0..n0 {
+            for j in 0..n0 {
+                a[i * n1 + j] = start.a[i * n0 + j];
+                af[i * n1 + j] = start.structure.a[i * n0 + j];
+            }
+        }
+        let (p, q) = (n0, n0 + 1);
+        a[p * n1 + p] = r * th.cos();
+        a[p * n1 + q] = -r * th.sin();
+        a[q * n1 + p] = r * th.sin();
+        a[q * n1 + q] = r * th.cos();
+        for i in [p, q] {
+            for j in [p, q] {
+                af[i * n1 + j] = true;
+            }
+            af[i * n1] = true; // driven by z
+        }
+        let m = start.n_inputs;
+        let mut b = start.b.clone();
+        let mut bf = start.structure.b.clone();
+        b.extend(vec![0.0; 2 * m]);
+        bf.extend(vec![true; 2 * m]);
+        b[p * m + 1] = 0.01;
+        start.n_states = n1;
+        start.a = a;
+        start.b = b;
+        start.c.extend([0.0, 0.0]);
+        start.x0.extend([0.0, 0.0]);
+        start.process_noise.extend([
+            gb_model::NoiseModel::Gaussian { sd: 0.0 },
+            gb_model::NoiseModel::Gaussian { sd: 0.0 },
+        ]);
+        start.structure.a = af;
+        start.structure.b = bf;
+        start.structure.c.extend([true, true]);
+        start.structure.x0.extend([false, false]);
+    }
     let ns = start.n_states;
     let (_, xs) = start.simulate_states(&fit_in)?;
     let span = |i: usize| {
@@ -202,8 +262,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             expansion: SparseExpansion::new("bior2.2", vec![ylo - m, wl], vec![yhi + m, wh])?,
         });
     }
+    if ns >= 4 && std::env::var("MR_RESNL").map(|v| v != "0").unwrap_or(true) {
+        // the resonance driven by the nonlinear force as well
+        start.terms.push(NonlinearTerm {
+            target: Target::State(ns - 2),
+            args: vec![Signal::Input(1), Signal::State(0), Signal::State(1)],
+            expansion: SparseExpansion::new("bior2.2", vec![-vmax, zl, wl], vec![vmax, zh, wh])?,
+        });
+    }
     let fit = OeParams::new()
-        .adapt_boxes(std::env::var("MR_ADAPT").map(|v| v != "0").unwrap_or(true))
+        .adapt_boxes(std::env::var("MR_ADAPT").map(|v| v == "1").unwrap_or(false))
         .max_iter(
             std::env::var("MR_ITER")
                 .ok()
