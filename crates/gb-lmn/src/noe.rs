@@ -565,8 +565,8 @@ impl LocalModelNetwork {
                 let g = gx[i - 1];
                 if g != 0.0 && k >= i + k0 {
                     let base = ((k - i) % ring) * np;
-                    for q in 0..np {
-                        snew[q] += g * sy[base + q];
+                    for (d, v) in snew.iter_mut().zip(&sy[base..base + np]) {
+                        *d += g * v;
                     }
                 }
             }
@@ -578,8 +578,9 @@ impl LocalModelNetwork {
                 for r in 0..nop {
                     let g = gx[nd + l * b + r];
                     if g != 0.0 {
-                        for q in 0..np {
-                            snew[q] += g * sp[base + r * np + q];
+                        let src = &sp[base + r * np..base + (r + 1) * np];
+                        for (d, v) in snew.iter_mut().zip(src) {
+                            *d += g * v;
                         }
                     }
                 }
@@ -591,9 +592,10 @@ impl LocalModelNetwork {
             cost += w * e * e;
             let sw = w.sqrt();
             let row = &mut sblk[nblk * np..(nblk + 1) * np];
-            for a in 0..np {
-                jtr[a] += w * snew[a] * e;
-                row[a] = sw * snew[a];
+            let (we, jr) = (w * e, jtr.as_mut_slice());
+            for ((r, j), v) in row.iter_mut().zip(jr.iter_mut()).zip(&snew) {
+                *j += we * v;
+                *r = sw * v;
             }
             nblk += 1;
             if nblk == BLOCK {
