@@ -198,6 +198,30 @@ impl DataSet {
     }
 }
 
+/// The folder of real benchmark data: `$GREYBOX_DATA` if set, else
+/// `default` (by convention `../shared/data` beside the checkout). `None`,
+/// with a one-line notice on stderr naming the folder, when it (or its
+/// `needs` sub-folder) is absent — how tests and examples skip without data.
+///
+/// ```
+/// let d = gb_core::benchmark_data_dir(std::path::Path::new("/nonexistent"), "");
+/// assert!(d.is_none() || std::env::var_os("GREYBOX_DATA").is_some());
+/// ```
+pub fn benchmark_data_dir(default: &std::path::Path, needs: &str) -> Option<std::path::PathBuf> {
+    let d = std::env::var_os("GREYBOX_DATA")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| default.to_path_buf());
+    if d.join(needs).is_dir() {
+        Some(d)
+    } else {
+        eprintln!(
+            "notice: real-data run skipped: {} not found (set GREYBOX_DATA)",
+            d.join(needs).display()
+        );
+        None
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -26,6 +26,6 @@ pub mod rng;
 pub mod special;
 
 pub use csv_io::{write_atomic, write_csv_atomic, CsvTable};
-pub use data::{BlockSplit, DataSet};
+pub use data::{benchmark_data_dir, BlockSplit, DataSet};
 pub use error::CoreError;
 pub use model::{Model, Simulate};

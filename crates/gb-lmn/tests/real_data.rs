@@ -6,18 +6,8 @@ use gb_lmn::{Experiment, Focus, LmnParams, RegressorSpec, WeightKind};
 use std::path::PathBuf;
 
 fn data_dir() -> Option<PathBuf> {
-    let d = std::env::var_os("GREYBOX_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    if d.is_dir() {
-        Some(d)
-    } else {
-        eprintln!(
-            "real-data test skipped: {} not found (set GREYBOX_DATA)",
-            d.display()
-        );
-        None
-    }
+    let default = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    gb_core::benchmark_data_dir(&default, "")
 }
 
 fn load(p: PathBuf) -> Experiment {

@@ -8,18 +8,8 @@ use gb_model::{
 use std::path::PathBuf;
 
 fn data_dir() -> Option<PathBuf> {
-    let d = std::env::var_os("GREYBOX_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    if d.join("bouc_wen").is_dir() {
-        Some(d)
-    } else {
-        eprintln!(
-            "real-data test skipped: {} not found (set GREYBOX_DATA)",
-            d.display()
-        );
-        None
-    }
+    let default = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    gb_core::benchmark_data_dir(&default, "bouc_wen")
 }
 
 fn load(p: PathBuf) -> (Vec<f64>, Vec<f64>) {

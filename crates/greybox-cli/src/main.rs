@@ -635,26 +635,43 @@ fn run_simulate_state_space(a: &SimulateArgs, bytes: &[u8]) -> Result<()> {
         .collect::<std::result::Result<_, _>>()
         .map_err(|e| e.to_string())?;
     let sim = m.simulate(&inputs).map_err(|e| e.to_string())?;
-    let y = t.column(&out_name).ok().map(<[f64]>::to_vec);
+    let y = t.column(&out_name).ok();
+    // the state starts from the model's x0; --init-window only excludes the
+    // first samples from the printed errors
+    write_simulation(&a.out, &in_names, &inputs, y, &sim, a.init_window)
+}
+
+/// Writes the inputs, the measured output (if any) and `y_sim` to `out`
+/// (atomically), then prints the errors over samples `n0..`.
+fn write_simulation(
+    out: &Path,
+    in_names: &[String],
+    inputs: &[Vec<f64>],
+    y: Option<&[f64]>,
+    sim: &[f64],
+    n0: usize,
+) -> Result<()> {
     let mut names: Vec<&str> = in_names.iter().map(String::as_str).collect();
     let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
-    if let Some(y) = &y {
+    if let Some(y) = y {
         names.push("y");
         cols.push(y);
     }
     names.push("y_sim");
-    cols.push(&sim);
-    gb_core::write_csv_atomic(&a.out, &names, &cols).map_err(|e| e.to_string())?;
-    if let Some(y) = &y {
-        let rmse = gb_core::metrics::rmse(y, &sim).map_err(|e| e.to_string())?;
-        let nrmse = gb_core::metrics::nrmse(y, &sim).map_err(|e| e.to_string())?;
+    cols.push(sim);
+    gb_core::write_csv_atomic(out, &names, &cols).map_err(|e| e.to_string())?;
+    if let Some(y) = y {
+        let n0 = n0.min(y.len().saturating_sub(1));
+        let rmse = gb_core::metrics::rmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
+        let nrmse = gb_core::metrics::nrmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
         println!(
-            "samples 0..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
+            "samples {}..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
+            n0,
             y.len(),
             100.0 * (1.0 - nrmse)
         );
     }
-    println!("simulation written to {}", a.out.display());
+    println!("simulation written to {}", out.display());
     Ok(())
 }
 
@@ -699,28 +716,14 @@ fn run_simulate(a: SimulateArgs) -> Result<()> {
         _ => m.simulate(&inputs, &init).map_err(Into::into),
     }
     .map_err(|e| e.to_string())?;
-    let mut names: Vec<&str> = m.input_names.iter().map(String::as_str).collect();
-    let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
-    if let Some(y) = &y {
-        names.push("y");
-        cols.push(y);
-    }
-    names.push("y_sim");
-    cols.push(&sim);
-    gb_core::write_csv_atomic(&a.out, &names, &cols).map_err(|e| e.to_string())?;
-    if let Some(y) = &y {
-        let n0 = a.init_window.min(y.len().saturating_sub(1));
-        let rmse = gb_core::metrics::rmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
-        let nrmse = gb_core::metrics::nrmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
-        println!(
-            "samples {}..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
-            n0,
-            y.len(),
-            100.0 * (1.0 - nrmse)
-        );
-    }
-    println!("simulation written to {}", a.out.display());
-    Ok(())
+    write_simulation(
+        &a.out,
+        &m.input_names,
+        &inputs,
+        y.as_deref(),
+        &sim,
+        a.init_window,
+    )
 }
 
 fn run_generate(a: GenerateArgs) -> Result<()> {
