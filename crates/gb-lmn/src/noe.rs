@@ -183,32 +183,98 @@ pub struct TrainReport {
     pub mse_final: f64,
 }
 
-/// G += BᵀB for a row-major block B (`rows` × n, n = G's size) of
-/// sensitivity rows: one packed GEMM (matrixmultiply) per block.
+/// Upper triangle of G += BᵀB for a row-major block B (`rows` × n, n = G's
+/// size) of sensitivity rows: packed GEMMs (matrixmultiply) on column
+/// panels, each covering rows 0..end of its panel, so about (1/2 + 1/2P) of
+/// the full product's flops. Call [`mirror_upper`] once after the last block.
 fn add_gram(g: &mut DMatrix<f64>, block: &[f64], rows: usize) {
     let n = g.nrows();
     assert!(g.ncols() == n && block.len() >= rows * n);
-    // SAFETY: Bᵀ is n × rows with strides (1, n) into `block`, B is rows × n
-    // with strides (n, 1) into `block` (both within block[..rows·n], checked
-    // above), and G is n × n column-major with strides (1, n); G does not
-    // alias `block`.
-    unsafe {
-        matrixmultiply::dgemm(
-            n,
-            rows,
-            n,
-            1.0,
-            block.as_ptr(),
-            1,
-            n as isize,
-            block.as_ptr(),
-            n as isize,
-            1,
-            1.0,
-            g.as_mut_ptr(),
-            1,
-            n as isize,
+    let panels = if n >= 96 { 4 } else { 1 };
+    for p in 0..panels {
+        let (j0, j1) = (n * p / panels, n * (p + 1) / panels);
+        if j1 == j0 {
+            continue;
+        }
+        // SAFETY: Bᵀ restricted to rows 0..j1 is j1 × rows with strides
+        // (1, n) into `block`; B restricted to columns j0..j1 is rows ×
+        // (j1 − j0) with strides (n, 1) starting at block[j0]; both stay
+        // within block[..rows·n] (checked above). C is G's columns j0..j1,
+        // rows 0..j1: strides (1, n) starting at G[(0, j0)], inside the n × n
+        // column-major storage. G does not alias `block`.
+        unsafe {
+            matrixmultiply::dgemm(
+                j1,
+                rows,
+                j1 - j0,
+                1.0,
+                block.as_ptr(),
+                1,
+                n as isize,
+                block.as_ptr().add(j0),
+                n as isize,
+                1,
+                1.0,
+                g.as_mut_ptr().add(j0 * n),
+                1,
+                n as isize,
+            );
+        }
+    }
+}
+
+/// dst += Σ_j c_j · src[o_j .. o_j + len] over `terms` = [(c_j, o_j)], four
+/// rows per pass over `dst` (a quarter of the loads and stores of one axpy
+/// per row).
+#[inline]
+fn axpy_rows(dst: &mut [f64], src: &[f64], terms: &[(f64, usize)]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above).
+        unsafe { axpy_rows_avx2(dst, src, terms) };
+        return;
+    }
+    axpy_rows_portable(dst, src, terms);
+}
+
+/// [`axpy_rows`] compiled for AVX2 (4-wide; no FMA, so the rounding is the
+/// same as the portable version's and results do not depend on the CPU).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn axpy_rows_avx2(dst: &mut [f64], src: &[f64], terms: &[(f64, usize)]) {
+    axpy_rows_portable(dst, src, terms);
+}
+
+#[inline(always)]
+fn axpy_rows_portable(dst: &mut [f64], src: &[f64], terms: &[(f64, usize)]) {
+    let n = dst.len();
+    let mut quads = terms.chunks_exact(4);
+    for t in &mut quads {
+        let (a, b, c, d) = (
+            &src[t[0].1..t[0].1 + n],
+            &src[t[1].1..t[1].1 + n],
+            &src[t[2].1..t[2].1 + n],
+            &src[t[3].1..t[3].1 + n],
         );
+        let (ga, gb, gc, gd) = (t[0].0, t[1].0, t[2].0, t[3].0);
+        for q in 0..n {
+            dst[q] += (ga * a[q] + gb * b[q]) + (gc * c[q] + gd * d[q]);
+        }
+    }
+    for &(g, o) in quads.remainder() {
+        for (x, v) in dst.iter_mut().zip(&src[o..o + n]) {
+            *x += g * v;
+        }
+    }
+}
+
+/// Copy the upper triangle of a square matrix onto its lower triangle.
+fn mirror_upper(g: &mut DMatrix<f64>) {
+    let n = g.nrows();
+    for j in 0..n {
+        for i in j + 1..n {
+            g[(i, j)] = g[(j, i)];
+        }
     }
 }
 
@@ -527,11 +593,13 @@ impl LocalModelNetwork {
         let mut gt = vec![0.0; np];
         let mut gx = vec![0.0; x.len()];
         let mut snew = vec![0.0; np];
+        // (coefficient, row offset) of the sensitivity rows ∂ŷ(k)/∂x feeds back
+        let mut terms: Vec<(f64, usize)> = Vec::with_capacity(na + lags * nop);
         let mut s: EvalScratch = self.scratch();
         let mut cost = 0.0;
         // Sensitivity rows are gathered in blocks and JᵀWJ is updated with one
         // matrix product per block (SIMD GEMM instead of rank-1 updates).
-        const BLOCK: usize = 64;
+        const BLOCK: usize = 256;
         let mut sblk = vec![0.0; BLOCK * np];
         let mut nblk = 0;
         for k in k0..n {
@@ -561,15 +629,15 @@ impl LocalModelNetwork {
             }
             out[k] = v;
             snew.copy_from_slice(&gt);
+            terms.clear();
             for i in 1..=na {
                 let g = gx[i - 1];
                 if g != 0.0 && k >= i + k0 {
-                    let base = ((k - i) % ring) * np;
-                    for (d, v) in snew.iter_mut().zip(&sy[base..base + np]) {
-                        *d += g * v;
-                    }
+                    terms.push((g, ((k - i) % ring) * np));
                 }
             }
+            axpy_rows(&mut snew, &sy, &terms);
+            terms.clear();
             for l in 0..lags {
                 if nop == 0 || k < k0 + l {
                     break;
@@ -578,13 +646,11 @@ impl LocalModelNetwork {
                 for r in 0..nop {
                     let g = gx[nd + l * b + r];
                     if g != 0.0 {
-                        let src = &sp[base + r * np..base + (r + 1) * np];
-                        for (d, v) in snew.iter_mut().zip(src) {
-                            *d += g * v;
-                        }
+                        terms.push((g, base + r * np));
                     }
                 }
             }
+            axpy_rows(&mut snew, &sp, &terms);
             let slot = (k % ring) * np;
             sy[slot..slot + np].copy_from_slice(&snew);
             let e = p.yn[k] - v;
@@ -606,6 +672,7 @@ impl LocalModelNetwork {
         if nblk > 0 {
             add_gram(jtj, &sblk, nblk);
         }
+        mirror_upper(jtj);
         Some(cost)
     }
 
@@ -836,7 +903,7 @@ pub(crate) fn weighted_ls(
     let mut ata = DMatrix::<f64>::zeros(p, p);
     let mut aty = DVector::<f64>::zeros(p);
     // AᵀWA by blocks of √w-scaled rows, one GEMM per block
-    const BLOCK: usize = 64;
+    const BLOCK: usize = 256;
     let mut blk = vec![0.0; BLOCK * p];
     let mut nb = 0;
     for k in 0..n {
@@ -860,6 +927,7 @@ pub(crate) fn weighted_ls(
     if nb > 0 {
         add_gram(&mut ata, &blk, nb);
     }
+    mirror_upper(&mut ata);
     let tr = (0..p).map(|i| ata[(i, i)]).sum::<f64>() / p.max(1) as f64;
     let reg = ridge.max(1e-12) * tr.max(1e-300);
     for i in 0..p {
@@ -1137,13 +1205,20 @@ mod tests {
 
     #[test]
     fn gram_block_matches_naive_sum() {
-        let (rows, n) = (37, 11);
+        for (rows, n) in [(37, 11), (64, 130), (5, 97)] {
+            gram_case(rows, n);
+        }
+    }
+
+    fn gram_case(rows: usize, n: usize) {
         let b: Vec<f64> = (0..rows * n)
             .map(|i| ((i * 7919) % 101) as f64 / 50.0 - 1.0)
             .collect();
         let mut g = DMatrix::from_fn(n, n, |i, j| (i + 2 * j) as f64);
         let g0 = g.clone();
         add_gram(&mut g, &b, rows);
+        mirror_upper(&mut g);
+        let g0 = DMatrix::from_fn(n, n, |i, j| g0[(i.min(j), i.max(j))]);
         for i in 0..n {
             for j in 0..n {
                 let naive: f64 = (0..rows).map(|k| b[k * n + i] * b[k * n + j]).sum();
