@@ -268,6 +268,58 @@ fn axpy_rows_portable(dst: &mut [f64], src: &[f64], terms: &[(f64, usize)]) {
     }
 }
 
+/// Solve A x = b for a symmetric positive definite A (n × n, column-major;
+/// its lower triangle is overwritten by the Cholesky factor L, A = L Lᵀ).
+/// Left-looking: column j of L is A[j.., j] − Σ_{k<j} L[j, k] L[j.., k],
+/// accumulated with the fused axpys of [`axpy_rows`], then scaled by
+/// 1/√L[j, j]; then L y = b and Lᵀ x = y. `None` if A is not positive
+/// definite (a non-positive or non-finite pivot).
+fn spd_solve(a: &mut [f64], n: usize, b: &[f64]) -> Option<Vec<f64>> {
+    assert!(a.len() >= n * n && b.len() >= n);
+    let mut terms: Vec<(f64, usize)> = Vec::with_capacity(n);
+    for j in 0..n {
+        let (left, right) = a.split_at_mut(j * n);
+        terms.clear();
+        for k in 0..j {
+            let ljk = left[k * n + j];
+            if ljk != 0.0 {
+                terms.push((-ljk, k * n + j));
+            }
+        }
+        let col = &mut right[j..n];
+        axpy_rows(col, left, &terms);
+        let d = col[0];
+        if !(d > 0.0 && d.is_finite()) {
+            return None;
+        }
+        let inv = 1.0 / d.sqrt();
+        for v in col.iter_mut() {
+            *v *= inv;
+        }
+    }
+    // forward substitution L y = b (column-oriented)
+    let mut y = b[..n].to_vec();
+    for j in 0..n {
+        let yj = y[j] / a[j * n + j];
+        y[j] = yj;
+        if yj != 0.0 {
+            for (yi, l) in y[j + 1..].iter_mut().zip(&a[j * n + j + 1..j * n + n]) {
+                *yi -= l * yj;
+            }
+        }
+    }
+    // back substitution Lᵀ x = y (row i of Lᵀ = column i of L)
+    for i in (0..n).rev() {
+        let dot: f64 = a[i * n + i + 1..i * n + n]
+            .iter()
+            .zip(&y[i + 1..])
+            .map(|(l, x)| l * x)
+            .sum();
+        y[i] = (y[i] - dot) / a[i * n + i];
+    }
+    Some(y)
+}
+
 /// Copy the upper triangle of a square matrix onto its lower triangle.
 fn mirror_upper(g: &mut DMatrix<f64>) {
     let n = g.nrows();
@@ -779,6 +831,7 @@ pub fn refine_output_error(
     let mut weights: Option<Vec<f64>> = None;
     let mut total_iter = 0;
     let mut jtj = DMatrix::<f64>::zeros(np, np);
+    let mut a = DMatrix::<f64>::zeros(np, np);
     let mut jtr = DVector::<f64>::zeros(np);
     for round in 0..rounds {
         if opts.robust {
@@ -809,15 +862,14 @@ pub fn refine_output_error(
             let dmax = diag.iter().cloned().fold(0.0, f64::max).max(1e-300);
             let mut improved = false;
             for _ in 0..12 {
-                let mut a = jtj.clone();
+                a.copy_from(&jtj);
                 for i in 0..np {
                     a[(i, i)] += lambda * diag[i].max(1e-9 * dmax) + 1e-12 * dmax;
                 }
-                let Some(ch) = a.cholesky() else {
+                let Some(delta) = spd_solve(a.as_mut_slice(), np, jtr.as_slice()) else {
                     lambda *= 10.0;
                     continue;
                 };
-                let delta = ch.solve(&jtr);
                 let trial: Vec<f64> = theta.iter().zip(delta.iter()).map(|(t, d)| t + d).collect();
                 let mut cand = cur.clone();
                 cand.set_parameters(&trial);
@@ -933,10 +985,8 @@ pub(crate) fn weighted_ls(
     for i in 0..p {
         ata[(i, i)] += reg;
     }
-    let ch = ata
-        .cholesky()
-        .ok_or_else(|| LmnError::Numerical("least-squares normal equations are singular".into()))?;
-    Ok(ch.solve(&aty).iter().copied().collect())
+    spd_solve(ata.as_mut_slice(), p, aty.as_slice())
+        .ok_or_else(|| LmnError::Numerical("least-squares normal equations are singular".into()))
 }
 
 /// A one-leaf (linear) network of structure `spec` with the scalings of the
@@ -1208,6 +1258,32 @@ mod tests {
         for (rows, n) in [(37, 11), (64, 130), (5, 97)] {
             gram_case(rows, n);
         }
+    }
+
+    #[test]
+    fn spd_solve_matches_nalgebra_cholesky() {
+        for n in [1usize, 5, 33, 130] {
+            let m = DMatrix::from_fn(n + 3, n, |i, j| {
+                ((i * 31 + j * 17) % 23) as f64 / 11.0 - 1.0
+            });
+            let mut a = m.transpose() * &m;
+            for i in 0..n {
+                a[(i, i)] += 0.5;
+            }
+            let b = DVector::from_fn(n, |i, _| (i as f64 * 0.7).sin());
+            let want = a.clone().cholesky().unwrap().solve(&b);
+            let mut work = a.clone();
+            let got = spd_solve(work.as_mut_slice(), n, b.as_slice()).unwrap();
+            for i in 0..n {
+                assert!(
+                    (got[i] - want[i]).abs() < 1e-9 * (1.0 + want[i].abs()),
+                    "n={n} i={i}"
+                );
+            }
+        }
+        // not positive definite
+        let mut a = DMatrix::from_row_slice(2, 2, &[1.0, 2.0, 2.0, 1.0]);
+        assert!(spd_solve(a.as_mut_slice(), 2, &[1.0, 1.0]).is_none());
     }
 
     fn gram_case(rows: usize, n: usize) {
