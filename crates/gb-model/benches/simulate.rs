@@ -70,6 +70,13 @@ fn bench(c: &mut Criterion) {
     g.bench_function("bouc_wen_shaped_2d_8substeps/1048576", |b| {
         b.iter(|| black_box(bw.simulate(black_box(&u)).unwrap()))
     });
+    // the Bouc-Wen model identified with 3 sub-steps (8.3e-6 m on the
+    // multisine test, BW_SUBSTEPS=3 in examples/bouc_wen.rs)
+    let mut bw3 = bw.clone();
+    bw3.substeps = 3;
+    g.bench_function("bouc_wen_shaped_2d_3substeps/1048576", |b| {
+        b.iter(|| black_box(bw3.simulate(black_box(&u)).unwrap()))
+    });
     g.finish();
 }
 
