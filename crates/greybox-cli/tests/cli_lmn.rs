@@ -85,3 +85,63 @@ fn fit_lmn_tree_oblique_pruned_then_simulate() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// Polynomial local models, dead time, partition on y(k−1) and BIC from the
+/// command line (the Silverbox models of docs/results.md are fitted this way),
+/// and their bad values rejected with one line and exit code 2.
+#[test]
+fn fit_lmn_degree_dead_time_partition_criterion() {
+    let d: PathBuf = std::env::temp_dir().join(format!("gb-cli-lmn2-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    let ds = d.to_str().unwrap();
+    let o = run(&["generate", "duffing", "-o", ds, "--samples", "2000"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let train = d.join("train.csv");
+    let model = d.join("p.gbm");
+    let args = |extra: &[&str]| -> Vec<String> {
+        let mut v: Vec<String> = ["fit", train.to_str().unwrap(), "--model", "lmn"]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v.extend(["-o".to_string(), model.to_str().unwrap().to_string()]);
+        v
+    };
+    let ok = args(&[
+        "--degree",
+        "3",
+        "--dead-time",
+        "0",
+        "--partition",
+        "y1",
+        "--criterion",
+        "bic",
+        "--max-leaves",
+        "2",
+    ]);
+    let o = run(&ok.iter().map(String::as_str).collect::<Vec<_>>());
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("degree 3"), "{out}");
+    assert!(out.contains("u1[0, 1]"), "dead time 0: {out}");
+    assert!(out.contains("z = 1 regressors"), "partition y1: {out}");
+    assert!(out.contains("Bic"), "criterion: {out}");
+    std::fs::remove_file(&model).unwrap();
+    for (flag, value, needle) in [
+        ("--degree", "4", "--degree must be 1, 2 or 3"),
+        ("--criterion", "magic", "--criterion must be aicc or bic"),
+        ("--partition", "z9", "--partition must be all or y1"),
+        ("--dead-time", "100", "--dead-time must be at most 64"),
+    ] {
+        let bad = args(&[flag, value]);
+        let o = run(&bad.iter().map(String::as_str).collect::<Vec<_>>());
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{flag} {value}: {e}");
+        assert!(
+            e.contains(needle) && e.trim_end().lines().count() == 1,
+            "{e}"
+        );
+        assert!(!model.exists(), "no model file after a bad flag");
+    }
+    let _ = std::fs::remove_dir_all(&d);
+}
