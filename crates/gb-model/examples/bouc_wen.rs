@@ -12,10 +12,7 @@
 //! notice when absent. Writes the model and the test simulations to OUT_DIR
 //! when given.
 use gb_core::{metrics, CsvTable};
-use gb_model::{
-    linear_from_oe, second_order, second_order_parameters, NonlinearTerm, OeParams, ProgressBar,
-    Signal, SparseExpansion, Target,
-};
+use gb_model::{hysteretic_mechanical_start, second_order_parameters, OeParams, ProgressBar};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -54,8 +51,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let (u, y) = (u[..n_train].to_vec(), y[..n_train].to_vec());
     let t0 = Instant::now();
 
-    // 1. best linear model (gb-lmn OE, order 2) → natural frequency, damping, gain
-    let lin = linear_from_oe(&[u[8192..16384].to_vec()], &y[8192..16384], 2)?;
+    // 1.–2. best linear model (gb-lmn OE, order 2, on the second period) and
+    //    the grey-box start: m ÿ + c ẏ + k y + z = u, ż = k_z ẏ + f(ẏ, z)
+    let (start, lin) = hysteretic_mechanical_start(&u, &y, 8192..16384, ts, substeps)?;
     let (w2, two_zeta_w, gain) = second_order_parameters(&lin, ts)?;
     let lin_test = {
         let mut y2 = lin.simulate(&[[ut.clone(), ut.clone()].concat()])?;
@@ -69,19 +67,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         gain,
         lin_test
     );
-
-    // 2. grey-box start: m ÿ + c ẏ + k y + z = u, ż = k_z ẏ + f(ẏ, z), with
-    //    k = k_z = k_eff/2 (equal to the linear model), all of A free
-    let mut start = second_order(&lin, ts, substeps, true)?;
-    // box of (v, z) from the start model's simulated states, ±25 %
-    let (_, xs) = start.simulate_states(std::slice::from_ref(&u))?;
-    let vmax = xs.chunks(3).map(|x| x[1].abs()).fold(0.0, f64::max) * 1.25;
-    let zmax = xs.chunks(3).map(|x| x[2].abs()).fold(0.0, f64::max) * 1.25;
-    start.terms.push(NonlinearTerm {
-        target: Target::State(2),
-        args: vec![Signal::State(1), Signal::State(2)],
-        expansion: SparseExpansion::new("bior2.2", vec![-vmax, -zmax], vec![vmax, zmax])?,
-    });
 
     // 3. output error, coarse-to-fine
     let fit = OeParams::new()

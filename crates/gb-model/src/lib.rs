@@ -50,4 +50,6 @@ pub use model::{
     FORMAT_VERSION, MAGIC,
 };
 pub use smc::{Smc, SmcParams, SmcReport};
-pub use structures::{fit_state_space, second_order, second_order_parameters};
+pub use structures::{
+    fit_state_space, hysteretic_mechanical_start, second_order, second_order_parameters,
+};

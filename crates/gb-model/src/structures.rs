@@ -6,6 +6,38 @@ use crate::identify::{Observer, OeParams, OeReport};
 use crate::linear::linear_from_oe;
 use crate::model::{HysteresisTerm, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
 
+/// Start model of the Bouc-Wen recipe: the [`second_order`] hysteretic
+/// structure (position, velocity, hidden restoring force z) from the best
+/// order-2 linear OE model of `u → y`, plus a `ż`-row `bior2.2` term
+/// f(v, z) on the box ±1.25 × the start model's simulated |v|, |z|. The
+/// linear model is fitted on `lin_range` (e.g. a period after the
+/// transient). Returns the start model and the linear model.
+pub fn hysteretic_mechanical_start(
+    u: &[f64],
+    y: &[f64],
+    lin_range: std::ops::Range<usize>,
+    ts: f64,
+    substeps: usize,
+) -> Result<(SparseStateSpace, SparseStateSpace)> {
+    if lin_range.end > u.len().min(y.len()) || lin_range.is_empty() {
+        return Err(ModelError::InvalidArgument(format!(
+            "linear-fit range {lin_range:?} outside the {} samples",
+            u.len().min(y.len())
+        )));
+    }
+    let lin = linear_from_oe(&[u[lin_range.clone()].to_vec()], &y[lin_range], 2)?;
+    let mut start = second_order(&lin, ts, substeps, true)?;
+    let (_, xs) = start.simulate_states(&[u.to_vec()])?;
+    let vmax = xs.chunks(3).map(|x| x[1].abs()).fold(0.0, f64::max) * 1.25;
+    let zmax = xs.chunks(3).map(|x| x[2].abs()).fold(0.0, f64::max) * 1.25;
+    start.terms.push(NonlinearTerm {
+        target: Target::State(2),
+        args: vec![Signal::State(1), Signal::State(2)],
+        expansion: SparseExpansion::new("bior2.2", vec![-vmax, -zmax], vec![vmax, zmax])?,
+    });
+    Ok((start, lin))
+}
+
 /// Continuous-time `(ω², 2ζω, 1/m)` of a 2-state, 1-input discrete model with
 /// complex poles, from `s = ln λ / Ts` and the static gain (`1/m = ω²·G(1)`).
 pub fn second_order_parameters(lin: &SparseStateSpace, ts: f64) -> Result<(f64, f64, f64)> {

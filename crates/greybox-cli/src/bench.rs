@@ -340,7 +340,7 @@ fn fit_class(
     train: &DataSet,
     quiet: bool,
 ) -> Result<(Fitted, String, usize), String> {
-    use gb_model::{NonlinearTerm, OeParams, Signal, SparseExpansion, Target};
+    use gb_model::OeParams;
     match c {
         BestClass::Lmn {
             na,
@@ -382,21 +382,9 @@ fn fit_class(
             // linear start from the second period (after the transient)
             let a = (d.len() / 5).min(8192);
             let b = (a + 8192).min(d.len());
-            let lin = gb_model::linear_from_oe(&[u[a..b].to_vec()], &d.output[a..b], 2)
-                .map_err(|e| e.to_string())?;
-            let mut start =
-                gb_model::second_order(&lin, ts, substeps, true).map_err(|e| e.to_string())?;
-            let (_, xs) = start
-                .simulate_states(std::slice::from_ref(u))
-                .map_err(|e| e.to_string())?;
-            let vmax = xs.chunks(3).map(|x| x[1].abs()).fold(0.0, f64::max) * 1.25;
-            let zmax = xs.chunks(3).map(|x| x[2].abs()).fold(0.0, f64::max) * 1.25;
-            start.terms.push(NonlinearTerm {
-                target: Target::State(2),
-                args: vec![Signal::State(1), Signal::State(2)],
-                expansion: SparseExpansion::new("bior2.2", vec![-vmax, -zmax], vec![vmax, zmax])
-                    .map_err(|e| e.to_string())?,
-            });
+            let (start, _) =
+                gb_model::hysteretic_mechanical_start(u, &d.output, a..b, ts, substeps)
+                    .map_err(|e| e.to_string())?;
             let mut bar: Box<dyn gb_model::Observer> = if quiet {
                 Box::new(gb_model::Silent)
             } else {
