@@ -128,3 +128,54 @@ fn hidden_second_mass_is_dynamics() {
 fn student_t_noise_is_noise() {
     check("student-t", &["nonlinearity", "hysteresis", "dynamics"]);
 }
+
+/// A hysteretic restoring force (Bouc-Wen spring, Bouc-Wen shock absorber):
+/// the Preisach extension names `hysteresis` but leaves structure in the
+/// residuals, so the diagnosis must go on to the hidden-state model of
+/// gb-model and reach the noise floor with it.
+#[test]
+fn hysteretic_force_needs_the_hidden_state_model() {
+    for system in ["bouc-wen", "shock-absorber"] {
+        for seed in [1u64, 2] {
+            let g = systems::generate(system, seed, 8000, 4000).expect("generate");
+            let floor = g.noise_floor_nrmse;
+            let data = DiagnoseData::with_validation(g.train, g.validate).expect("data");
+            let d = diagnose(&data, &DiagnoseOptions::default(), None).expect("diagnose");
+            let r = &d.report;
+            let summary = format!(
+                "{system} seed {seed}: causes {:?}, final {} NRMSE {:.4}, noise floor {floor:.4}",
+                r.causes, r.final_model.spec, r.final_model.nrmse
+            );
+            eprintln!("{summary}");
+            assert_eq!(
+                r.causes.first().map(String::as_str),
+                Some("hysteresis"),
+                "{summary}"
+            );
+            assert!(
+                d.model.state_space.is_some(),
+                "no hidden-state model: {summary}"
+            );
+            let last = r
+                .steps
+                .iter()
+                .rfind(|s| s.accepted)
+                .expect("an accepted step");
+            assert!(
+                last.extension.starts_with("hidden-state model"),
+                "{summary}"
+            );
+            // what the input-output extensions reached before it
+            let before = last.nrmse_before;
+            assert!(
+                before > 1.4 * floor,
+                "the simple extensions sufficed: {summary}"
+            );
+            assert!(
+                r.final_model.nrmse < 1.15 * floor,
+                "not at the noise floor: {summary}"
+            );
+            assert!(html::plot_ids(&d).iter().any(|i| i == "plot-state-space"));
+        }
+    }
+}

@@ -14,14 +14,20 @@ fn load(p: PathBuf) -> DataSet {
     DataSet::from_table(&t, &["u".into()], Some("y")).expect("columns")
 }
 
-/// Diagnose `train` against `val` (two steps) and require `expected` as the
-/// first cause and a final NRMSE below 0.6x the baseline.
-fn check(name: &str, train: DataSet, val: DataSet, expected: &str) {
+/// Diagnose `train` against `val` (`max_steps` steps) and require
+/// `expected` as the first cause and a final NRMSE below 0.6x the baseline.
+fn check(
+    name: &str,
+    train: DataSet,
+    val: DataSet,
+    expected: &str,
+    max_steps: usize,
+) -> gb_diagnose::Diagnosis {
     let data = DiagnoseData::with_validation(train, val).unwrap();
     let d = diagnose(
         &data,
         &DiagnoseOptions {
-            max_steps: 2,
+            max_steps,
             ..Default::default()
         },
         None,
@@ -33,9 +39,13 @@ fn check(name: &str, train: DataSet, val: DataSet, expected: &str) {
     );
     assert_eq!(d.report.causes.first().map(String::as_str), Some(expected));
     assert!(d.report.final_model.nrmse < 0.6 * d.report.baseline.nrmse);
+    d
 }
 
-/// Bouc-Wen: the hysteretic benchmark must be diagnosed as `hysteresis`.
+/// Bouc-Wen: the hysteretic benchmark must be diagnosed as `hysteresis`,
+/// and with the default four steps the diagnosis must go on from the
+/// Preisach extension to the hidden-state model (gb-model) and cut the
+/// baseline error at least fivefold.
 #[test]
 fn bouc_wen_benchmark_is_hysteresis() {
     let Some(dir) = data_dir() else { return };
@@ -43,7 +53,10 @@ fn bouc_wen_benchmark_is_hysteresis() {
     // drop the first period (transient) and keep two periods to bound the run time
     let train = train.slice(8192..8192 * 3);
     let val = load(dir.join("bouc_wen/test_multisine.csv"));
-    check("Bouc-Wen", train, val, "hysteresis");
+    let d = check("Bouc-Wen", train, val, "hysteresis", 4);
+    assert_eq!(d.report.causes, ["hysteresis"]);
+    assert!(d.model.state_space.is_some(), "no hidden-state model");
+    assert!(d.report.final_model.nrmse < 0.2 * d.report.baseline.nrmse);
 }
 
 /// Silverbox: the electronic Duffing oscillator must be diagnosed as `nonlinearity`.
@@ -52,5 +65,5 @@ fn silverbox_is_nonlinearity() {
     let Some(dir) = data_dir() else { return };
     let train = load(dir.join("silverbox/train_multisine.csv")).slice(0..20000);
     let val = load(dir.join("silverbox/test_multisine.csv"));
-    check("Silverbox", train, val, "nonlinearity");
+    check("Silverbox", train, val, "nonlinearity", 2);
 }

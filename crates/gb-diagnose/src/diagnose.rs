@@ -405,8 +405,19 @@ struct Candidate {
     refine: bool,
 }
 
+/// p-value below which the residual evidence for a cause that the model's
+/// simple extension already addresses still counts as unexplained.
+const STILL_FLAGGED_P: f64 = 1e-3;
+/// Most fit-block samples the hidden-state model is fitted on (its
+/// output-error fit is the costliest; the select block judges it as usual).
+const SS_FIT_SAMPLES: usize = 4000;
+
 fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candidate> {
     let mut v = vec![];
+    if cur.state_space {
+        // the hidden-state model is the last extension the diagnosis offers
+        return v;
+    }
     // "more of what we have": a new cause must beat it
     let last_structural = causes
         .iter()
@@ -494,6 +505,52 @@ fn candidates(cur: Structure, causes: &[String], tried_noise: bool) -> Vec<Candi
     v
 }
 
+/// The hidden-state model of `gb-model`, offered when the simpler
+/// extensions do not suffice: a structural cause (`hysteresis` or
+/// `dynamics`) is already named and addressed by its simple extension, no
+/// new cause pays in this iteration, and the residuals are still not white
+/// (Ljung–Box or the direction-of-motion memory test at p < 10⁻³).
+fn state_space_candidate(cur: Structure, causes: &[String], ev: &Evidence) -> Option<Candidate> {
+    if cur.state_space {
+        return None;
+    }
+    let named = |c: &str| causes.iter().any(|x| x == c);
+    let unexplained = ev.ljung_box.1 < STILL_FLAGGED_P || ev.memory.1 < STILL_FLAGGED_P;
+    if !unexplained {
+        return None;
+    }
+    if named("hysteresis") && cur.hysteresis {
+        return Some(Candidate {
+            cause: "hysteresis",
+            structure: Structure {
+                state_space: true,
+                network: false,
+                detail: 0,
+                ..cur
+            },
+            extension: "hidden-state model (gb-model): a hidden hysteretic state with a sparse wavelet law (mechanical structure with restoring force z, ż = f(v, z), when the linear model oscillates; else hidden states with f(x₁, u₁) and a Preisach component with a wavelet Everett function), trained output-error".into(),
+            refine: false,
+        });
+    }
+    if named("dynamics") {
+        return Some(Candidate {
+            cause: "dynamics",
+            structure: Structure {
+                state_space: true,
+                network: false,
+                detail: 0,
+                ..cur
+            },
+            extension: format!(
+                "hidden-state model (gb-model): {} hidden states with a sparse wavelet term f(x₁, u₁), trained output-error",
+                cur.order
+            ),
+            refine: false,
+        });
+    }
+    None
+}
+
 fn relative_gain_ci(
     before: &[f64],
     after: &[f64],
@@ -569,6 +626,7 @@ pub fn diagnose(
     let n_sel = cur.e_select.len();
     let block = (n_sel / 40).clamp(25, 200);
     let mut tried_noise = false;
+    let mut tried_state_space = false;
     for it in 1..=opts.max_steps {
         progress(
             it,
@@ -576,7 +634,7 @@ pub fn diagnose(
             &format!("step {it}: fitting candidate extensions"),
         );
         let ev = Evidence::compute(&cur.e_select, &cur.yhat_select, &select_inputs(d));
-        let cands = candidates(cur.model.structure, &causes, tried_noise);
+        let mut cands = candidates(cur.model.structure, &causes, tried_noise);
         if cands.is_empty() {
             break;
         }
@@ -588,7 +646,7 @@ pub fn diagnose(
                 &fit.output[..cur.model.max_lag().min(fit.len())],
             )
             .ok();
-        let fitted: Vec<Option<Evaluated>> = cands
+        let mut fitted: Vec<Option<Evaluated>> = cands
             .par_iter()
             .map(|c| {
                 fit_eval(
@@ -677,16 +735,18 @@ pub fn diagnose(
         // fit the model with both and keep the cause with the larger unique
         // contribution (the gain of adding it to the other one).
         let mut tie_note: Option<String> = None;
-        if let Some(ci) = chosen {
+        if let Some(ci) = chosen.filter(|&ci| !cands[ci].structure.state_space) {
             let other = match cands[ci].cause {
                 "nonlinearity" => "hysteresis",
                 "hysteresis" => "nonlinearity",
                 _ => "",
             };
-            if let Some(o) = scored
-                .iter()
-                .find(|s| s.pays && !cands[s.idx].refine && cands[s.idx].cause == other)
-            {
+            if let Some(o) = scored.iter().find(|s| {
+                s.pays
+                    && !cands[s.idx].refine
+                    && !cands[s.idx].structure.state_space
+                    && cands[s.idx].cause == other
+            }) {
                 let best = scored
                     .iter()
                     .find(|s| s.idx == ci)
@@ -730,19 +790,72 @@ pub fn diagnose(
                 .find(|s| s.pays && cands[s.idx].cause == "noise")
                 .map(|s| s.idx);
         }
+        // No new cause this iteration (nothing pays, or only more of what
+        // we have): if a named cause is still unexplained, the hidden-state
+        // model of gb-model (tried once per diagnosis: it is fitted from
+        // scratch, on at most SS_FIT_SAMPLES samples of the fit block). It
+        // must pay against the current model and beat the simple choice.
+        let new_cause = chosen
+            .is_some_and(|ci| !cands[ci].refine && !causes.iter().any(|c| c == cands[ci].cause));
+        let ss = if new_cause || tried_state_space {
+            None
+        } else {
+            state_space_candidate(cur.model.structure, &causes, &ev)
+        };
+        if let Some(c) = ss {
+            tried_state_space = true;
+            progress(
+                it,
+                total,
+                &format!("step {it}: fitting the hidden-state model"),
+            );
+            let sub = fit.slice(0..fit.len().min(SS_FIT_SAMPLES));
+            if let Ok(f) = fit_eval(c.structure, d, &sub, None, None, &opts.fit) {
+                let seed = opts.seed.wrapping_add(1000 * it as u64 + 999);
+                let (gain, ci) =
+                    relative_gain_ci(&cur.e_select, &f.e_select, block, opts.bootstrap, seed);
+                let mut pays = ci[0] > 0.0 && gain >= opts.min_gain;
+                if let Some(simple) = chosen.and_then(|i| fitted[i].as_ref()) {
+                    let (g2, ci2) = relative_gain_ci(
+                        &simple.e_select,
+                        &f.e_select,
+                        block,
+                        opts.bootstrap,
+                        seed + 1,
+                    );
+                    pays = pays && ci2[0] > 0.0 && g2 >= opts.min_gain;
+                }
+                let idx = cands.len();
+                cands.push(c);
+                fitted.push(Some(f));
+                scored.push(Scored {
+                    idx,
+                    gain,
+                    ci,
+                    pays,
+                });
+                if pays {
+                    chosen = Some(idx);
+                }
+            }
+        }
         if scored.iter().any(|s| cands[s.idx].cause == "noise") {
             tried_noise = true;
         }
         // rows: every candidate of this iteration (best dynamics order only)
         let best_dyn = scored
             .iter()
-            .filter(|s| cands[s.idx].cause == "dynamics")
+            .filter(|s| cands[s.idx].cause == "dynamics" && !cands[s.idx].structure.state_space)
             .max_by(|a, b| a.gain.total_cmp(&b.gain))
             .map(|s| s.idx);
         let mut rows = vec![];
         for s in &scored {
             let c = &cands[s.idx];
-            if c.cause == "dynamics" && Some(s.idx) != best_dyn && Some(s.idx) != chosen {
+            if c.cause == "dynamics"
+                && !c.structure.state_space
+                && Some(s.idx) != best_dyn
+                && Some(s.idx) != chosen
+            {
                 continue;
             }
             let f = fitted[s.idx]
@@ -767,11 +880,16 @@ pub fn diagnose(
                 (Some(t), true) => format!("{evidence}{t}"),
                 _ => evidence,
             };
+            let extension = if c.structure.state_space {
+                format!("{} -> {}", c.extension, f.model.describe())
+            } else {
+                c.extension.clone()
+            };
             rows.push(Step {
                 iteration: it,
                 cause: c.cause.to_string(),
                 evidence,
-                extension: c.extension.clone(),
+                extension,
                 nrmse_before: cur.scores.nrmse,
                 nrmse_after: f.scores.nrmse,
                 gain,

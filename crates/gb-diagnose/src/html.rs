@@ -36,13 +36,44 @@ pub fn plot_ids(d: &Diagnosis) -> Vec<String> {
     for (i, s) in accepted(&d.report.steps).enumerate() {
         v.push(format!("plot-evidence-{}-{}", i + 1, s.cause));
     }
-    if d.model.network.leaves.len() > 1 {
+    if network_model(d).is_some() {
         v.push("plot-partition".into());
     }
-    if d.model.network.spec.output_relays > 0 {
+    if preisach_model(d).is_some() {
         v.push("plot-preisach".into());
     }
+    if state_space_term(&d.model).is_some() {
+        v.push("plot-state-space".into());
+    }
     v
+}
+
+/// The last model of the chain with a local model network (the final one,
+/// or the one a hidden-state model replaced).
+fn network_model(d: &Diagnosis) -> Option<&GreyBoxModel> {
+    d.chain
+        .iter()
+        .chain(std::iter::once(&d.model))
+        .rev()
+        .find(|m| m.state_space.is_none() && m.network.leaves.len() > 1)
+}
+
+/// The last model of the chain with a Preisach component on the output.
+fn preisach_model(d: &Diagnosis) -> Option<&GreyBoxModel> {
+    d.chain
+        .iter()
+        .chain(std::iter::once(&d.model))
+        .rev()
+        .find(|m| m.state_space.is_none() && m.network.spec.output_relays > 0)
+}
+
+/// The first 2-D wavelet term of a hidden-state model (what its plot shows).
+fn state_space_term(m: &GreyBoxModel) -> Option<&gb_model::NonlinearTerm> {
+    m.state_space
+        .as_ref()?
+        .terms
+        .iter()
+        .find(|t| t.args.len() == 2 && t.expansion.nnz() > 0)
 }
 
 fn accepted(steps: &[Step]) -> impl Iterator<Item = &Step> {
@@ -775,32 +806,64 @@ pub fn render_html(dg: &Diagnosis, d: &DiagnoseData, title: &str) -> Result<Stri
 
     // --- extension
     body.push_str("<h2>The extension</h2>\n");
-    let _ = writeln!(
-        body,
-        "<p>Chosen dynamic order: <b>{}</b> (baseline {}). Local models: <b>{}</b>. Hysteresis columns: <b>{}</b>. Noise model: <b>{}</b>.</p>",
-        dg.model.structure.order,
-        r.baseline.order,
-        dg.model.network.leaves.len(),
-        dg.model.network.spec.n_hysteresis(),
-        esc(&dg.model.network.noise.describe())
-    );
-    if dg.model.network.leaves.len() > 1 {
-        let svg = partition_plot(&dg.model, &r.data.inputs, yname)?;
+    if dg.model.state_space.is_none() {
+        let _ = writeln!(
+            body,
+            "<p>Chosen dynamic order: <b>{}</b> (baseline {}). Local models: <b>{}</b>. Hysteresis columns: <b>{}</b>. Noise model: <b>{}</b>.</p>",
+            dg.model.structure.order,
+            r.baseline.order,
+            dg.model.network.leaves.len(),
+            dg.model.network.spec.n_hysteresis(),
+            esc(&dg.model.network.noise.describe())
+        );
+    }
+    let replaced = if dg.model.state_space.is_some() {
+        " (of the input–output model the hidden-state model replaced)"
+    } else {
+        ""
+    };
+    if let Some(m) = network_model(dg) {
+        let svg = partition_plot(m, &r.data.inputs, yname)?;
         figure(
             &mut body,
             "plot-partition",
-            "LOLIMOT partition: the local models' cells projected on the two most-split partition variables (unit-scaled).",
+            &format!("LOLIMOT partition{replaced}: the local models' cells projected on the two most-split partition variables (unit-scaled)."),
             &svg,
         );
     }
-    if dg.model.network.spec.output_relays > 0 {
-        let svg = preisach_plot(&dg.model, yname)?;
+    if let Some(m) = preisach_model(dg) {
+        let svg = preisach_plot(m, yname)?;
         figure(
             &mut body,
             "plot-preisach",
-            "Identified Preisach relay weights (discrete density, summed over lags) on the (beta, alpha) half-plane of the simulated output; red positive, blue negative.",
+            &format!("Identified Preisach relay weights{replaced} (discrete density, summed over lags) on the (beta, alpha) half-plane of the simulated output; red positive, blue negative."),
             &svg,
         );
+    }
+
+    if let Some(ss) = &dg.model.state_space {
+        let _ = writeln!(
+            body,
+            "<p>Hidden-state model (gb-model, the thesis' wavelet-sparse state space): <b>{}</b>, {} parameters.</p>",
+            esc(&ss.describe()),
+            ss.n_parameters()
+        );
+        if let Some(t) = state_space_term(&dg.model) {
+            let svg = state_space_plot(t, &dg.model.input_names)?;
+            let target = match t.target {
+                gb_model::Target::State(i) => format!("state row x{}", i + 1),
+                gb_model::Target::Output => "the output".into(),
+            };
+            figure(
+                &mut body,
+                "plot-state-space",
+                &format!(
+                    "Identified sparse wavelet term added to {target}, over its box ({} non-zero coefficients); red positive, blue negative.",
+                    t.expansion.nnz()
+                ),
+                &svg,
+            );
+        }
     }
 
     Ok(format!(
@@ -968,6 +1031,40 @@ fn preisach_plot(m: &GreyBoxModel, yname: &str) -> Result<String, DiagnoseError>
         "Identified Preisach density (relay weights)",
         &format!("beta (switch-down threshold of {yname})"),
         &format!("alpha (switch-up threshold of {yname})"),
+        &rects,
+        false,
+    )
+}
+
+/// Heat map of a 2-D wavelet term over its box (24 × 24 cells).
+fn state_space_plot(
+    t: &gb_model::NonlinearTerm,
+    input_names: &[String],
+) -> Result<String, DiagnoseError> {
+    let name = |s: &gb_model::Signal| match *s {
+        gb_model::Signal::State(i) => format!("hidden state x{}", i + 1),
+        gb_model::Signal::Input(j) => input_names
+            .get(j)
+            .cloned()
+            .unwrap_or_else(|| format!("u{}", j + 1)),
+    };
+    let (lo, hi) = (t.expansion.lo(), t.expansion.hi());
+    let n = 24;
+    let mut rects = Vec::with_capacity(n * n);
+    for i in 0..n {
+        for j in 0..n {
+            let x0 = lo[0] + (hi[0] - lo[0]) * i as f64 / n as f64;
+            let x1 = lo[0] + (hi[0] - lo[0]) * (i + 1) as f64 / n as f64;
+            let y0 = lo[1] + (hi[1] - lo[1]) * j as f64 / n as f64;
+            let y1 = lo[1] + (hi[1] - lo[1]) * (j + 1) as f64 / n as f64;
+            let v = t.expansion.eval(&[0.5 * (x0 + x1), 0.5 * (y0 + y1)]);
+            rects.push((x0, y0, x1, y1, v));
+        }
+    }
+    rect_chart(
+        "Identified wavelet term of the hidden-state model",
+        &name(&t.args[0]),
+        &name(&t.args[1]),
         &rects,
         false,
     )

@@ -44,6 +44,9 @@ pub enum DiagnoseError {
     /// Model fitting problem.
     #[error(transparent)]
     Lmn(#[from] gb_lmn::LmnError),
+    /// Hidden-state model problem.
+    #[error(transparent)]
+    StateSpace(#[from] gb_model::ModelError),
     /// Unknown model SPEC.
     #[error("unknown model spec '{0}' (known: linear, lmn, linear+preisach, lmn+preisach, each optionally +student-t)")]
     UnknownSpec(String),

@@ -32,6 +32,7 @@ mod basis;
 mod error;
 mod everett;
 mod identify;
+mod init;
 mod linear;
 mod model;
 mod smc;

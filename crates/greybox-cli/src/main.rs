@@ -50,7 +50,7 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach (the wavelet-sparse state-space class of gb-model).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test"
     )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
@@ -543,8 +543,7 @@ fn print_report(r: &Report) {
 
 fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     if a.model.starts_with("state-space") {
-        let preisach = a.model == "state-space+preisach";
-        return run_fit_state_space(a.clone_for_state_space(), preisach, quiet);
+        return run_fit_state_space(a.clone_for_state_space(), quiet);
     }
     let structure = Structure::parse(&a.model, a.order).map_err(|e| e.to_string())?;
     let data = load(&a.train, &a.signals)?;
@@ -586,14 +585,21 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     Ok(())
 }
 
-/// `greybox fit --model state-space[+preisach]`: the wavelet-sparse state-space class (gb-model).
-fn run_fit_state_space(a: StateSpaceFit, preisach: bool, quiet: bool) -> Result<()> {
-    if !a.rest.is_empty() && a.rest != "+preisach" {
-        return Err(format!(
-            "unknown model '{}': use state-space or state-space+preisach",
+/// `greybox fit --model state-space[+preisach|+hysteresis]`: the
+/// wavelet-sparse state-space class (gb-model). `+hysteresis` is the
+/// hidden-hysteretic-state model `greybox diagnose` chooses.
+fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
+    let preisach = match a.rest.as_str() {
+        "" => false,
+        "+preisach" => true,
+        "+hysteresis" => return run_fit_hysteretic_state_space(a, quiet),
+        _ => {
+            return Err(format!(
+            "unknown model '{}': use state-space, state-space+preisach or state-space+hysteresis",
             a.model
-        ));
-    }
+        ))
+        }
+    };
     let data = load(&a.train, &a.signals)?;
     data.check_identifiable(&a.train.display().to_string(), 20 * (a.order + 1) + 50)
         .map_err(|e| e.to_string())?;
@@ -623,6 +629,35 @@ fn run_fit_state_space(a: StateSpaceFit, preisach: bool, quiet: bool) -> Result<
         "training NRMSE (free-run simulation): {nrmse:.4}; path {:?}, log-likelihood {:.1}",
         report.path, report.log_likelihood
     );
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+/// `greybox fit --model state-space+hysteresis`: a hidden hysteretic state
+/// with a sparse wavelet law (`GreyBoxModel::fit_state_space`), saved as a
+/// gb-model file.
+fn run_fit_hysteretic_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
+    let data = load(&a.train, &a.signals)?;
+    data.check_identifiable(&a.train.display().to_string(), 20 * (a.order + 1) + 50)
+        .map_err(|e| e.to_string())?;
+    let structure = Structure {
+        state_space: true,
+        hysteresis: true,
+        ..Structure::linear(a.order.clamp(1, gb_diagnose::MAX_ORDER))
+    };
+    let pb = spinner(quiet, "fitting a hidden hysteretic state");
+    let g = GreyBoxModel::fit_state_space(structure, &data).map_err(|e| e.to_string())?;
+    pb.finish_and_clear();
+    let m = g
+        .state_space
+        .ok_or("the hidden-state fit returned no state-space model")?;
+    let bytes = m.to_bytes().map_err(|e| e.to_string())?;
+    gb_core::write_atomic(&a.out, &bytes).map_err(|e| e.to_string())?;
+    println!("model: {}", m.describe());
+    println!("parameters: {}", m.n_parameters());
+    let sim = m.simulate(&data.inputs).map_err(|e| e.to_string())?;
+    let nrmse = gb_core::metrics::nrmse(&data.output, &sim).map_err(|e| e.to_string())?;
+    println!("training NRMSE (free-run simulation): {nrmse:.4}");
     println!("saved to {}", a.out.display());
     Ok(())
 }
@@ -669,10 +704,22 @@ fn run_simulate_state_space(a: &SimulateArgs, bytes: &[u8]) -> Result<()> {
         .map(|n| t.column(n).map(<[f64]>::to_vec))
         .collect::<std::result::Result<_, _>>()
         .map_err(|e| e.to_string())?;
-    let sim = m.simulate(&inputs).map_err(|e| e.to_string())?;
     let y = t.column(&out_name).ok();
-    // the state starts from the model's x0; --init-window only excludes the
-    // first samples from the printed errors
+    if a.init_window > t.n_rows() {
+        return Err(format!(
+            "--init-window {} exceeds the {} samples of {}",
+            a.init_window,
+            t.n_rows(),
+            a.data.display()
+        ));
+    }
+    // with measured outputs and --init-window n, the initial state is
+    // estimated from the first n of them; else the model's stored x0
+    let sim = match y {
+        Some(y) if a.init_window > 0 => m.simulate_init_window(&inputs, &y[..a.init_window]),
+        _ => m.simulate(&inputs),
+    }
+    .map_err(|e| e.to_string())?;
     write_simulation(&a.out, &in_names, &inputs, y, &sim, a.init_window)
 }
 

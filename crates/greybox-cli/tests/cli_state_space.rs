@@ -79,3 +79,106 @@ fn state_space_fit_then_simulate() {
     assert!(String::from_utf8_lossy(&o.stderr).contains("state-space+foo"));
     assert!(!bad.exists());
 }
+
+fn nrmse_of(out: &str) -> f64 {
+    out.split("NRMSE ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .expect("NRMSE printed")
+}
+
+/// `diagnose` goes on from the Preisach extension to the hidden-state model
+/// on a Bouc-Wen spring; the saved model (format 3) and the
+/// `state-space+hysteresis` fit both simulate the validation record with
+/// the initial state estimated from the init window, near the noise floor.
+#[test]
+fn diagnose_chooses_the_hidden_state_model_and_it_reloads() {
+    let d = tmp("diag");
+    let ds = d.to_str().unwrap();
+    let o = run(&["generate", "bouc-wen", "-o", ds, "--seed", "2"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    let gbm = d.join("m.gbm");
+    let o = run(&[
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--save",
+        gbm.to_str().unwrap(),
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.contains("hidden-state model (gb-model)"), "{out}");
+    assert!(out.contains("final: sparse wavelet state space"), "{out}");
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        gbm.to_str().unwrap(),
+        val.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+        "--init-window",
+        "50",
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let e_diag = nrmse_of(&out);
+    // the generated record's noise floor is 0.024
+    assert!(e_diag < 0.03, "validation NRMSE {e_diag}");
+    // the same class from `fit`, against a linear fit
+    let gbs = d.join("m.gbs");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model",
+        "state-space+hysteresis",
+        "-o",
+        gbs.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let lin = d.join("lin.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model",
+        "linear",
+        "-o",
+        lin.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut e = vec![];
+    for m in [&gbs, &lin] {
+        let o = run(&[
+            "simulate",
+            m.to_str().unwrap(),
+            val.to_str().unwrap(),
+            "-o",
+            sim.to_str().unwrap(),
+            "--init-window",
+            "50",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        e.push(nrmse_of(&String::from_utf8_lossy(&o.stdout)));
+    }
+    assert!(
+        e[0] < 0.03 && e[0] < 0.2 * e[1],
+        "hidden state {} vs linear {}",
+        e[0],
+        e[1]
+    );
+    // --init-window longer than the record: one-line error, no output file
+    let sim2 = d.join("sim2.csv");
+    let o = run(&[
+        "simulate",
+        gbs.to_str().unwrap(),
+        val.to_str().unwrap(),
+        "-o",
+        sim2.to_str().unwrap(),
+        "--init-window",
+        "99999",
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!sim2.exists());
+}
