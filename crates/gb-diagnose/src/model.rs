@@ -403,6 +403,15 @@ impl GreyBoxModel {
         Ok(self.network.simulate_with_init_window(inputs, y_window)?)
     }
 
+    /// Free-run simulation from rest: zero output history for the
+    /// input–output models, the zero state for the hidden-state model.
+    pub fn simulate_from_rest(&self, inputs: &[Vec<f64>]) -> Result<Vec<f64>, DiagnoseError> {
+        if let Some(ss) = &self.state_space {
+            return Ok(ss.simulate_from(inputs, &vec![0.0; ss.n_states])?.0);
+        }
+        Ok(self.simulate(inputs, &vec![0.0; self.max_lag()])?)
+    }
+
     /// Number of initial samples the simulation takes from measurements.
     pub fn max_lag(&self) -> usize {
         if self.state_space.is_some() {

@@ -519,14 +519,13 @@ fn score(
         }
         Init::Periodic => {
             let twice: Vec<Vec<f64>> = test.inputs.iter().map(|u| u.repeat(2)).collect();
-            let rest = vec![0.0; m.max_lag()];
-            let sim = gb_core::Simulate::simulate(m, &twice, &rest).map_err(|e| e.to_string())?;
+            let sim = m.simulate_from_rest(&twice).map_err(|e| e.to_string())?;
             (test.output.clone(), sim[test.len()..].to_vec())
         }
         Init::Rest => {
-            let rest = vec![0.0; m.max_lag()];
-            let sim =
-                gb_core::Simulate::simulate(m, &test.inputs, &rest).map_err(|e| e.to_string())?;
+            let sim = m
+                .simulate_from_rest(&test.inputs)
+                .map_err(|e| e.to_string())?;
             (test.output.clone(), sim)
         }
     };
