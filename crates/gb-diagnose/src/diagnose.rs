@@ -868,6 +868,11 @@ pub fn diagnose(
             };
             let evidence = if c.refine {
                 format!("the named {} pays further with more capacity", c.cause)
+            } else if c.structure.state_space {
+                format!(
+                    "the simple extension for the named {} leaves the residuals non-white (Ljung-Box Q={:.0}, p={:.1e}; memory F={:.1}, p={:.1e}) and no new cause pays",
+                    c.cause, ev.ljung_box.0, ev.ljung_box.1, ev.memory.0, ev.memory.1
+                )
             } else {
                 match c.cause {
                     "nonlinearity" => ev.nonlinearity_text(),

@@ -362,15 +362,28 @@ impl GreyBoxModel {
         data: &DataSet,
         params: &LmnParams,
     ) -> Result<Self, DiagnoseError> {
-        let exp = Experiment::from(data);
-        let lmn = params.fit(std::slice::from_ref(&exp))?;
-        let k0 = lmn.max_lag().min(data.len());
-        let sim = lmn.simulate(&exp, k0)?;
-        let res: Vec<f64> = data.output[k0..]
-            .iter()
-            .zip(&sim[k0..])
-            .map(|(a, b)| a - b)
-            .collect();
+        Self::fit_lmn_experiments(structure, std::slice::from_ref(data), params)
+    }
+
+    /// [`fit_lmn`](Self::fit_lmn) on several records of the same signals,
+    /// each a separate experiment (no regressor spans two records); the
+    /// names come from the first.
+    pub fn fit_lmn_experiments(
+        structure: Structure,
+        records: &[DataSet],
+        params: &LmnParams,
+    ) -> Result<Self, DiagnoseError> {
+        let data = records
+            .first()
+            .ok_or_else(|| DiagnoseError::InvalidArgument("at least one training record".into()))?;
+        let exps: Vec<Experiment> = records.iter().map(Experiment::from).collect();
+        let lmn = params.fit(&exps)?;
+        let mut res = vec![];
+        for (e, d) in exps.iter().zip(records) {
+            let k0 = lmn.max_lag().min(d.len());
+            let sim = lmn.simulate(e, k0)?;
+            res.extend(d.output[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b));
+        }
         let spec = NetworkSpec::order(structure.order, data.n_inputs());
         let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
         network.noise = gb_lmn::NoiseFit::gaussian(&res);

@@ -50,7 +50,7 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it"
     )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
@@ -214,15 +214,56 @@ struct FitArgs {
     /// `--model lmn` only: degree of the local models, 1 (affine) to 3 (polynomial).
     #[arg(long, value_name = "D")]
     degree: Option<usize>,
-    /// `--model lmn` only: input dead time (delays k-d..k-d-n+1; 0 = direct feed-through).
-    #[arg(long, value_name = "D")]
-    dead_time: Option<usize>,
+    /// `--model lmn` only: input dead time (delays k-d..k-d-n+1; 0 = direct feed-through); one value for every input or one per input (`1,0,2`).
+    #[arg(long, value_name = "D[,D..]")]
+    dead_time: Option<String>,
+    /// `--model lmn` only: number of lags of each input (default: the order); one value or one per input (`4,2`).
+    #[arg(long, value_name = "N[,N..]")]
+    input_lags: Option<String>,
+    /// `--model lmn` only: number of output lags y(k-1..k-N) (default: the order).
+    #[arg(long, value_name = "N")]
+    output_lags: Option<usize>,
+    /// `--model lmn` only: a further training record, fitted as a separate experiment (no regressor spans two records); repeatable.
+    #[arg(long = "experiment", value_name = "FILE")]
+    experiments: Vec<PathBuf>,
     /// `--model lmn` only: growth criterion, aicc or bic.
     #[arg(long, value_name = "aicc|bic")]
     criterion: Option<String>,
     /// `--model lmn` only: partition space, all (every regressor) or y1 (the last output only).
     #[arg(long, value_name = "all|y1")]
     partition: Option<String>,
+}
+
+/// A per-input list flag: one value for every input or one per input, each
+/// in `lo..=hi`; `default` when absent.
+fn per_input(
+    flag: &str,
+    v: Option<&str>,
+    default: usize,
+    n_inputs: usize,
+    lo: usize,
+    hi: usize,
+) -> Result<Vec<usize>> {
+    let Some(v) = v else {
+        return Ok(vec![default; n_inputs]);
+    };
+    let vals: Vec<usize> = v
+        .split(',')
+        .map(|x| {
+            x.trim()
+                .parse::<usize>()
+                .ok()
+                .filter(|n| (lo..=hi).contains(n))
+                .ok_or_else(|| format!("{flag}: '{x}' is not a whole number in {lo}..={hi}"))
+        })
+        .collect::<Result<_>>()?;
+    match vals.len() {
+        1 => Ok(vec![vals[0]; n_inputs]),
+        n if n == n_inputs => Ok(vals),
+        n => Err(format!(
+            "{flag}: {n} values for {n_inputs} inputs (give one, or one per input)"
+        )),
+    }
 }
 
 /// The full local model network of `fit --model lmn` when any of its flags is given.
@@ -235,6 +276,9 @@ fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_l
         && a.max_leaves.is_none()
         && a.degree.is_none()
         && a.dead_time.is_none()
+        && a.input_lags.is_none()
+        && a.output_lags.is_none()
+        && a.experiments.is_empty()
         && a.criterion.is_none()
         && a.partition.is_none()
     {
@@ -242,7 +286,7 @@ fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_l
     }
     if !s.network || s.hysteresis || s.robust_noise {
         return Err(format!(
-            "--weights/--splits/--prune/--focus/--max-leaves/--degree/--dead-time/--criterion/--partition need --model lmn, got '{}'",
+            "--weights/--splits/--prune/--focus/--max-leaves/--degree/--dead-time/--input-lags/--output-lags/--experiment/--criterion/--partition need --model lmn, got '{}'",
             a.model
         ));
     }
@@ -250,9 +294,18 @@ fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_l
     if !(1..=3).contains(&degree) {
         return Err(format!("--degree must be 1, 2 or 3, got {degree}"));
     }
-    let nk = a.dead_time.unwrap_or(1);
-    if nk > 64 {
-        return Err(format!("--dead-time must be at most 64, got {nk}"));
+    let nk = per_input("--dead-time", a.dead_time.as_deref(), 1, n_inputs, 0, 64)?;
+    let nb = per_input(
+        "--input-lags",
+        a.input_lags.as_deref(),
+        a.order,
+        n_inputs,
+        0,
+        64,
+    )?;
+    let na = a.output_lags.unwrap_or(a.order);
+    if na > 64 {
+        return Err(format!("--output-lags must be at most 64, got {na}"));
     }
     let criterion = match a.criterion.as_deref() {
         None | Some("aicc") => gb_lmn::Criterion::Aicc,
@@ -278,8 +331,7 @@ fn lmn_params(a: &FitArgs, s: &Structure, n_inputs: usize) -> Result<Option<gb_l
             ))
         }
     };
-    let n = a.order;
-    let mut reg = RegressorSpec::arx(n, &vec![n; n_inputs], &vec![nk; n_inputs]);
+    let mut reg = RegressorSpec::arx(na, &nb, &nk);
     match a.partition.as_deref() {
         None | Some("all") => {}
         Some("y1") => reg = reg.with_z(vec![1], vec![vec![]; n_inputs]),
@@ -555,8 +607,25 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
         quiet,
         &format!("fitting {} of order {}", structure.spec(), a.order),
     );
+    let mut records = vec![data.clone()];
+    for f in &a.experiments {
+        let e = load(f, &a.signals)?;
+        if e.input_names != data.input_names || e.output_name != data.output_name {
+            return Err(format!(
+                "{}: signals {:?} -> {} differ from the training record's {:?} -> {}",
+                f.display(),
+                e.input_names,
+                e.output_name,
+                data.input_names,
+                data.output_name
+            ));
+        }
+        e.check_identifiable(&f.display().to_string(), 20)
+            .map_err(|e| e.to_string())?;
+        records.push(e);
+    }
     let m = match &lmn {
-        Some(p) => GreyBoxModel::fit_lmn(structure, &data, p),
+        Some(p) => GreyBoxModel::fit_lmn_experiments(structure, &records, p),
         None => GreyBoxModel::fit(structure, &data, None, None, &ModelFitOptions::default()),
     }
     .map_err(|e| e.to_string())?;

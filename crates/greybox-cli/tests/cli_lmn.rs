@@ -145,3 +145,109 @@ fn fit_lmn_degree_dead_time_partition_criterion() {
     }
     let _ = std::fs::remove_dir_all(&d);
 }
+
+/// A two-input record of y(k) = 0.5 y(k-1) + u1(k-2) + 0.3 u2(k) + 0.2 tanh(y(k-1)).
+fn two_input_csv(path: &std::path::Path, seed: u64, n: usize) {
+    let mut s = seed;
+    let mut rnd = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
+    };
+    let u1: Vec<f64> = (0..n).map(|_| rnd()).collect();
+    let u2: Vec<f64> = (0..n).map(|_| rnd()).collect();
+    let mut y = vec![0.0; n];
+    for k in 2..n {
+        y[k] = 0.5 * y[k - 1] + u1[k - 2] + 0.3 * u2[k] + 0.2 * y[k - 1].tanh();
+    }
+    let mut txt = String::from("a,b,y\n");
+    for k in 0..n {
+        txt.push_str(&format!("{},{},{}\n", u1[k], u2[k], y[k]));
+    }
+    std::fs::write(path, txt).unwrap();
+}
+
+fn training_nrmse(o: &std::process::Output) -> f64 {
+    let out = String::from_utf8_lossy(&o.stdout);
+    out.split("training NRMSE (free-run simulation): ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no training NRMSE in {out}"))
+}
+
+/// Per-input dead times and lags, and several experiments, from the CLI.
+#[test]
+fn fit_lmn_per_input_delays_and_several_experiments() {
+    let d = std::env::temp_dir().join(format!("greybox-lmn-delays-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    let (r1, r2) = (d.join("r1.csv"), d.join("r2.csv"));
+    two_input_csv(&r1, 1, 1500);
+    two_input_csv(&r2, 2, 1500);
+    let m = d.join("m.gbm");
+    let fit = |extra: &[&str]| {
+        let mut a = vec![
+            "fit",
+            r1.to_str().unwrap(),
+            "--model",
+            "lmn",
+            "--input",
+            "a",
+            "--input",
+            "b",
+            "--output",
+            "y",
+            "--max-leaves",
+            "4",
+            "-o",
+            m.to_str().unwrap(),
+        ];
+        a.extend_from_slice(extra);
+        run(&a)
+    };
+    // the right delays per input: (almost) exact
+    let o = fit(&[
+        "--dead-time",
+        "2,0",
+        "--input-lags",
+        "1,1",
+        "--output-lags",
+        "1",
+        "--experiment",
+        r2.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("u1[2]") && out.contains("u2[0]"), "{out}");
+    let good = training_nrmse(&o);
+    // one dead time for both inputs misses u2(k)
+    let o = fit(&[
+        "--dead-time",
+        "1",
+        "--input-lags",
+        "2",
+        "--output-lags",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let bad = training_nrmse(&o);
+    assert!(
+        good < 0.02 && bad > 5.0 * good,
+        "per-input {good} vs common {bad}"
+    );
+    // bad lists and a record with other signals: one-line errors, exit 2
+    let other = d.join("other.csv");
+    std::fs::write(&other, "a,c,y\n1,2,3\n").unwrap();
+    for extra in [
+        vec!["--dead-time", "1,2,3"],
+        vec!["--input-lags", "x"],
+        vec!["--experiment", other.to_str().unwrap()],
+    ] {
+        let o = fit(&extra);
+        assert_eq!(o.status.code(), Some(2), "{extra:?}");
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+    }
+}
