@@ -6,7 +6,7 @@ use crate::DiagnoseError;
 use gb_core::{CoreError, DataSet, Model, Simulate};
 use gb_lmn::{
     fit_linear_oe_warm, fit_lmn_oe, Experiment, FitOptions, LmnModel, LmnParams, LocalModelNetwork,
-    LolimotOptions, NetworkSpec,
+    LolimotOptions, NetworkSpec, WhParams, WienerHammersteinNetwork,
 };
 use gb_model::{OeParams, SparseStateSpace};
 use serde::{Deserialize, Serialize};
@@ -16,7 +16,8 @@ use std::path::Path;
 const MAGIC: &[u8; 4] = b"GBM\x01";
 /// Version of the model-file format (2: optional tree/oblique network
 /// [`GreyBoxModel::lmn`]; 3: optional hidden-state model
-/// [`GreyBoxModel::state_space`]; versions 1 and 2 are still read).
+/// [`GreyBoxModel::state_space`] and Wiener–Hammerstein network
+/// [`GreyBoxModel::wiener_hammerstein`]; versions 1 and 2 are still read).
 pub const MODEL_FORMAT_VERSION: u32 = 3;
 /// Largest model order accepted.
 pub const MAX_ORDER: usize = 8;
@@ -183,6 +184,11 @@ pub struct GreyBoxModel {
     /// simulates, and [`network`](Self::network) is a one-leaf placeholder
     /// carrying the noise model of its simulation residuals.
     pub state_space: Option<SparseStateSpace>,
+    /// The Wiener–Hammerstein local model network of `greybox fit --model
+    /// wiener-hammerstein` (gb-lmn). When present it is what simulates (from
+    /// the zero state), and [`network`](Self::network) is a one-leaf
+    /// placeholder carrying the noise model.
+    pub wiener_hammerstein: Option<WienerHammersteinNetwork>,
 }
 
 /// The model-file layout of format version 1 (no `lmn`).
@@ -253,6 +259,7 @@ impl GreyBoxModel {
             network,
             lmn: None,
             state_space: None,
+            wiener_hammerstein: None,
         })
     }
 
@@ -351,7 +358,49 @@ impl GreyBoxModel {
             network,
             lmn: None,
             state_space: Some(ss),
+            wiener_hammerstein: None,
         })
+    }
+
+    /// Fit the Wiener–Hammerstein local model network ([`WhParams`]) on a
+    /// one-input `data`; `network` becomes a one-leaf placeholder holding the
+    /// Gaussian noise model of the simulation residuals.
+    pub fn fit_wiener_hammerstein(
+        data: &DataSet,
+        params: &WhParams,
+    ) -> Result<(Self, gb_lmn::WhReport), DiagnoseError> {
+        if data.n_inputs() != 1 {
+            return Err(DiagnoseError::InvalidArgument(format!(
+                "a Wiener-Hammerstein network has one input, got {}",
+                data.n_inputs()
+            )));
+        }
+        let (w, rep) = params.clone().check()?.fit(&data.inputs[0], &data.output)?;
+        let sim = w.simulate(&data.inputs[0]);
+        // past the transient of the zero state
+        let k0 = 200.min(data.len() / 4);
+        let res: Vec<f64> = data.output[k0..]
+            .iter()
+            .zip(&sim[k0..])
+            .map(|(a, b)| a - b)
+            .collect();
+        let spec = NetworkSpec::order(1, 1);
+        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
+        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        let structure = Structure::linear(w.a1.len() - 1 + w.a2.len() - 1);
+        Ok((
+            Self {
+                format_version: MODEL_FORMAT_VERSION,
+                input_names: data.input_names.clone(),
+                output_name: data.output_name.clone(),
+                structure,
+                network,
+                lmn: None,
+                state_space: None,
+                wiener_hammerstein: Some(w),
+            },
+            rep,
+        ))
     }
 
     /// Fit the full local model network ([`LmnModel`], issue 3) with
@@ -395,6 +444,7 @@ impl GreyBoxModel {
             network,
             lmn: Some(lmn),
             state_space: None,
+            wiener_hammerstein: None,
         })
     }
 
@@ -409,6 +459,11 @@ impl GreyBoxModel {
         if let Some(ss) = &self.state_space {
             return Ok(ss.simulate_init_window(inputs, y_window)?);
         }
+        if let Some(w) = &self.wiener_hammerstein {
+            // filters start from the zero state; the window's samples are
+            // the transient the caller does not score
+            return Ok(w.simulate(&inputs[0]));
+        }
         if let Some(l) = &self.lmn {
             let e = Experiment::new(inputs.to_vec(), y_window.to_vec());
             return Ok(l.simulate(&e, y_window.len())?);
@@ -422,12 +477,15 @@ impl GreyBoxModel {
         if let Some(ss) = &self.state_space {
             return Ok(ss.simulate_from(inputs, &vec![0.0; ss.n_states])?.0);
         }
+        if let Some(w) = &self.wiener_hammerstein {
+            return Ok(w.simulate(&inputs[0]));
+        }
         Ok(self.simulate(inputs, &vec![0.0; self.max_lag()])?)
     }
 
     /// Number of initial samples the simulation takes from measurements.
     pub fn max_lag(&self) -> usize {
-        if self.state_space.is_some() {
+        if self.state_space.is_some() || self.wiener_hammerstein.is_some() {
             return 0;
         }
         match &self.lmn {
@@ -469,6 +527,7 @@ impl GreyBoxModel {
                     network: o.network,
                     lmn: None,
                     state_space: None,
+                    wiener_hammerstein: None,
                 }
             }
             2 => {
@@ -481,6 +540,7 @@ impl GreyBoxModel {
                     network: o.network,
                     lmn: o.lmn,
                     state_space: None,
+                    wiener_hammerstein: None,
                 }
             }
             _ => {
@@ -496,6 +556,16 @@ impl GreyBoxModel {
             if ss.n_inputs != m.input_names.len() {
                 return Err(DiagnoseError::ModelFile(format!(
                     "{name}: inconsistent model (state-space inputs)"
+                )));
+            }
+        }
+        if let Some(w) = &m.wiener_hammerstein {
+            w.check().map_err(|e| {
+                DiagnoseError::ModelFile(format!("{name}: inconsistent model ({e})"))
+            })?;
+            if m.input_names.len() != 1 {
+                return Err(DiagnoseError::ModelFile(format!(
+                    "{name}: inconsistent model (a Wiener-Hammerstein network has one input)"
                 )));
             }
         }
@@ -555,6 +625,12 @@ impl Simulate for GreyBoxModel {
                 .simulate(inputs)
                 .map_err(|e| CoreError::InvalidArgument(e.to_string()));
         }
+        if let Some(w) = &self.wiener_hammerstein {
+            let u = inputs.first().ok_or_else(|| {
+                CoreError::InvalidArgument("a Wiener-Hammerstein network needs its input".into())
+            })?;
+            return Ok(w.simulate(u));
+        }
         if let Some(l) = &self.lmn {
             let e = Experiment::new(inputs.to_vec(), init.to_vec());
             return Ok(l.simulate(&e, init.len())?);
@@ -568,6 +644,9 @@ impl Model for GreyBoxModel {
         if let Some(ss) = &self.state_space {
             return ss.describe();
         }
+        if let Some(w) = &self.wiener_hammerstein {
+            return format!("{}, {} noise", w.describe(), self.network.noise.describe());
+        }
         match &self.lmn {
             Some(l) => format!("{}, {} noise", l.describe(), self.network.noise.describe()),
             None => self.network.describe(),
@@ -576,6 +655,9 @@ impl Model for GreyBoxModel {
     fn n_parameters(&self) -> usize {
         if let Some(ss) = &self.state_space {
             return ss.n_parameters();
+        }
+        if let Some(w) = &self.wiener_hammerstein {
+            return w.n_parameters();
         }
         match &self.lmn {
             Some(l) => l.n_parameters(),

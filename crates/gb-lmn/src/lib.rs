@@ -52,6 +52,7 @@ mod relay;
 mod scaling;
 mod spec;
 pub mod tree;
+mod wiener_hammerstein;
 
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
@@ -67,6 +68,9 @@ pub use relay::RelayGrid;
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
 pub use tree::{Partition, WeightKind};
+pub use wiener_hammerstein::{
+    StaticNetwork, WhFitter, WhParams, WhReport, WienerHammersteinNetwork,
+};
 
 /// Errors of the local-model-network crate.
 #[derive(Debug, thiserror::Error)]

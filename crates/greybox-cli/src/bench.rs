@@ -80,6 +80,14 @@ enum BestClass {
         max_level: i32,
         train_rows: usize,
     },
+    /// gb-lmn `WienerHammersteinNetwork`: a static local model network
+    /// between two linear filters, from the split of the best linear
+    /// approximation's poles and zeros, refined by LM.
+    WienerHammerstein {
+        knots: usize,
+        iterations: usize,
+        train_rows: usize,
+    },
 }
 
 impl BestClass {
@@ -106,6 +114,11 @@ impl BestClass {
                 substeps: 2,
                 max_level: 1,
                 train_rows: 8192,
+            },
+            BestClass::WienerHammerstein { .. } => BestClass::WienerHammerstein {
+                knots: 5,
+                iterations: 3,
+                train_rows: 3000,
             },
         }
     }
@@ -208,13 +221,9 @@ fn benchmarks() -> Vec<Benchmark> {
             factor: 1e3,
             order: 2,
             integrating: false,
-            class: Some(BestClass::Lmn {
-                na: 5,
-                nb: 7,
-                nk: 0,
-                degree: 3,
-                leaves: 1,
-                lm: 40,
+            class: Some(BestClass::WienerHammerstein {
+                knots: 15,
+                iterations: 60,
                 train_rows: 100000,
             }),
             tests: vec![TestSet {
@@ -332,6 +341,7 @@ struct Row {
 enum Fitted {
     Lmn(gb_lmn::LmnModel),
     StateSpace(gb_model::SparseStateSpace),
+    WienerHammerstein(gb_lmn::WienerHammersteinNetwork),
 }
 
 /// Fit `c` on the first `train_rows` rows of `train`.
@@ -405,6 +415,34 @@ fn fit_class(
             );
             Ok((Fitted::StateSpace(m), text, d.len()))
         }
+        BestClass::WienerHammerstein {
+            knots,
+            iterations,
+            train_rows,
+        } => {
+            let d = train.slice(0..train_rows.min(train.len()));
+            let u = d.inputs.first().ok_or("no input")?;
+            let pb = if quiet {
+                ProgressBar::hidden()
+            } else {
+                let pb = ProgressBar::new_spinner();
+                pb.enable_steady_tick(std::time::Duration::from_millis(120));
+                pb.set_message("Wiener-Hammerstein network: BLA, pole/zero splits, LM");
+                pb
+            };
+            let mut p = gb_lmn::WhParams::new().knots(knots).max_iter(iterations);
+            if train_rows < 10_000 {
+                // --quick: a small scan and one candidate
+                p = p.candidates(1).bla(4, 4);
+                p.scan_samples = train_rows;
+            }
+            let (m, _) = p
+                .check()
+                .and_then(|f| f.fit(u, &d.output))
+                .map_err(|e| e.to_string())?;
+            pb.finish_and_clear();
+            Ok((Fitted::WienerHammerstein(m.clone()), m.describe(), d.len()))
+        }
     }
 }
 
@@ -434,6 +472,20 @@ fn score_class(f: &Fitted, test: &DataSet, init: Init) -> Result<f64, String> {
                         .simulate(&e(test.inputs.clone(), vec![0.0; n]), 0)
                         .map_err(|e| e.to_string())?;
                     (&test.output[..], sim)
+                }
+            }
+        }
+        Fitted::WienerHammerstein(m) => {
+            // from the zero state; the init window's samples are not scored
+            match init {
+                Init::Periodic => {
+                    let twice: Vec<f64> = test.inputs[0].repeat(2);
+                    (&test.output[..], m.simulate(&twice)[n..].to_vec())
+                }
+                Init::Rest => (&test.output[..], m.simulate(&test.inputs[0])),
+                Init::Window(w) => {
+                    let w = w.min(n / 2);
+                    (&test.output[w..], m.simulate(&test.inputs[0])[w..].to_vec())
                 }
             }
         }

@@ -50,7 +50,7 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); wiener-hammerstein (a static local model network between two linear filters, from the best linear approximation; one input; --max-leaves sets its local models); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it"
     )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
@@ -382,7 +382,26 @@ struct GenerateArgs {
 
 type Result<T> = std::result::Result<T, String>;
 
+/// A closed stdout (`greybox … | head -1`) ends the program quietly, as
+/// Unix tools do, instead of with println!'s panic message.
+fn quiet_on_broken_pipe() {
+    let default = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let msg = info
+            .payload()
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| info.payload().downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.contains("failed printing to stdout") && msg.contains("Broken pipe") {
+            std::process::exit(141);
+        }
+        default(info);
+    }));
+}
+
 fn main() -> ExitCode {
+    quiet_on_broken_pipe();
     let cli = Cli::parse();
     // progress bars only for a person watching: silent when piped
     let quiet = cli.quiet || !std::io::stdout().is_terminal() || !std::io::stderr().is_terminal();
@@ -597,6 +616,9 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     if a.model.starts_with("state-space") {
         return run_fit_state_space(a.clone_for_state_space(), quiet);
     }
+    if a.model == "wiener-hammerstein" {
+        return run_fit_wiener_hammerstein(a, quiet);
+    }
     let structure = Structure::parse(&a.model, a.order).map_err(|e| e.to_string())?;
     let data = load(&a.train, &a.signals)?;
     let lmn = lmn_params(&a, &structure, data.n_inputs())?;
@@ -725,6 +747,46 @@ fn run_fit_hysteretic_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
     println!("model: {}", m.describe());
     println!("parameters: {}", m.n_parameters());
     let sim = m.simulate(&data.inputs).map_err(|e| e.to_string())?;
+    let nrmse = gb_core::metrics::nrmse(&data.output, &sim).map_err(|e| e.to_string())?;
+    println!("training NRMSE (free-run simulation): {nrmse:.4}");
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+/// `greybox fit --model wiener-hammerstein`: a static local model network
+/// between two linear filters (gb-lmn), from the best linear approximation.
+fn run_fit_wiener_hammerstein(a: FitArgs, quiet: bool) -> Result<()> {
+    let data = load(&a.train, &a.signals)?;
+    if data.n_inputs() != 1 {
+        return Err(format!(
+            "{}: --model wiener-hammerstein needs exactly one input, got {} ({})",
+            a.train.display(),
+            data.n_inputs(),
+            data.input_names.join(", ")
+        ));
+    }
+    let leaves = a.max_leaves.unwrap_or(16);
+    if !(1..=61).contains(&leaves) {
+        return Err(format!("--max-leaves must be in 1..=61, got {leaves}"));
+    }
+    let params = gb_lmn::WhParams::new().knots(leaves - 1);
+    data.check_identifiable(&a.train.display().to_string(), 1000)
+        .map_err(|e| e.to_string())?;
+    let pb = spinner(
+        quiet,
+        "Wiener-Hammerstein network: best linear approximation, pole/zero splits, LM",
+    );
+    let (m, rep) =
+        GreyBoxModel::fit_wiener_hammerstein(&data, &params).map_err(|e| e.to_string())?;
+    pb.finish_and_clear();
+    m.save(&a.out).map_err(|e| e.to_string())?;
+    println!("model: {}", m.describe());
+    println!("parameters: {}", m.n_parameters());
+    println!(
+        "best linear approximation RMSE {:.4e}; {} pole/zero splits scanned, best {:.4e}; after LM {:.4e}",
+        rep.bla_rmse, rep.splits_tried, rep.best_split_rmse, rep.rmse
+    );
+    let sim = m.simulate(&data.inputs, &[]).map_err(|e| e.to_string())?;
     let nrmse = gb_core::metrics::nrmse(&data.output, &sim).map_err(|e| e.to_string())?;
     println!("training NRMSE (free-run simulation): {nrmse:.4}");
     println!("saved to {}", a.out.display());

@@ -251,3 +251,76 @@ fn fit_lmn_per_input_delays_and_several_experiments() {
         assert_eq!(err.trim().lines().count(), 1, "{err}");
     }
 }
+
+/// `fit --model wiener-hammerstein` on a generated input saturation
+/// (a Hammerstein system): near the noise floor on the validation record,
+/// far better than the linear model; one input only.
+#[test]
+fn fit_wiener_hammerstein_then_simulate() {
+    let d = std::env::temp_dir().join(format!("greybox-lmn-wh-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    let ds = d.to_str().unwrap();
+    let o = run(&["generate", "saturation", "-o", ds]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    let mut e = vec![];
+    for model in ["wiener-hammerstein", "linear"] {
+        let m = d.join(format!("{model}.gbm"));
+        let o = run(&[
+            "fit",
+            train.to_str().unwrap(),
+            "--model",
+            model,
+            "-o",
+            m.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let sim = d.join("sim.csv");
+        let o = run(&[
+            "simulate",
+            m.to_str().unwrap(),
+            val.to_str().unwrap(),
+            "-o",
+            sim.to_str().unwrap(),
+            "--init-window",
+            "50",
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let out = String::from_utf8_lossy(&o.stdout).to_string();
+        e.push(
+            out.split("NRMSE ")
+                .nth(1)
+                .and_then(|s| s.split_whitespace().next())
+                .and_then(|v| v.parse::<f64>().ok())
+                .expect("NRMSE"),
+        );
+    }
+    // the generated record's noise floor is about 0.024
+    assert!(
+        e[0] < 0.035 && e[0] < 0.3 * e[1],
+        "WH {} vs linear {}",
+        e[0],
+        e[1]
+    );
+    // two inputs: a one-line error, exit 2, no model file
+    let two = d.join("two.csv");
+    std::fs::write(
+        &two,
+        (0..1500)
+            .map(|k| format!("{},{},{}\n", k % 7, k % 5, k % 3))
+            .fold(String::from("a,b,y\n"), |s, l| s + &l),
+    )
+    .unwrap();
+    let bad = d.join("bad.gbm");
+    let o = run(&[
+        "fit",
+        two.to_str().unwrap(),
+        "--model",
+        "wiener-hammerstein",
+        "-o",
+        bad.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("one input"));
+    assert!(!bad.exists());
+}
