@@ -131,7 +131,11 @@ fn fit_lmn_degree_dead_time_partition_criterion() {
         ("--degree", "4", "--degree must be 1, 2 or 3"),
         ("--criterion", "magic", "--criterion must be aicc or bic"),
         ("--partition", "z9", "--partition must be all or y1"),
-        ("--dead-time", "100", "--dead-time must be at most 64"),
+        (
+            "--dead-time",
+            "100",
+            "--dead-time: '100' is not a whole number in 0..=64",
+        ),
     ] {
         let bad = args(&[flag, value]);
         let o = run(&bad.iter().map(String::as_str).collect::<Vec<_>>());
