@@ -30,7 +30,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     };
     let mut p = WhParams::new()
         .knots(env("WH_KNOTS", 15))
-        .extra_g1(env("WH_EXTRA", 1))
+        .extra_g1(env("WH_EXTRA", 3))
         .candidates(env("WH_CAND", 2))
         .max_iter(env("WH_ITER", 60))
         .bla(env("WH_POLES", 6), env("WH_ZEROS", 6));

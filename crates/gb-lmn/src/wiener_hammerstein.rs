@@ -22,11 +22,11 @@
 //!    between G₁ and G₂ is scored: with G₁ and G₂ fixed the model is linear
 //!    in the local-model parameters, `ŷ = Σ cₖ G₂(ϕₖ(v))`, so one least-squares
 //!    fit per split gives its simulation error;
-//! 3. the best splits, with `extra` further free poles and zeros in G₁, are
-//!    refined by Levenberg–Marquardt on the simulation error over all filter
-//!    coefficients and local-model parameters jointly (poles kept inside
-//!    |z| < 0.999); the one with the smallest error on a held-out tail of
-//!    the training data is kept and trained on all of it.
+//! 3. the best splits, each with 1, 2, … `extra_g1` further free poles and
+//!    zeros in G₁, are refined by Levenberg–Marquardt on the simulation error
+//!    over all filter coefficients and local-model parameters jointly (poles
+//!    kept inside |z| < 0.999); the one with the smallest error on a
+//!    held-out tail of the training data is kept and trained on all of it.
 use crate::LmnError;
 use nalgebra::{Complex, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
@@ -280,7 +280,9 @@ pub struct WhParams {
     pub knots: usize,
     /// Sigmoid width as a fraction of the knot spacing.
     pub smoothness: f64,
-    /// Further free poles and zeros given to G₁ before the joint refinement.
+    /// Most further free poles and zeros given to G₁ before the joint
+    /// refinement: 1..=extra_g1 are each tried, and the hold-out error
+    /// chooses (0: none).
     pub extra_g1: usize,
     /// Splits refined jointly (the best by the scan).
     pub candidates: usize,
@@ -301,7 +303,7 @@ impl Default for WhParams {
             bla_zeros: 6,
             knots: 15,
             smoothness: 0.25,
-            extra_g1: 1,
+            extra_g1: 3,
             candidates: 2,
             max_iter: 60,
             scan_samples: 30_000,
@@ -312,7 +314,7 @@ impl Default for WhParams {
 }
 
 impl WhParams {
-    /// The defaults (BLA 6 poles / 6 zeros, 15 knots, one extra G₁ pole and zero).
+    /// The defaults (BLA 6 poles / 6 zeros, 15 knots, 1–3 extra G₁ poles and zeros).
     pub fn new() -> Self {
         Self::default()
     }
@@ -376,7 +378,8 @@ pub struct WhReport {
     pub splits_tried: usize,
     /// Scan RMSE of the best split (fixed filters, least-squares network).
     pub best_split_rmse: f64,
-    /// Held-out RMSE of each refined candidate.
+    /// Held-out RMSE of each refined candidate (split-major, then extra
+    /// G₁ order 1, 2, …).
     pub holdout_rmse: Vec<f64>,
     /// Final training RMSE.
     pub rmse: f64,
@@ -556,25 +559,34 @@ impl WhFitter {
         let n_fit = n - (p.holdout * n as f64) as usize;
         let mut refined = vec![];
         let mut holdout_rmse = vec![];
-        for (_, m0) in scored.into_iter().take(p.candidates) {
-            let mut m = m0;
-            for _ in 0..p.extra_g1 {
-                m.b1.push(0.0);
-                m.a1.push(0.0);
+        let extras: Vec<usize> = if p.extra_g1 == 0 {
+            vec![0]
+        } else {
+            (1..=p.extra_g1).collect()
+        };
+        let starts: Vec<WienerHammersteinNetwork> =
+            scored.into_iter().take(p.candidates).map(|s| s.1).collect();
+        for m0 in &starts {
+            for &extra in &extras {
+                let mut m = m0.clone();
+                for _ in 0..extra {
+                    m.b1.push(0.0);
+                    m.a1.push(0.0);
+                }
+                let (m, _, _) = self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter)?;
+                let e = if n_fit < n {
+                    let sim = m.simulate(u);
+                    rms(&sim[n_fit..]
+                        .iter()
+                        .zip(&y[n_fit..])
+                        .map(|(a, b)| a - b)
+                        .collect::<Vec<_>>())
+                } else {
+                    0.0
+                };
+                holdout_rmse.push(e);
+                refined.push((e, m));
             }
-            let (m, _, _) = self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter)?;
-            let e = if n_fit < n {
-                let sim = m.simulate(u);
-                rms(&sim[n_fit..]
-                    .iter()
-                    .zip(&y[n_fit..])
-                    .map(|(a, b)| a - b)
-                    .collect::<Vec<_>>())
-            } else {
-                0.0
-            };
-            holdout_rmse.push(e);
-            refined.push((e, m));
         }
         refined.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (_, m) = refined.swap_remove(0);
