@@ -51,6 +51,7 @@ mod regressors;
 mod relay;
 mod scaling;
 mod spec;
+pub mod ssnet;
 pub mod tree;
 
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
@@ -66,6 +67,7 @@ pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
 pub use relay::RelayGrid;
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
+pub use ssnet::{fit_ss_lmn, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams};
 pub use tree::{Partition, WeightKind};
 
 /// Errors of the local-model-network crate.
