@@ -431,7 +431,7 @@ fn speed() {
 }
 
 /// Cascaded tanks with the local-model state-space network (`gb_lmn::ssnet`):
-/// options `leaves` (comma list of candidates, chosen on the validation tail
+/// options `nx` (states), `leaves` (comma list of candidates, chosen on the validation tail
 /// of the training data), `sched` (x0|x1|u), `sqrt` (0|1), `sat` (0|1),
 /// `ymax` (sensor limit, `none` to drop), `nonneg` (0|1: clamp states at 0),
 /// `lm` (LM iterations), `rates`.
@@ -447,6 +447,7 @@ fn tanks_ss(dir: &std::path::Path, over: &HashMap<String, String>) -> Result<(),
             .collect()
     };
     let p = SsLmnParams {
+        n_states: get("nx", "2").parse().map_err(|e| format!("nx: {e}"))?,
         leaves: list("leaves", "1,2")?.iter().map(|&v| v as usize).collect(),
         scheduling: match get("sched", "x0").as_str() {
             "x1" => Scheduling::State(1),

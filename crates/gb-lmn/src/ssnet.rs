@@ -759,14 +759,14 @@ mod tests {
         let mut level = 3.0;
         for k in 0..n {
             if k % 40 == 0 {
-                level = rng.gen_range(1.0..7.0);
+                level = rng.random_range(1.0..7.0);
             }
             u[k] = level;
         }
         let (mut x1, mut x2) = (4.0f64, 4.0f64);
         let mut y = vec![0.0; n];
         for k in 0..n {
-            y[k] = x2 + 0.02 * rng.gen_range(-1.0..1.0);
+            y[k] = x2 + 0.02 * rng.random_range(-1.0..1.0);
             let x1n = (x1 + 0.2 * u[k] - 0.25 * x1.max(0.0).sqrt()).min(9.0);
             x2 += 0.25 * x1.max(0.0).sqrt() - 0.22 * x2.max(0.0).sqrt();
             x1 = x1n;
@@ -782,7 +782,7 @@ mod tests {
             init_window: 30,
             ..Default::default()
         };
-        let fit = fit_ss_lmn(&p, &[u.clone()], &y).unwrap();
+        let fit = fit_ss_lmn(&p, std::slice::from_ref(&u), &y).unwrap();
         let (ut, yt) = tanks(600, 8);
         let sim = fit.model.simulate_with_init_window(&[ut], &yt, 30).unwrap();
         let e = rmse(&sim[30..], &yt[30..]);
@@ -840,11 +840,14 @@ mod tests {
             init_window: 20,
             ..Default::default()
         };
-        let fit = fit_ss_lmn(&p, &[u.clone()], &y).unwrap();
+        let fit = fit_ss_lmn(&p, std::slice::from_ref(&u), &y).unwrap();
         let bytes = postcard::to_allocvec(&fit.model).unwrap();
         let back: SsLmnModel = postcard::from_bytes(&bytes).unwrap();
         assert_eq!(back, fit.model);
-        let a = fit.model.simulate_from(&[u.clone()], &[4.0, 4.0]).unwrap();
+        let a = fit
+            .model
+            .simulate_from(std::slice::from_ref(&u), &[4.0, 4.0])
+            .unwrap();
         let b = back.simulate_from(&[u], &[4.0, 4.0]).unwrap();
         assert_eq!(a, b);
     }
