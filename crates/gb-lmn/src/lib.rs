@@ -25,6 +25,10 @@
 //! Levenberg–Marquardt for one-step or simulation error ([`Focus`]); several
 //! experiments per fit ([`Experiment`]). See docs/lmn.md.
 //!
+//! [`ssnet`] is the state-space counterpart with hidden states, a √ basis and
+//! state saturation, x⁺ = min(Σᵢ Φᵢ(z)[Aᵢx + Gᵢ√x₊ + Bᵢu + cᵢ], x̄),
+//! ŷ = min(Cᵀx + d, ȳ) ([`fit_ss_lmn`], [`SsLmnParams`], [`SsLmnModel`]).
+//!
 //! ```
 //! use gb_lmn::{NetworkSpec, fit_linear_oe, FitOptions};
 //! // y(k) = 0.5 y(k-1) + u(k-1)
