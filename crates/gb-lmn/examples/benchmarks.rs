@@ -10,6 +10,7 @@
 //! cargo run --release -p gb-lmn --example benchmarks -- silverbox  # one
 //! cargo run --release -p gb-lmn --example benchmarks -- tanks leaves=8 na=2
 //! cargo run --release -p gb-lmn --example benchmarks -- speed      # speed figures
+//! cargo run --release -p gb-lmn --example benchmarks -- tanks-ss   # state-space LMN
 //! ```
 //! Options (key=value) override the data set's default structure: `na`,
 //! `nb`, `nk` (x delays), `zy`, `zu` (z: output delays 1..zy, input delays
@@ -429,6 +430,64 @@ fn speed() {
     );
 }
 
+/// Cascaded tanks with the local-model state-space network (`gb_lmn::ssnet`):
+/// options `nx` (states), `leaves` (comma list of candidates, chosen on the validation tail
+/// of the training data), `sched` (x0|x1|u), `sqrt` (0|1), `sat` (0|1),
+/// `ymax` (sensor limit, `none` to drop), `nonneg` (0|1: clamp states at 0),
+/// `lm` (LM iterations), `rates`.
+fn tanks_ss(dir: &std::path::Path, over: &HashMap<String, String>) -> Result<(), String> {
+    use gb_lmn::{fit_ss_lmn, Scheduling, SsLmnParams};
+    let tr = load(dir.join("cascaded_tanks/train.csv"))?;
+    let te = load(dir.join("cascaded_tanks/test.csv"))?;
+    let get = |k: &str, d: &str| over.get(k).cloned().unwrap_or_else(|| d.to_string());
+    let list = |k: &str, d: &str| -> Result<Vec<f64>, String> {
+        get(k, d)
+            .split(',')
+            .map(|v| v.parse::<f64>().map_err(|e| format!("{k}: {e}")))
+            .collect()
+    };
+    let p = SsLmnParams {
+        n_states: get("nx", "2").parse().map_err(|e| format!("nx: {e}"))?,
+        leaves: list("leaves", "1,2")?.iter().map(|&v| v as usize).collect(),
+        scheduling: match get("sched", "x0").as_str() {
+            "x1" => Scheduling::State(1),
+            "u" => Scheduling::Input(0),
+            _ => Scheduling::State(0),
+        },
+        sqrt_basis: get("sqrt", "1") == "1",
+        state_saturation: get("sat", "1") == "1",
+        output_upper: get("ymax", "10").parse().ok(),
+        nonnegative_states: get("nonneg", "0") == "1",
+        init_rates: list("rates", "0.1,0.2,0.4")?,
+        max_iter: get("lm", "200").parse().map_err(|e| format!("lm: {e}"))?,
+        ..SsLmnParams::default()
+    };
+    let t0 = Instant::now();
+    let fit = fit_ss_lmn(&p, &tr.inputs, &tr.output).map_err(|e| e.to_string())?;
+    let secs = t0.elapsed().as_secs_f64();
+    let sim = fit
+        .model
+        .simulate_with_init_window(&te.inputs, &te.output, 50)
+        .map_err(|e| e.to_string())?;
+    let n = te.output.len() - 50;
+    let e = (sim[50..]
+        .iter()
+        .zip(&te.output[50..])
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
+    println!(
+        "tanks-ss: {} | validation {:?} | train {:.4} V | test {:.4} V (target 0.35) | fit {:.1} s",
+        fit.model.describe(),
+        fit.validation,
+        fit.train_rmse,
+        e,
+        secs
+    );
+    Ok(())
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let which: Vec<&str> = args
@@ -457,6 +516,11 @@ fn main() {
         eprintln!("real-data benchmarks skipped: ../shared/data not found (set GREYBOX_DATA)");
         return;
     };
+    if all || which.contains(&"tanks-ss") {
+        if let Err(e) = tanks_ss(&dir, &over) {
+            eprintln!("tanks-ss: error: {e}");
+        }
+    }
     for s in SETUPS {
         if all || which.contains(&s.name) {
             if let Err(e) = run(&dir, s, &over) {

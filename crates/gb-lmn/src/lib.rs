@@ -25,6 +25,10 @@
 //! Levenberg–Marquardt for one-step or simulation error ([`Focus`]); several
 //! experiments per fit ([`Experiment`]). See docs/lmn.md.
 //!
+//! [`ssnet`] is the state-space counterpart with hidden states, a √ basis and
+//! state saturation, x⁺ = min(Σᵢ Φᵢ(z)[Aᵢx + Gᵢ√x₊ + Bᵢu + cᵢ], x̄),
+//! ŷ = min(Cᵀx + d, ȳ) ([`fit_ss_lmn`], [`SsLmnParams`], [`SsLmnModel`]).
+//!
 //! ```
 //! use gb_lmn::{NetworkSpec, fit_linear_oe, FitOptions};
 //! // y(k) = 0.5 y(k-1) + u(k-1)
@@ -51,6 +55,7 @@ mod regressors;
 mod relay;
 mod scaling;
 mod spec;
+pub mod ssnet;
 pub mod tree;
 mod wiener_hammerstein;
 
@@ -67,6 +72,7 @@ pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
 pub use relay::RelayGrid;
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
+pub use ssnet::{fit_ss_lmn, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams};
 pub use tree::{Partition, WeightKind};
 pub use wiener_hammerstein::{
     StaticNetwork, WhFitter, WhParams, WhReport, WienerHammersteinNetwork,

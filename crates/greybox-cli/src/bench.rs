@@ -88,6 +88,17 @@ enum BestClass {
         iterations: usize,
         train_rows: usize,
     },
+    /// gb-lmn `SsLmnModel`: local-model state-space network with a √ basis
+    /// and state saturation, `n_states` hidden states, 1..=`max_leaves`
+    /// leaves chosen on a validation tail of the training data, LM on the
+    /// simulation error; initial test state estimated on the init window.
+    StateSpaceLmn {
+        n_states: usize,
+        max_leaves: usize,
+        lm: usize,
+        /// Known output (sensor) limit.
+        output_upper: f64,
+    },
 }
 
 impl BestClass {
@@ -119,6 +130,16 @@ impl BestClass {
                 knots: 5,
                 iterations: 3,
                 train_rows: 3000,
+            },
+            BestClass::StateSpaceLmn {
+                n_states,
+                output_upper,
+                ..
+            } => BestClass::StateSpaceLmn {
+                n_states,
+                max_leaves: 1,
+                lm: 40,
+                output_upper,
             },
         }
     }
@@ -247,7 +268,12 @@ fn benchmarks() -> Vec<Benchmark> {
             factor: 1.0,
             order: 2,
             integrating: false,
-            class: None,
+            class: Some(BestClass::StateSpaceLmn {
+                n_states: 2,
+                max_leaves: 2,
+                lm: 200,
+                output_upper: 10.0,
+            }),
             tests: vec![TestSet {
                 name: "test",
                 file: "test.csv",
@@ -342,6 +368,7 @@ enum Fitted {
     Lmn(gb_lmn::LmnModel),
     StateSpace(gb_model::SparseStateSpace),
     WienerHammerstein(gb_lmn::WienerHammersteinNetwork),
+    SsLmn(gb_lmn::SsLmnModel),
 }
 
 /// Fit `c` on the first `train_rows` rows of `train`.
@@ -443,6 +470,27 @@ fn fit_class(
             pb.finish_and_clear();
             Ok((Fitted::WienerHammerstein(m.clone()), m.describe(), d.len()))
         }
+        BestClass::StateSpaceLmn {
+            n_states,
+            max_leaves,
+            lm,
+            output_upper,
+        } => {
+            let p = gb_lmn::SsLmnParams {
+                n_states,
+                leaves: (1..=max_leaves).collect(),
+                output_upper: Some(output_upper),
+                max_iter: lm,
+                ..gb_lmn::SsLmnParams::default()
+            };
+            let fit =
+                gb_lmn::fit_ss_lmn(&p, &train.inputs, &train.output).map_err(|e| e.to_string())?;
+            let text = format!(
+                "{}; leaves chosen on the last 20 % of the training data, LM on the simulation error",
+                fit.model.describe()
+            );
+            Ok((Fitted::SsLmn(fit.model), text, train.len()))
+        }
     }
 }
 
@@ -489,6 +537,21 @@ fn score_class(f: &Fitted, test: &DataSet, init: Init) -> Result<f64, String> {
                 }
             }
         }
+        Fitted::SsLmn(m) => match init {
+            Init::Window(w) => {
+                let w = w.min(n / 2);
+                let sim = m
+                    .simulate_with_init_window(&test.inputs, &test.output, w)
+                    .map_err(|e| e.to_string())?;
+                (&test.output[w..], sim[w..].to_vec())
+            }
+            Init::Rest | Init::Periodic => {
+                let sim = m
+                    .simulate_from(&test.inputs, &vec![0.0; m.n_states()])
+                    .map_err(|e| e.to_string())?;
+                (&test.output[..], sim)
+            }
+        },
         Fitted::StateSpace(m) => {
             let mut rest = m.clone();
             rest.x0 = vec![0.0; rest.x0.len()];
