@@ -6,7 +6,7 @@ use crate::DiagnoseError;
 use gb_core::{CoreError, DataSet, Model, Simulate};
 use gb_lmn::{
     fit_linear_oe_warm, fit_lmn_oe, Experiment, FitOptions, LmnModel, LmnParams, LocalModelNetwork,
-    LolimotOptions, NetworkSpec, WhParams, WienerHammersteinNetwork,
+    LolimotOptions, NetworkSpec, SsLmnModel, SsLmnParams, WhParams, WienerHammersteinNetwork,
 };
 use gb_model::{OeParams, SparseStateSpace};
 use serde::{Deserialize, Serialize};
@@ -189,6 +189,10 @@ pub struct GreyBoxModel {
     /// the zero state), and [`network`](Self::network) is a one-leaf
     /// placeholder carrying the noise model.
     pub wiener_hammerstein: Option<WienerHammersteinNetwork>,
+    /// The state-space local model network of `greybox fit --model
+    /// lmn-state-space` (gb-lmn `SsLmnModel`). When present it is what
+    /// simulates (initial state estimated from the init window).
+    pub ss_lmn: Option<SsLmnModel>,
 }
 
 /// The model-file layout of format version 1 (no `lmn`).
@@ -260,6 +264,7 @@ impl GreyBoxModel {
             lmn: None,
             state_space: None,
             wiener_hammerstein: None,
+            ss_lmn: None,
         })
     }
 
@@ -359,6 +364,7 @@ impl GreyBoxModel {
             lmn: None,
             state_space: Some(ss),
             wiener_hammerstein: None,
+            ss_lmn: None,
         })
     }
 
@@ -398,9 +404,41 @@ impl GreyBoxModel {
                 lmn: None,
                 state_space: None,
                 wiener_hammerstein: Some(w),
+                ss_lmn: None,
             },
             rep,
         ))
+    }
+
+    /// Fit the state-space local model network ([`SsLmnParams`], gb-lmn
+    /// `fit_ss_lmn`) on `data`; `network` becomes a one-leaf placeholder
+    /// holding the Gaussian noise model of the simulation residuals.
+    pub fn fit_ss_lmn(data: &DataSet, params: &SsLmnParams) -> Result<Self, DiagnoseError> {
+        params.check(data.n_inputs())?;
+        let fit = gb_lmn::fit_ss_lmn(params, &data.inputs, &data.output)?;
+        let w = params.init_window.min(data.len());
+        let sim = fit
+            .model
+            .simulate_with_init_window(&data.inputs, &data.output, w)?;
+        let res: Vec<f64> = data.output[w..]
+            .iter()
+            .zip(&sim[w..])
+            .map(|(a, b)| a - b)
+            .collect();
+        let spec = NetworkSpec::order(1, data.n_inputs());
+        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
+        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        Ok(Self {
+            format_version: MODEL_FORMAT_VERSION,
+            input_names: data.input_names.clone(),
+            output_name: data.output_name.clone(),
+            structure: Structure::linear(params.n_states),
+            network,
+            lmn: None,
+            state_space: None,
+            wiener_hammerstein: None,
+            ss_lmn: Some(fit.model),
+        })
     }
 
     /// Fit the full local model network ([`LmnModel`], issue 3) with
@@ -445,6 +483,7 @@ impl GreyBoxModel {
             lmn: Some(lmn),
             state_space: None,
             wiener_hammerstein: None,
+            ss_lmn: None,
         })
     }
 
@@ -464,6 +503,15 @@ impl GreyBoxModel {
             // the transient the caller does not score
             return Ok(w.simulate(&inputs[0]));
         }
+        if let Some(m) = &self.ss_lmn {
+            if y_window.len() >= m.n_states() {
+                let n = inputs.first().map_or(0, Vec::len);
+                let mut y = y_window.to_vec();
+                y.resize(n.max(y.len()), 0.0);
+                return Ok(m.simulate_with_init_window(inputs, &y, y_window.len())?);
+            }
+            return Ok(m.simulate_from(inputs, &vec![0.0; m.n_states()])?);
+        }
         if let Some(l) = &self.lmn {
             let e = Experiment::new(inputs.to_vec(), y_window.to_vec());
             return Ok(l.simulate(&e, y_window.len())?);
@@ -480,12 +528,16 @@ impl GreyBoxModel {
         if let Some(w) = &self.wiener_hammerstein {
             return Ok(w.simulate(&inputs[0]));
         }
+        if let Some(m) = &self.ss_lmn {
+            return Ok(m.simulate_from(inputs, &vec![0.0; m.n_states()])?);
+        }
         Ok(self.simulate(inputs, &vec![0.0; self.max_lag()])?)
     }
 
     /// Number of initial samples the simulation takes from measurements.
     pub fn max_lag(&self) -> usize {
-        if self.state_space.is_some() || self.wiener_hammerstein.is_some() {
+        if self.state_space.is_some() || self.wiener_hammerstein.is_some() || self.ss_lmn.is_some()
+        {
             return 0;
         }
         match &self.lmn {
@@ -528,6 +580,7 @@ impl GreyBoxModel {
                     lmn: None,
                     state_space: None,
                     wiener_hammerstein: None,
+                    ss_lmn: None,
                 }
             }
             2 => {
@@ -541,6 +594,7 @@ impl GreyBoxModel {
                     lmn: o.lmn,
                     state_space: None,
                     wiener_hammerstein: None,
+                    ss_lmn: None,
                 }
             }
             _ => {
@@ -556,6 +610,16 @@ impl GreyBoxModel {
             if ss.n_inputs != m.input_names.len() {
                 return Err(DiagnoseError::ModelFile(format!(
                     "{name}: inconsistent model (state-space inputs)"
+                )));
+            }
+        }
+        if let Some(s) = &m.ss_lmn {
+            s.check_consistency().map_err(|e| {
+                DiagnoseError::ModelFile(format!("{name}: inconsistent model ({e})"))
+            })?;
+            if s.n_inputs() != m.input_names.len() {
+                return Err(DiagnoseError::ModelFile(format!(
+                    "{name}: inconsistent model (state-space network inputs)"
                 )));
             }
         }
@@ -625,6 +689,9 @@ impl Simulate for GreyBoxModel {
                 .simulate(inputs)
                 .map_err(|e| CoreError::InvalidArgument(e.to_string()));
         }
+        if let Some(m) = &self.ss_lmn {
+            return Ok(m.simulate_from(inputs, &vec![0.0; m.n_states()])?);
+        }
         if let Some(w) = &self.wiener_hammerstein {
             let u = inputs.first().ok_or_else(|| {
                 CoreError::InvalidArgument("a Wiener-Hammerstein network needs its input".into())
@@ -647,6 +714,9 @@ impl Model for GreyBoxModel {
         if let Some(w) = &self.wiener_hammerstein {
             return format!("{}, {} noise", w.describe(), self.network.noise.describe());
         }
+        if let Some(m) = &self.ss_lmn {
+            return format!("{}, {} noise", m.describe(), self.network.noise.describe());
+        }
         match &self.lmn {
             Some(l) => format!("{}, {} noise", l.describe(), self.network.noise.describe()),
             None => self.network.describe(),
@@ -658,6 +728,9 @@ impl Model for GreyBoxModel {
         }
         if let Some(w) = &self.wiener_hammerstein {
             return w.n_parameters();
+        }
+        if let Some(m) = &self.ss_lmn {
+            return m.parameters().len();
         }
         match &self.lmn {
             Some(l) => l.n_parameters(),

@@ -178,6 +178,35 @@ impl SsLmnModel {
             + 2 * (self.n_leaves - 1)
     }
 
+    /// Checks a loaded model: sizes, scheduling index and finite parameters.
+    pub fn check_consistency(&self) -> Result<(), LmnError> {
+        let bad = |m: &str| Err(LmnError::InvalidArgument(m.to_string()));
+        if !(1..=8).contains(&self.n_states)
+            || !(1..=8).contains(&self.n_leaves)
+            || self.n_inputs == 0
+        {
+            return bad("state-space network: states and leaves must be in 1..=8, inputs >= 1");
+        }
+        match self.scheduling {
+            Scheduling::State(j) if j >= self.n_states => {
+                return bad("scheduling state out of range")
+            }
+            Scheduling::Input(j) if j >= self.n_inputs => {
+                return bad("scheduling input out of range")
+            }
+            _ => {}
+        }
+        if self.theta.len() != self.n_model_params() || !self.theta.iter().all(|v| v.is_finite()) {
+            return bad("state-space network: wrong number of parameters or non-finite values");
+        }
+        Ok(())
+    }
+
+    /// Number of inputs.
+    pub fn n_inputs(&self) -> usize {
+        self.n_inputs
+    }
+
     /// Number of leaves L.
     pub fn n_leaves(&self) -> usize {
         self.n_leaves

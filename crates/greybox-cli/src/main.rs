@@ -50,7 +50,7 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); wiener-hammerstein (a static local model network between two linear filters, from the best linear approximation; one input; --max-leaves sets its local models); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); lmn-state-space (a local model network in state-space form: hidden states, sqrt basis, learned state bounds; --order states, --max-leaves, --output-max); wiener-hammerstein (a static local model network between two linear filters, from the best linear approximation; one input; --max-leaves sets its local models); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it"
     )]
     Fit(FitArgs),
     /// Simulate a saved model on the inputs of a CSV file (free run).
@@ -223,6 +223,9 @@ struct FitArgs {
     /// `--model lmn` only: number of output lags y(k-1..k-N) (default: the order).
     #[arg(long, value_name = "N")]
     output_lags: Option<usize>,
+    /// `--model lmn-state-space` only: known upper limit of the output (sensor range), e.g. 10.
+    #[arg(long, value_name = "Y")]
+    output_max: Option<f64>,
     /// `--model lmn` only: a further training record, fitted as a separate experiment (no regressor spans two records); repeatable.
     #[arg(long = "experiment", value_name = "FILE")]
     experiments: Vec<PathBuf>,
@@ -619,6 +622,12 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
     if a.model == "wiener-hammerstein" {
         return run_fit_wiener_hammerstein(a, quiet);
     }
+    if a.model == "lmn-state-space" {
+        return run_fit_ss_lmn(a, quiet);
+    }
+    if a.output_max.is_some() {
+        return Err("--output-max needs --model lmn-state-space".into());
+    }
     let structure = Structure::parse(&a.model, a.order).map_err(|e| e.to_string())?;
     let data = load(&a.train, &a.signals)?;
     let lmn = lmn_params(&a, &structure, data.n_inputs())?;
@@ -789,6 +798,51 @@ fn run_fit_wiener_hammerstein(a: FitArgs, quiet: bool) -> Result<()> {
     let sim = m.simulate(&data.inputs, &[]).map_err(|e| e.to_string())?;
     let nrmse = gb_core::metrics::nrmse(&data.output, &sim).map_err(|e| e.to_string())?;
     println!("training NRMSE (free-run simulation): {nrmse:.4}");
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+/// `greybox fit --model lmn-state-space`: the state-space local model network
+/// (gb-lmn `SsLmnModel`: hidden states, √ basis, learned state bounds).
+fn run_fit_ss_lmn(a: FitArgs, quiet: bool) -> Result<()> {
+    let data = load(&a.train, &a.signals)?;
+    let leaves = a.max_leaves.unwrap_or(2);
+    if !(1..=8).contains(&leaves) {
+        return Err(format!(
+            "--max-leaves must be in 1..=8 for lmn-state-space, got {leaves}"
+        ));
+    }
+    if let Some(v) = a.output_max {
+        if !v.is_finite() {
+            return Err(format!("--output-max must be finite, got {v}"));
+        }
+    }
+    let params = gb_lmn::SsLmnParams {
+        n_states: a.order,
+        leaves: (1..=leaves).collect(),
+        output_upper: a.output_max,
+        ..gb_lmn::SsLmnParams::default()
+    };
+    params
+        .check(data.n_inputs())
+        .map_err(|e| format!("--model lmn-state-space: {e}"))?;
+    data.check_identifiable(&a.train.display().to_string(), 100)
+        .map_err(|e| e.to_string())?;
+    let pb = spinner(
+        quiet,
+        "state-space local model network: LM on the simulation error",
+    );
+    let m = GreyBoxModel::fit_ss_lmn(&data, &params).map_err(|e| e.to_string())?;
+    pb.finish_and_clear();
+    m.save(&a.out).map_err(|e| e.to_string())?;
+    println!("model: {}", m.describe());
+    println!("parameters: {}", m.n_parameters());
+    let w = params.init_window.min(data.len());
+    let sim = m
+        .simulate_init_window(&data.inputs, &data.output[..w])
+        .map_err(|e| e.to_string())?;
+    let nrmse = gb_core::metrics::nrmse(&data.output[w..], &sim[w..]).map_err(|e| e.to_string())?;
+    println!("training NRMSE (free-run simulation after a {w}-sample init window): {nrmse:.4}");
     println!("saved to {}", a.out.display());
     Ok(())
 }
