@@ -689,6 +689,13 @@ fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
 /// wavelet-sparse state-space class (gb-model). `+hysteresis` is the
 /// hidden-hysteretic-state model `greybox diagnose` chooses.
 fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
+    if a.order == 0 || a.order > gb_diagnose::MAX_ORDER {
+        return Err(format!(
+            "--order must be in 1..={}, got {}",
+            gb_diagnose::MAX_ORDER,
+            a.order
+        ));
+    }
     let preisach = match a.rest.as_str() {
         "" => false,
         "+preisach" => true,
@@ -743,7 +750,7 @@ fn run_fit_hysteretic_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
     let structure = Structure {
         state_space: true,
         hysteresis: true,
-        ..Structure::linear(a.order.clamp(1, gb_diagnose::MAX_ORDER))
+        ..Structure::linear(a.order)
     };
     let pb = spinner(quiet, "fitting a hidden hysteretic state");
     let g = GreyBoxModel::fit_state_space(structure, &data).map_err(|e| e.to_string())?;

@@ -181,4 +181,19 @@ fn diagnose_chooses_the_hidden_state_model_and_it_reloads() {
     ]);
     assert_eq!(o.status.code(), Some(2));
     assert!(!sim2.exists());
+    // an absurd order: a one-line error, no model file
+    let bad = d.join("bad.gbs");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model",
+        "state-space+hysteresis",
+        "--order",
+        "99",
+        "-o",
+        bad.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--order must be in 1..=8"));
+    assert!(!bad.exists());
 }
