@@ -216,6 +216,16 @@ struct GreyBoxModelV2 {
     lmn: Option<LmnModel>,
 }
 
+/// The one-leaf placeholder network (order `order`) of a model that
+/// simulates through another class: it carries the Gaussian noise model of
+/// that class's simulation residuals `res`.
+fn noise_placeholder(order: usize, data: &DataSet, res: &[f64]) -> LocalModelNetwork {
+    let spec = NetworkSpec::order(order, data.n_inputs());
+    let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
+    network.noise = gb_lmn::NoiseFit::gaussian(res);
+    network
+}
+
 /// Options of [`GreyBoxModel::fit`].
 #[derive(Debug, Clone, Default)]
 pub struct ModelFitOptions {
@@ -349,9 +359,7 @@ impl GreyBoxModel {
         };
         let sim = ss.simulate(&data.inputs)?;
         let res: Vec<f64> = data.output.iter().zip(&sim).map(|(a, b)| a - b).collect();
-        let spec = NetworkSpec::order(structure.order.min(MAX_ORDER), data.n_inputs());
-        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
-        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        let network = noise_placeholder(structure.order.min(MAX_ORDER), data, &res);
         Ok(Self {
             format_version: MODEL_FORMAT_VERSION,
             input_names: data.input_names.clone(),
@@ -390,9 +398,7 @@ impl GreyBoxModel {
             .zip(&sim[k0..])
             .map(|(a, b)| a - b)
             .collect();
-        let spec = NetworkSpec::order(1, 1);
-        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
-        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        let network = noise_placeholder(1, data, &res);
         let structure = Structure::linear(w.a1.len() - 1 + w.a2.len() - 1);
         Ok((
             Self {
@@ -425,9 +431,7 @@ impl GreyBoxModel {
             .zip(&sim[w..])
             .map(|(a, b)| a - b)
             .collect();
-        let spec = NetworkSpec::order(1, data.n_inputs());
-        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
-        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        let network = noise_placeholder(1, data, &res);
         Ok(Self {
             format_version: MODEL_FORMAT_VERSION,
             input_names: data.input_names.clone(),
@@ -471,9 +475,7 @@ impl GreyBoxModel {
             let sim = lmn.simulate(e, k0)?;
             res.extend(d.output[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b));
         }
-        let spec = NetworkSpec::order(structure.order, data.n_inputs());
-        let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
-        network.noise = gb_lmn::NoiseFit::gaussian(&res);
+        let network = noise_placeholder(structure.order, data, &res);
         Ok(Self {
             format_version: MODEL_FORMAT_VERSION,
             input_names: data.input_names.clone(),
