@@ -256,6 +256,40 @@ fn fit_lmn_per_input_delays_and_several_experiments() {
     }
 }
 
+/// `fit TRAIN --model MODEL EXTRA… -o DIR/MODEL.gbm`, then `simulate` it on
+/// VAL with a 50-sample init window; the printed validation NRMSE.
+fn fit_then_validate(
+    d: &std::path::Path,
+    train: &std::path::Path,
+    val: &std::path::Path,
+    model: &str,
+    extra: &[&str],
+) -> f64 {
+    let m = d.join(format!("{model}.gbm"));
+    let mut a = vec!["fit", train.to_str().unwrap(), "--model", model];
+    a.extend_from_slice(extra);
+    a.extend_from_slice(&["-o", m.to_str().unwrap()]);
+    let o = run(&a);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        m.to_str().unwrap(),
+        val.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+        "--init-window",
+        "50",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    out.split("NRMSE ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or_else(|| panic!("no NRMSE in {out}"))
+}
+
 /// `fit --model wiener-hammerstein` on a generated input saturation
 /// (a Hammerstein system): near the noise floor on the validation record,
 /// far better than the linear model; one input only.
@@ -267,38 +301,10 @@ fn fit_wiener_hammerstein_then_simulate() {
     let o = run(&["generate", "saturation", "-o", ds]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
-    let mut e = vec![];
-    for model in ["wiener-hammerstein", "linear"] {
-        let m = d.join(format!("{model}.gbm"));
-        let o = run(&[
-            "fit",
-            train.to_str().unwrap(),
-            "--model",
-            model,
-            "-o",
-            m.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let sim = d.join("sim.csv");
-        let o = run(&[
-            "simulate",
-            m.to_str().unwrap(),
-            val.to_str().unwrap(),
-            "-o",
-            sim.to_str().unwrap(),
-            "--init-window",
-            "50",
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let out = String::from_utf8_lossy(&o.stdout).to_string();
-        e.push(
-            out.split("NRMSE ")
-                .nth(1)
-                .and_then(|s| s.split_whitespace().next())
-                .and_then(|v| v.parse::<f64>().ok())
-                .expect("NRMSE"),
-        );
-    }
+    let e: Vec<f64> = ["wiener-hammerstein", "linear"]
+        .iter()
+        .map(|m| fit_then_validate(&d, &train, &val, m, &[]))
+        .collect();
     // the generated record's noise floor is about 0.024
     assert!(
         e[0] < 0.035 && e[0] < 0.3 * e[1],
@@ -368,43 +374,10 @@ fn fit_lmn_state_space_then_simulate() {
     let (train, val) = (d.join("train.csv"), d.join("val.csv"));
     tanks_csv(&train, 3, 1000);
     tanks_csv(&val, 4, 600);
-    let mut e = vec![];
-    for (model, extra) in [
-        ("lmn-state-space", ["--max-leaves", "1"]),
-        ("linear", ["--order", "2"]),
-    ] {
-        let m = d.join(format!("{model}.gbm"));
-        let o = run(&[
-            "fit",
-            train.to_str().unwrap(),
-            "--model",
-            model,
-            extra[0],
-            extra[1],
-            "-o",
-            m.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let sim = d.join("sim.csv");
-        let o = run(&[
-            "simulate",
-            m.to_str().unwrap(),
-            val.to_str().unwrap(),
-            "-o",
-            sim.to_str().unwrap(),
-            "--init-window",
-            "50",
-        ]);
-        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-        let out = String::from_utf8_lossy(&o.stdout).to_string();
-        e.push(
-            out.split("NRMSE ")
-                .nth(1)
-                .and_then(|s| s.split_whitespace().next())
-                .and_then(|v| v.parse::<f64>().ok())
-                .expect("NRMSE"),
-        );
-    }
+    let e = [
+        fit_then_validate(&d, &train, &val, "lmn-state-space", &["--max-leaves", "1"]),
+        fit_then_validate(&d, &train, &val, "linear", &["--order", "2"]),
+    ];
     // noise-free data of a known two-tank system: close, and far better
     // than the linear model
     assert!(
