@@ -479,6 +479,12 @@ pub struct OeParams {
     /// arguments (±25 %) in the simulation of the linear stage.
     #[serde(default)]
     pub adapt_boxes: bool,
+    /// Tikhonov weight ρ on the wavelet coefficients: LM minimises
+    /// `Σ e² + ρ Σ c²` (output units squared per squared coefficient), which
+    /// keeps coefficients that the training data barely determine near 0
+    /// (0: off).
+    #[serde(default)]
+    pub ridge: f64,
 }
 
 impl Default for OeParams {
@@ -493,6 +499,7 @@ impl Default for OeParams {
             skip: 0,
             prune: true,
             adapt_boxes: false,
+            ridge: 0.0,
         }
     }
 }
@@ -538,6 +545,11 @@ impl OeParams {
         self.max_new = v;
         self
     }
+    /// Sets the Tikhonov weight ρ on the wavelet coefficients.
+    pub fn ridge(mut self, v: f64) -> Self {
+        self.ridge = v;
+        self
+    }
     /// Re-fit the boxes of empty terms after the linear stage.
     pub fn adapt_boxes(mut self, yes: bool) -> Self {
         self.adapt_boxes = yes;
@@ -558,6 +570,11 @@ impl OeParams {
         if !(-10..=12).contains(&self.coarse_level) || self.max_level > 14 {
             return Err(ModelError::InvalidArgument(
                 "coarse_level must be in -10..=12 and max_level <= 14".into(),
+            ));
+        }
+        if !(self.ridge.is_finite() && self.ridge >= 0.0) {
+            return Err(ModelError::InvalidArgument(
+                "ridge must be finite and >= 0".into(),
             ));
         }
         if let Some(p) = self.penalty {
@@ -643,6 +660,22 @@ impl OutputError {
             return Ok(cost);
         }
         let hreg = hysteresis_regressors(m, ctx.inputs);
+        // ridge on the wavelet coefficients: minimise sse + ρ Σ c²
+        let rho = self.params.ridge;
+        let is_coef: Vec<bool> = cols.iter().map(|c| matches!(c, Param::Coef(..))).collect();
+        let pen = |th: &[f64]| -> f64 {
+            if rho == 0.0 {
+                return 0.0;
+            }
+            rho * th
+                .iter()
+                .zip(&is_coef)
+                .filter(|(_, c)| **c)
+                .map(|(v, _)| v * v)
+                .sum::<f64>()
+        };
+        let mut sse_now = cost;
+        cost += pen(&theta);
         let mut lambda = 1e-3;
         for _ in 0..self.params.max_iter {
             ctx.iterations += 1;
@@ -663,8 +696,16 @@ impl OutputError {
                         h[(b, a)] = so.jtj[a * q + b];
                     }
                     h[(a, a)] += lambda * so.diag[a].max(1e-10 * dmax) + 1e-14 * dmax;
+                    if is_coef[a] {
+                        h[(a, a)] += rho;
+                    }
                 }
-                let g = nalgebra::DVector::from_column_slice(&so.jte);
+                let mut g = nalgebra::DVector::from_column_slice(&so.jte);
+                for a in 0..q {
+                    if is_coef[a] {
+                        g[a] -= rho * theta[a];
+                    }
+                }
                 let Some(ch) = h.cholesky() else {
                     lambda *= 10.0;
                     continue;
@@ -676,11 +717,13 @@ impl OutputError {
                     continue;
                 }
                 set_params(m, cols, &trial)?;
-                let c = sse(m, ctx.inputs, ctx.y, ctx.skip);
+                let c_sse = sse(m, ctx.inputs, ctx.y, ctx.skip);
+                let c = c_sse + pen(&trial);
                 if c < cost {
                     let rel = (cost - c) / cost.max(1e-300);
                     theta = trial;
                     cost = c;
+                    sse_now = c_sse;
                     lambda = (lambda / 3.0).max(1e-12);
                     improved = rel > self.params.tol;
                     break;
@@ -693,7 +736,7 @@ impl OutputError {
             }
         }
         set_params(m, cols, &theta)?;
-        Ok(cost)
+        Ok(sse_now)
     }
 
     fn n_eff(&self, ctx: &Ctx) -> f64 {

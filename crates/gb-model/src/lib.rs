@@ -29,6 +29,7 @@
 #![allow(clippy::needless_range_loop)]
 
 mod basis;
+mod damper;
 mod error;
 mod everett;
 mod identify;
@@ -39,6 +40,7 @@ mod smc;
 mod structures;
 
 pub use basis::{Coefficient, EvalScratch, SparseExpansion, MAX_DIMS, TABLE_RESOLUTION};
+pub use damper::MrDamperStructure;
 pub use error::{ModelError, Result};
 pub use everett::WaveletEverett;
 pub use gb_wavelet::AtomKind;

@@ -138,6 +138,66 @@ fn output_error_identifies_a_hidden_state_nonlinearity() {
     }
 }
 
+/// The ridge ρ Σ c² pulls the wavelet coefficients towards 0: a weak ridge
+/// keeps the training error, a strong one trades it for a smaller norm.
+#[test]
+fn ridge_shrinks_the_wavelet_coefficients() {
+    let mut truth = mechanical(-H * 4.0, 1.0 - H * 0.6, H);
+    let mut f = SparseExpansion::new("bior2.2", vec![-1.5], vec![1.5]).unwrap();
+    f.add_coarse_grid(4).unwrap();
+    let c = f.phi_center();
+    let vals: Vec<f64> = f
+        .coefficients()
+        .iter()
+        .map(|co| {
+            let p = -1.5 + 3.0 * (co.shifts[0] as f64 + c) / 16.0;
+            -H * 6.0 * p * p * p / 4.0
+        })
+        .collect();
+    f.set_values(&vals).unwrap();
+    truth.terms.push(NonlinearTerm {
+        target: Target::State(1),
+        args: vec![Signal::State(0)],
+        expansion: f,
+    });
+    let u = vec![input(2000, 3, 1.0)];
+    let y = add_noise(&truth.simulate(&u).unwrap(), 0.01, 4);
+    let pmax = y.iter().fold(0.0f64, |a, v| a.max(v.abs())) * 1.1;
+    let mut start = mechanical(-H * 2.0, 1.0 - H, 0.5 * H);
+    start.terms.push(NonlinearTerm {
+        target: Target::State(1),
+        args: vec![Signal::State(0)],
+        expansion: SparseExpansion::new("bior2.2", vec![-pmax], vec![pmax]).unwrap(),
+    });
+    let fit = |ridge: f64| {
+        let (m, r) = OeParams::new()
+            .max_level(2)
+            .ridge(ridge)
+            .check()
+            .unwrap()
+            .fit(start.clone(), &u, &y, &mut Silent)
+            .unwrap();
+        let norm: f64 = m.terms[0]
+            .expansion
+            .coefficients()
+            .iter()
+            .map(|c| c.value * c.value)
+            .sum();
+        (norm, r.rmse)
+    };
+    let (n0, e0) = fit(0.0);
+    let (n_weak, e_weak) = fit(1.0);
+    let (n_strong, e_strong) = fit(1e7);
+    assert!(n0 > 0.0);
+    // a weak ridge keeps the fit and picks the smaller of equally good
+    // representations (the linear part of f trades against A's spring)
+    assert!(e_weak < 1.02 * e0, "rmse {e_weak} vs {e0}");
+    assert!(n_weak <= 1.001 * n0, "norm {n_weak} vs {n0}");
+    // a strong one shrinks the coefficients at the price of the fit
+    assert!(n_strong < 0.5 * n_weak, "norm {n_strong} vs {n_weak}");
+    assert!(e_strong > 1.05 * e0, "rmse {e_strong} vs {e0}");
+}
+
 /// A Preisach component with a wavelet Everett function driven by the input.
 #[test]
 fn output_error_identifies_a_preisach_component() {
@@ -204,6 +264,8 @@ fn model_files_are_checked() {
 fn options_and_data_are_validated() {
     assert!(OeParams::new().max_iter(0).check().is_err());
     assert!(OeParams::new().penalty(f64::NAN).check().is_err());
+    assert!(OeParams::new().ridge(-1.0).check().is_err());
+    assert!(OeParams::new().ridge(f64::INFINITY).check().is_err());
     assert!(SmcParams::new().iterations(10, 10).check().is_err());
     let fit = OeParams::new().check().unwrap();
     let m = mechanical(-0.05, 0.99, 0.01);

@@ -91,7 +91,7 @@ struct BenchArgs {
     /// Small subsets and one diagnosis step: minutes, for CI; not comparable with published numbers.
     #[arg(long)]
     quick: bool,
-    /// Markdown file whose generated results block is replaced (default: docs/results.md for a full run, none for --quick).
+    /// Markdown file whose generated results block is replaced (default: docs/results.md for a full run, none for --quick); with --only, the rows of the other benchmarks stay.
     #[arg(long, value_name = "FILE")]
     results: Option<PathBuf>,
     /// Do not write a results file.

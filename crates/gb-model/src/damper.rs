@@ -1,0 +1,251 @@
+//! A grey-box structure for magnetorheological (MR) dampers, after
+//! Spencer et al. (1997): force from displacement `D`, velocity `V`, the
+//! command voltage `Y` and optionally the actuator acceleration `A`.
+//!
+//! ```text
+//! w₁⁺ = a₁ w₁ + b Y,   w₂⁺ = a₂₁ w₁ + a₂ w₂          voltage → field (2nd order)
+//! r⁺  = a_r r + b_r V + a_rz z + a_rw·w              relative velocity (lag of V)
+//! z⁺  = a_z z + f(r, z, w₂)                          hidden hysteretic state
+//! q⁺  = R q + B_q u + e z + f_q(V, z, w₁)            rig resonances (2 states each)
+//! F   = c·x + d·u + g(V, z, w₂) + F₀
+//! ```
+//!
+//! Spencer's model drives the Bouc-Wen state by the velocity *relative* to
+//! an internal displacement; here that relative velocity is the hidden state
+//! `r`, and the Bouc-Wen law, the voltage dependence of its parameters and
+//! the viscous/yield force are the 3-D `bior2.2` expansions `f` and `g`,
+//! identified by output error. The load cell of a test rig sees structural
+//! resonances above the excitation band; each is a 2-state linear block
+//! driven by the inputs (with `A`: the inertia the cell feels), the first
+//! also by z and by `f_q`.
+use crate::basis::SparseExpansion;
+use crate::error::{ModelError, Result};
+use crate::identify::{Observer, OeReport, OutputError};
+use crate::model::{NoiseModel, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
+
+/// Options of the [MR damper structure](self); `Default` is the structure
+/// of `examples/mr_damper.rs`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MrDamperStructure {
+    /// Sample rate in Hz (for the resonance start frequencies).
+    pub sample_rate: f64,
+    /// Start frequencies (Hz) of the rig resonances, one 2-state block each.
+    pub resonances_hz: Vec<f64>,
+    /// The relative-velocity state `r` (else `f` takes `V`).
+    pub relative_velocity: bool,
+    /// Second-order voltage filter (else first order).
+    pub second_order_voltage: bool,
+}
+
+impl Default for MrDamperStructure {
+    fn default() -> Self {
+        Self {
+            sample_rate: 3004.8,
+            resonances_hz: vec![150.0, 120.0],
+            relative_velocity: true,
+            second_order_voltage: true,
+        }
+    }
+}
+
+/// Appends `k` states (zero rows and columns, `c` free) and returns the
+/// index of the first.
+fn grow(m: &mut SparseStateSpace, k: usize) -> usize {
+    let (n0, nu) = (m.n_states, m.n_inputs);
+    let n1 = n0 + k;
+    let mut a = vec![0.0; n1 * n1];
+    let mut af = vec![false; n1 * n1];
+    for i in 0..n0 {
+        for j in 0..n0 {
+            a[i * n1 + j] = m.a[i * n0 + j];
+            af[i * n1 + j] = m.structure.a[i * n0 + j];
+        }
+    }
+    m.a = a;
+    m.structure.a = af;
+    m.b.extend(vec![0.0; k * nu]);
+    m.structure.b.extend(vec![false; k * nu]);
+    m.c.extend(vec![0.0; k]);
+    m.structure.c.extend(vec![true; k]);
+    m.x0.extend(vec![0.0; k]);
+    m.structure.x0.extend(vec![false; k]);
+    m.process_noise
+        .extend(vec![NoiseModel::Gaussian { sd: 0.0 }; k]);
+    m.n_states = n1;
+    n0
+}
+
+impl MrDamperStructure {
+    /// The start model for `inputs = [D, V, Y]` or `[D, V, Y, A]` and the
+    /// measured force `y` (for its mean): all linear couplings at small
+    /// values, the wavelet terms empty on boxes of ±1.25 × the start model's
+    /// state ranges (±1.1 × max |V| for velocities).
+    ///
+    /// ```
+    /// let n = 400;
+    /// let u: Vec<Vec<f64>> = (0..3)
+    ///     .map(|k| (0..n).map(|t| ((t * (k + 1)) as f64 * 0.05).sin()).collect())
+    ///     .collect();
+    /// let y = vec![1.0; n];
+    /// let m = gb_model::MrDamperStructure::default().start(&u, &y)?;
+    /// assert_eq!(m.n_states, 8); // z, w₁, w₂, r, two resonances
+    /// assert_eq!(m.terms.len(), 3);
+    /// # Ok::<(), gb_model::ModelError>(())
+    /// ```
+    pub fn start(&self, inputs: &[Vec<f64>], y: &[f64]) -> Result<SparseStateSpace> {
+        let nu = inputs.len();
+        if !(3..=4).contains(&nu) {
+            return Err(ModelError::InvalidArgument(format!(
+                "the MR damper structure takes inputs D, V, Y [, A], got {nu} inputs"
+            )));
+        }
+        let n = y.len();
+        if n < 2 || inputs.iter().any(|s| s.len() != n) {
+            return Err(ModelError::InvalidArgument(
+                "inputs and force must have the same length (≥ 2)".into(),
+            ));
+        }
+        if !(self.sample_rate > 0.0 && self.sample_rate.is_finite())
+            || self
+                .resonances_hz
+                .iter()
+                .any(|f| !(*f > 0.0 && *f < 0.5 * self.sample_rate))
+        {
+            return Err(ModelError::InvalidArgument(
+                "resonance frequencies must lie in (0, sample rate / 2)".into(),
+            ));
+        }
+        // z ← V, w ← Y
+        let mut m = SparseStateSpace::linear(vec![0.95], vec![0.0; nu], vec![0.0], vec![0.0; nu])?;
+        m.b[1] = 0.05;
+        m.structure = Structure {
+            a: vec![true],
+            b: vec![false; nu],
+            c: vec![true],
+            d: vec![true; nu],
+            x0: vec![false],
+            y_offset: true,
+        };
+        m.structure.b[1] = true;
+        m.y_offset = gb_core::metrics::mean(y);
+        let w1 = grow(&mut m, 1);
+        let ns = |m: &SparseStateSpace| m.n_states;
+        let set = |m: &mut SparseStateSpace, i: usize, j: usize, v: f64| {
+            let n = ns(m);
+            m.a[i * n + j] = v;
+            m.structure.a[i * n + j] = true;
+        };
+        let setb = |m: &mut SparseStateSpace, i: usize, j: usize, v: f64| {
+            m.b[i * nu + j] = v;
+            m.structure.b[i * nu + j] = true;
+        };
+        set(&mut m, w1, w1, 0.95);
+        setb(&mut m, w1, 2, 0.05);
+        let w = if self.second_order_voltage {
+            let w2 = grow(&mut m, 1);
+            // the growth left w₁'s row in place
+            let n_now = ns(&m);
+            m.a[w1 * n_now + w1] = 0.9;
+            m.b[w1 * nu + 2] = 0.1;
+            set(&mut m, w2, w1, 0.1);
+            set(&mut m, w2, w2, 0.9);
+            w2
+        } else {
+            w1
+        };
+        let r = if self.relative_velocity {
+            let r = grow(&mut m, 1);
+            for j in 0..ns(&m) {
+                set(&mut m, r, j, if j == r { 0.3 } else { 0.0 });
+            }
+            setb(&mut m, r, 1, 0.7);
+            Some(r)
+        } else {
+            None
+        };
+        let res0 = ns(&m);
+        for (k, hz) in self.resonances_hz.iter().enumerate() {
+            let p = grow(&mut m, 2);
+            let q = p + 1;
+            let th = std::f64::consts::TAU * hz / self.sample_rate;
+            let rad = 0.97;
+            set(&mut m, p, p, rad * th.cos());
+            set(&mut m, p, q, -rad * th.sin());
+            set(&mut m, q, p, rad * th.sin());
+            set(&mut m, q, q, rad * th.cos());
+            for i in [p, q] {
+                if k == 0 {
+                    set(&mut m, i, 0, 0.0); // driven by z
+                }
+                for j in 0..nu {
+                    setb(&mut m, i, j, 0.0);
+                }
+            }
+            m.b[p * nu + 1] = 0.01;
+        }
+        // boxes from the start model's simulation
+        let (_, xs) = m.simulate_states(inputs)?;
+        let n_s = ns(&m);
+        let span = |i: usize| {
+            let (lo, hi) = xs
+                .chunks(n_s)
+                .fold((f64::MAX, f64::MIN), |(a, b), x| (a.min(x[i]), b.max(x[i])));
+            let h = 0.25 * (hi - lo).max(1e-9);
+            (lo - h, hi + h)
+        };
+        let vmax = inputs[1]
+            .iter()
+            .fold(0.0f64, |a, x| a.max(x.abs()))
+            .max(1e-9)
+            * 1.1;
+        let (zl, zh) = span(0);
+        let (wl, wh) = span(w);
+        let (w1l, w1h) = span(w1);
+        let drive = match r {
+            Some(r) => {
+                let (rl, rh) = span(r);
+                let rm = rl.abs().max(rh.abs()).max(vmax);
+                (Signal::State(r), -rm, rm)
+            }
+            None => (Signal::Input(1), -vmax, vmax),
+        };
+        m.terms.push(NonlinearTerm {
+            target: Target::State(0),
+            args: vec![drive.0, Signal::State(0), Signal::State(w)],
+            expansion: SparseExpansion::new(
+                "bior2.2",
+                vec![drive.1, zl, wl],
+                vec![drive.2, zh, wh],
+            )?,
+        });
+        m.terms.push(NonlinearTerm {
+            target: Target::Output,
+            args: vec![Signal::Input(1), Signal::State(0), Signal::State(w)],
+            expansion: SparseExpansion::new("bior2.2", vec![-vmax, zl, wl], vec![vmax, zh, wh])?,
+        });
+        if !self.resonances_hz.is_empty() {
+            m.terms.push(NonlinearTerm {
+                target: Target::State(res0),
+                args: vec![Signal::Input(1), Signal::State(0), Signal::State(w1)],
+                expansion: SparseExpansion::new(
+                    "bior2.2",
+                    vec![-vmax, zl, w1l],
+                    vec![vmax, zh, w1h],
+                )?,
+            });
+        }
+        m.check()?;
+        Ok(m)
+    }
+
+    /// Starts from [`start`](Self::start) and identifies by output error.
+    pub fn fit(
+        &self,
+        oe: &OutputError,
+        inputs: &[Vec<f64>],
+        y: &[f64],
+        obs: &mut dyn Observer,
+    ) -> Result<(SparseStateSpace, OeReport)> {
+        oe.fit(self.start(inputs, y)?, inputs, y, obs)
+    }
+}
