@@ -50,9 +50,9 @@ enum Command {
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure by output-error identification.
     #[command(
-        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); lmn-state-space (a local model network in state-space form: hidden states, sqrt basis, learned state bounds; --order states, --max-leaves, --output-max); wiener-hammerstein (a static local model network between two linear filters, from the best linear approximation; one input; --max-leaves sets its local models); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it"
+        after_help = "Model SPEC: linear, lmn, linear+preisach, lmn+preisach (append +student-t for a robust heavy-tailed noise model); lmn-state-space (a local model network in state-space form: hidden states, sqrt basis, learned state bounds; --order states, --max-leaves, --output-max); wiener-hammerstein (a static local model network between two linear filters, from the best linear approximation; one input; --max-leaves sets its local models); state-space, state-space+preisach, state-space+hysteresis (the wavelet-sparse state-space class of gb-model; +hysteresis: a hidden hysteretic state z with a wavelet law, the model diagnose chooses when the simple extensions do not suffice); state-space+damper (a Spencer-like MR damper: inputs displacement, velocity, voltage [, acceleration] in that order; --resonances for test-rig modes, --ridge).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model lmn --weights tree --splits oblique --prune --focus simulation --max-leaves 10 -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm   # 0.28 mV on the Silverbox multisine test\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm   # per-input delays, two experiments\n  greybox fit train.csv --model state-space+hysteresis -o m.gbs   # hidden hysteretic force, as diagnose chooses it\n  greybox fit mr.csv --model state-space+damper --input D --input V --input Y --input A --output F --resonances 150,120 -o mr.gbs"
     )]
-    Fit(FitArgs),
+    Fit(Box<FitArgs>),
     /// Simulate a saved model on the inputs of a CSV file (free run).
     #[command(
         after_help = "Example:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50"
@@ -235,6 +235,15 @@ struct FitArgs {
     /// `--model lmn` only: partition space, all (every regressor) or y1 (the last output only).
     #[arg(long, value_name = "all|y1")]
     partition: Option<String>,
+    /// `--model state-space+damper` only: start frequencies (Hz) of test-rig resonances seen in the force, one 2-state block each (`150,120`; default none).
+    #[arg(long, value_name = "HZ[,HZ..]")]
+    resonances: Option<String>,
+    /// `--model state-space+damper` only: sample rate in Hz (default: from a `t` column of the training file).
+    #[arg(long, value_name = "HZ")]
+    sample_rate: Option<f64>,
+    /// `--model state-space+damper` only: Tikhonov weight on the wavelet coefficients (output units squared per squared coefficient; default 0).
+    #[arg(long, value_name = "RHO")]
+    ridge: Option<f64>,
 }
 
 /// A per-input list flag: one value for every input or one per input, each
@@ -410,7 +419,7 @@ fn main() -> ExitCode {
     let quiet = cli.quiet || !std::io::stdout().is_terminal() || !std::io::stderr().is_terminal();
     let r = match cli.command {
         Command::Diagnose(a) => run_diagnose(a, quiet),
-        Command::Fit(a) => run_fit(a, quiet),
+        Command::Fit(a) => run_fit(*a, quiet),
         Command::Simulate(a) => run_simulate(a),
         Command::Generate(a) => run_generate(a),
         Command::Denoise(a) => run_denoise(a),
@@ -616,6 +625,13 @@ fn print_report(r: &Report) {
 }
 
 fn run_fit(a: FitArgs, quiet: bool) -> Result<()> {
+    if a.model != "state-space+damper"
+        && (a.resonances.is_some() || a.sample_rate.is_some() || a.ridge.is_some())
+    {
+        return Err(
+            "--resonances, --sample-rate and --ridge need --model state-space+damper".into(),
+        );
+    }
     if a.model.starts_with("state-space") {
         return run_fit_state_space(a.clone_for_state_space(), quiet);
     }
@@ -700,9 +716,10 @@ fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
         "" => false,
         "+preisach" => true,
         "+hysteresis" => return run_fit_hysteretic_state_space(a, quiet),
+        "+damper" => return run_fit_damper(a, quiet),
         _ => {
             return Err(format!(
-            "unknown model '{}': use state-space, state-space+preisach or state-space+hysteresis",
+            "unknown model '{}': use state-space, state-space+preisach, state-space+hysteresis or state-space+damper",
             a.model
         ))
         }
@@ -726,6 +743,94 @@ fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
         bar.as_mut(),
     )
     .map_err(|e| e.to_string())?;
+    let bytes = m.to_bytes().map_err(|e| e.to_string())?;
+    gb_core::write_atomic(&a.out, &bytes).map_err(|e| e.to_string())?;
+    println!("model: {}", m.describe());
+    println!("parameters: {}", m.n_parameters());
+    let sim = m.simulate(&data.inputs).map_err(|e| e.to_string())?;
+    let nrmse = gb_core::metrics::nrmse(&data.output, &sim).map_err(|e| e.to_string())?;
+    println!(
+        "training NRMSE (free-run simulation): {nrmse:.4}; path {:?}, log-likelihood {:.1}",
+        report.path, report.log_likelihood
+    );
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+/// `greybox fit --model state-space+damper`: the Spencer-like MR damper
+/// structure of gb-model (`MrDamperStructure`) on inputs D, V, Y [, A].
+fn run_fit_damper(a: StateSpaceFit, quiet: bool) -> Result<()> {
+    let data = load(&a.train, &a.signals)?;
+    if !(3..=4).contains(&data.n_inputs()) {
+        return Err(format!(
+            "{}: --model state-space+damper takes 3 or 4 inputs (displacement, velocity, voltage [, acceleration], in that order), got {} ({})",
+            a.train.display(),
+            data.n_inputs(),
+            data.input_names.join(", ")
+        ));
+    }
+    data.check_identifiable(&a.train.display().to_string(), 500)
+        .map_err(|e| e.to_string())?;
+    let resonances_hz: Vec<f64> = match &a.resonances {
+        None => Vec::new(),
+        Some(v) => v
+            .split(',')
+            .map(|x| {
+                x.trim()
+                    .parse::<f64>()
+                    .ok()
+                    .filter(|f| *f > 0.0 && f.is_finite())
+                    .ok_or_else(|| format!("--resonances: '{x}' is not a frequency > 0 in Hz"))
+            })
+            .collect::<Result<_>>()?,
+    };
+    let sample_rate = match a.sample_rate {
+        Some(f) if f > 0.0 && f.is_finite() => f,
+        Some(f) => return Err(format!("--sample-rate must be > 0, got {f}")),
+        None if resonances_hz.is_empty() => 1.0,
+        None => {
+            let t = CsvTable::read(&a.train).map_err(|e| e.to_string())?;
+            let col = t.column("t").map_err(|_| {
+                format!(
+                    "{}: no `t` column to take the sample rate from; give --sample-rate",
+                    a.train.display()
+                )
+            })?;
+            let n = col.len();
+            let dt = if n > 1 {
+                (col[n - 1] - col[0]) / (n - 1) as f64
+            } else {
+                0.0
+            };
+            if !(dt > 0.0 && dt.is_finite()) {
+                return Err(format!(
+                    "{}: column t does not increase; give --sample-rate",
+                    a.train.display()
+                ));
+            }
+            1.0 / dt
+        }
+    };
+    let structure = gb_model::MrDamperStructure {
+        sample_rate,
+        resonances_hz,
+        ..gb_model::MrDamperStructure::default()
+    };
+    let oe = gb_model::OeParams::new()
+        .ridge(a.ridge.unwrap_or(0.0))
+        .check()
+        .map_err(|e| e.to_string())?;
+    let mut bar: Box<dyn gb_model::Observer> = if quiet {
+        Box::new(gb_model::Silent)
+    } else {
+        Box::new(gb_model::ProgressBar::new())
+    };
+    let (mut m, report) = structure
+        .fit(&oe, &data.inputs, &data.output, bar.as_mut())
+        .map_err(|e| format!("--model state-space+damper: {e}"))?;
+    let mut names = data.input_names.clone();
+    names.push(data.output_name.clone());
+    m.signal_names = names;
     let bytes = m.to_bytes().map_err(|e| e.to_string())?;
     gb_core::write_atomic(&a.out, &bytes).map_err(|e| e.to_string())?;
     println!("model: {}", m.describe());
@@ -862,6 +967,9 @@ struct StateSpaceFit {
     signals: SignalArgs,
     order: usize,
     out: PathBuf,
+    resonances: Option<String>,
+    sample_rate: Option<f64>,
+    ridge: Option<f64>,
 }
 
 impl FitArgs {
@@ -873,6 +981,9 @@ impl FitArgs {
             signals: self.signals,
             order: self.order,
             out: self.out,
+            resonances: self.resonances,
+            sample_rate: self.sample_rate,
+            ridge: self.ridge,
         }
     }
 }
