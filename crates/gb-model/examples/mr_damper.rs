@@ -28,9 +28,7 @@
 //! filter), `MR_A=0` (no acceleration input), `MR_RIDGES` (candidate ridge
 //! weights, e.g. `0,1000`), `MR_ITER`, `MR_LEVEL`.
 use gb_core::{metrics, CsvTable};
-use gb_model::{
-    linear_from_oe, MrDamperStructure, OeParams, ProgressBar, Silent, SparseStateSpace,
-};
+use gb_model::{linear_from_oe, MrDamperStructure, OeParams, ProgressBar, SparseStateSpace};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -82,7 +80,6 @@ fn main() -> Res<()> {
     let (d, v, f) = (t.column("D")?, t.column("V")?, t.column("F")?);
     let n = f.len();
     let n_fit = n * 7 / 10;
-    let n_val = n_fit * 8 / 10;
     let mut inputs: Vec<Vec<f64>> = ["D", "V", "Y"]
         .iter()
         .map(|c| t.column(c).map(|s| s.to_vec()))
@@ -125,38 +122,22 @@ fn main() -> Res<()> {
         second_order_voltage: env_flag("MR_W2", true),
         ..MrDamperStructure::default()
     };
-    let oe = |ridge: f64| {
-        OeParams::new()
-            .max_iter(env_num("MR_ITER", 30))
-            .max_level(env_num("MR_LEVEL", 3))
-            .ridge(ridge)
-            .check()
-    };
+    let oe = OeParams::new()
+        .max_iter(env_num("MR_ITER", 30))
+        .max_level(env_num("MR_LEVEL", 3));
     // the ridge weight, chosen on the last 20 % of the training part
     let ridges = env_list("MR_RIDGES", &[0.0, 1e3]);
-    let mut ridge = ridges.first().copied().unwrap_or(0.0);
-    if ridges.len() > 1 {
-        let mut best = f64::INFINITY;
-        for &r in &ridges {
-            let fitted = structure.fit(&oe(r)?, &head(n_val), &f[..n_val], &mut Silent);
-            let e = match fitted {
-                Ok((m, _)) => {
-                    score(&m, &head(n_fit), f, n_val..n_fit).map_or(f64::INFINITY, |s| s.0)
-                }
-                Err(_) => f64::INFINITY,
-            };
-            println!("  ridge {r:e}: validation NRMSE {e:.4}");
-            if e < best {
-                (best, ridge) = (e, r);
-            }
-        }
-    }
-    let (model, report) = structure.fit(
-        &oe(ridge)?,
+    let fit = structure.fit_validated(
+        &oe,
+        &ridges,
         &head(n_fit),
         &f[..n_fit],
         &mut ProgressBar::new(),
     )?;
+    for (r, e) in &fit.scores {
+        println!("  ridge {r:e}: validation NRMSE {e:.4}");
+    }
+    let (model, report, ridge) = (fit.model, fit.report, fit.ridge);
     for s in &report.stages {
         println!(
             "  stage {:<16} coefficients {:>4}  train RMSE {:.2} N  {}",

@@ -516,47 +516,27 @@ fn fit_class(
         } => {
             let d = train.slice(0..train_rows.min(train.len()));
             let structure = gb_model::MrDamperStructure::default();
-            let oe = |ridge: f64| {
-                OeParams::new()
-                    .max_iter(iterations)
-                    .max_level(max_level)
-                    .ridge(ridge)
-                    .check()
-                    .map_err(|e| e.to_string())
-            };
-            // the ridge weight on the last 20 % of the training rows
-            let n_val = d.len() * 8 / 10;
-            let head = d.slice(0..n_val);
-            let mut best = (f64::INFINITY, 0.0);
-            for ridge in [0.0, 1e3] {
-                let e = structure
-                    .fit(
-                        &oe(ridge)?,
-                        &head.inputs,
-                        &head.output,
-                        &mut gb_model::Silent,
-                    )
-                    .ok()
-                    .and_then(|(m, _)| m.simulate(&d.inputs).ok())
-                    .and_then(|s| metrics::nrmse(&d.output[n_val..], &s[n_val..]).ok())
-                    .unwrap_or(f64::INFINITY);
-                if e < best.0 {
-                    best = (e, ridge);
-                }
-            }
             let mut bar: Box<dyn gb_model::Observer> = if quiet {
                 Box::new(gb_model::Silent)
             } else {
                 Box::new(gb_model::ProgressBar::new())
             };
-            let (m, _) = structure
-                .fit(&oe(best.1)?, &d.inputs, &d.output, bar.as_mut())
+            // the ridge weight on the last 20 % of the training rows
+            let fit = structure
+                .fit_validated(
+                    &OeParams::new().max_iter(iterations).max_level(max_level),
+                    &[0.0, 1e3],
+                    &d.inputs,
+                    &d.output,
+                    bar.as_mut(),
+                )
                 .map_err(|e| e.to_string())?;
+            let (m, ridge) = (fit.model, fit.ridge);
             let text = format!(
                 "gb-model MR damper structure: relative velocity, hysteretic z, 2nd-order voltage filter, {} rig resonances; {} (ridge {:e} chosen on the last 20 % of the training rows)",
                 structure.resonances_hz.len(),
                 m.describe(),
-                best.1
+                ridge
             );
             Ok((Fitted::StateSpace(m), text, d.len()))
         }
