@@ -1,8 +1,8 @@
 //! MR damper, white-noise characterisation test (Dyke, NEES-2012-1158):
-//! force from displacement D, velocity V, voltage Y and actuator
-//! acceleration A with the grey-box wavelet state-space class in the
-//! [`MrDamperStructure`] (Spencer-like: hidden relative velocity r, hidden
-//! hysteretic state z, second-order voltage filter, two rig resonances).
+//! force from displacement D, velocity V and voltage Y (`MR_A=1`: also the
+//! actuator acceleration A) with the grey-box wavelet state-space class in
+//! the [`MrDamperStructure`] (Spencer-like: hidden relative velocity r,
+//! hidden hysteretic state z, second-order voltage filter, rig resonances).
 //!
 //! Protocol: the first 70 % of `ranran_50.csv` trains, the last 30 % tests.
 //! The white-noise excitation ends 21.2 s into the 24.6 s record (voltage
@@ -12,9 +12,10 @@
 //! the whole record from rest, driven by the inputs only, on the excited
 //! test part (headline) and on the whole test part. The linear baselines
 //! are order-2 output-error models (gb-lmn) with inputs (D, V, Y) and
-//! (D, V, Y, A); the better of the two is the reference. The ridge weight
-//! of the grey-box fit is chosen on the last 20 % of the training part,
-//! then the model is refitted on all of it.
+//! (with `MR_A=1`) (D, V, Y, A); the better of the two is the reference. The resonance set
+//! (150 Hz, or 150 and 120 Hz) and the ridge weight (0 or 10³) of the
+//! grey-box fit are chosen on the last 20 % of the training part
+//! (`MrDamperStructure::select`), then the model is refitted on all of it.
 //!
 //! ```sh
 //! cargo run --release -p gb-model --example mr_damper [-- OUT_DIR]
@@ -23,9 +24,9 @@
 //! `OUT_DIR` receives `mr_damper_loops.csv` (velocity, displacement,
 //! measured, linear and model force on the test part), the force–velocity
 //! loops as `mr_damper_loops.svg` and the model as `mr_damper.gbs`.
-//! Environment: `MR_RES_HZ` (resonance start frequencies, e.g. `150,120`),
+//! Environment: `MR_RES_HZ` (one resonance set instead, e.g. `150,120`),
 //! `MR_REL=0` (no relative-velocity state), `MR_W2=0` (first-order voltage
-//! filter), `MR_A=0` (no acceleration input), `MR_RIDGES` (candidate ridge
+//! filter), `MR_A=1` (acceleration as a fourth input), `MR_RIDGES` (candidate ridge
 //! weights, e.g. `0,1000`), `MR_ITER`, `MR_LEVEL`.
 use gb_core::{metrics, CsvTable};
 use gb_model::{linear_from_oe, MrDamperStructure, OeParams, ProgressBar, SparseStateSpace};
@@ -84,7 +85,7 @@ fn main() -> Res<()> {
         .iter()
         .map(|c| t.column(c).map(|s| s.to_vec()))
         .collect::<Result<_, _>>()?;
-    let use_acc = env_flag("MR_A", true);
+    let use_acc = env_flag("MR_A", false);
     if use_acc {
         inputs.push(t.column("A")?.to_vec());
     }
@@ -116,28 +117,45 @@ fn main() -> Res<()> {
         }
     }
 
-    let structure = MrDamperStructure {
-        resonances_hz: env_list("MR_RES_HZ", &[150.0, 120.0]),
-        relative_velocity: env_flag("MR_REL", true),
-        second_order_voltage: env_flag("MR_W2", true),
-        ..MrDamperStructure::default()
+    // the resonance set (MR_RES_HZ: one set, `150,120`; default: 150 Hz
+    // alone or 150 and 120 Hz) and the ridge weight, chosen on the last
+    // 20 % of the training part
+    let res_sets: Vec<Vec<f64>> = match std::env::var("MR_RES_HZ") {
+        Ok(_) => vec![env_list("MR_RES_HZ", &[])],
+        Err(_) => vec![vec![150.0], vec![150.0, 120.0]],
     };
+    let structures: Vec<MrDamperStructure> = res_sets
+        .into_iter()
+        .map(|r| MrDamperStructure {
+            resonances_hz: r,
+            relative_velocity: env_flag("MR_REL", true),
+            second_order_voltage: env_flag("MR_W2", true),
+            ..MrDamperStructure::default()
+        })
+        .collect();
     let oe = OeParams::new()
         .max_iter(env_num("MR_ITER", 30))
         .max_level(env_num("MR_LEVEL", 3));
-    // the ridge weight, chosen on the last 20 % of the training part
     let ridges = env_list("MR_RIDGES", &[0.0, 1e3]);
-    let fit = structure.fit_validated(
+    let fit = MrDamperStructure::select(
+        &structures,
         &oe,
         &ridges,
         &head(n_fit),
         &f[..n_fit],
         &mut ProgressBar::new(),
     )?;
-    for (r, e) in &fit.scores {
-        println!("  ridge {r:e}: validation NRMSE {e:.4}");
+    for (k, r, e) in &fit.scores {
+        println!(
+            "  resonances {:?} Hz, ridge {r:e}: validation NRMSE {e:.4}",
+            structures[*k].resonances_hz
+        );
     }
     let (model, report, ridge) = (fit.model, fit.report, fit.ridge);
+    println!(
+        "chosen: resonances {:?} Hz, ridge {ridge:e}",
+        fit.structure.resonances_hz
+    );
     for s in &report.stages {
         println!(
             "  stage {:<16} coefficients {:>4}  train RMSE {:.2} N  {}",

@@ -55,10 +55,13 @@ pub struct ValidatedFit {
     pub model: SparseStateSpace,
     /// Its identification report.
     pub report: OeReport,
+    /// The chosen structure.
+    pub structure: MrDamperStructure,
     /// The chosen ridge weight.
     pub ridge: f64,
-    /// `(ridge, validation NRMSE)` of every candidate (empty for one).
-    pub scores: Vec<(f64, f64)>,
+    /// `(structure index, ridge, validation NRMSE)` of every candidate
+    /// (empty for one).
+    pub scores: Vec<(usize, f64, f64)>,
 }
 
 /// Appends `k` states (zero rows and columns, `c` free) and returns the
@@ -283,42 +286,61 @@ impl MrDamperStructure {
         y: &[f64],
         obs: &mut dyn Observer,
     ) -> Result<ValidatedFit> {
+        Self::select(std::slice::from_ref(self), oe, ridges, inputs, y, obs)
+    }
+
+    /// [`fit_validated`](Self::fit_validated) over several structures: every
+    /// (structure, ridge) pair is scored on the last 20 % of the record, the
+    /// best is refitted on all of it.
+    pub fn select(
+        structures: &[MrDamperStructure],
+        oe: &OeParams,
+        ridges: &[f64],
+        inputs: &[Vec<f64>],
+        y: &[f64],
+        obs: &mut dyn Observer,
+    ) -> Result<ValidatedFit> {
         let n = y.len();
         let n_val = n * 8 / 10;
-        if ridges.is_empty() || n_val < 2 || n_val == n {
+        if ridges.is_empty() || structures.is_empty() || n_val < 2 || n_val == n {
             return Err(ModelError::InvalidArgument(
-                "fit_validated needs at least one ridge weight and a record of ≥ 10 samples".into(),
+                "the selection needs a structure, a ridge weight and a record of ≥ 10 samples"
+                    .into(),
             ));
         }
-        let mut scores = Vec::with_capacity(ridges.len());
-        let mut best = (f64::INFINITY, ridges[0]);
-        if ridges.len() > 1 {
+        let mut scores = Vec::new();
+        let mut best = (f64::INFINITY, 0, ridges[0]);
+        if ridges.len() * structures.len() > 1 {
             let head: Vec<Vec<f64>> = inputs
                 .iter()
                 .map(|s| s[..n_val.min(s.len())].to_vec())
                 .collect();
-            for &r in ridges {
-                let e = oe
-                    .clone()
-                    .ridge(r)
-                    .check()
-                    .and_then(|f| self.fit(&f, &head, &y[..n_val], &mut crate::Silent))
-                    .and_then(|(m, _)| m.simulate(inputs))
-                    .ok()
-                    .and_then(|s| gb_core::metrics::nrmse(&y[n_val..], &s[n_val..]).ok())
-                    .filter(|e| e.is_finite())
-                    .unwrap_or(f64::INFINITY);
-                scores.push((r, e));
-                if e < best.0 {
-                    best = (e, r);
+            for (k, st) in structures.iter().enumerate() {
+                for &r in ridges {
+                    let e = oe
+                        .clone()
+                        .ridge(r)
+                        .check()
+                        .and_then(|f| st.fit(&f, &head, &y[..n_val], &mut crate::Silent))
+                        .and_then(|(m, _)| m.simulate(inputs))
+                        .ok()
+                        .and_then(|s| gb_core::metrics::nrmse(&y[n_val..], &s[n_val..]).ok())
+                        .filter(|e| e.is_finite())
+                        .unwrap_or(f64::INFINITY);
+                    scores.push((k, r, e));
+                    if e < best.0 {
+                        best = (e, k, r);
+                    }
                 }
             }
         }
-        let (model, report) = self.fit(&oe.clone().ridge(best.1).check()?, inputs, y, obs)?;
+        let structure = structures[best.1].clone();
+        let (model, report) = structure.fit(&oe.clone().ridge(best.2).check()?, inputs, y, obs)?;
         Ok(ValidatedFit {
             model,
             report,
-            ridge: best.1,
+            structure,
+            ridge: best.2,
             scores,
         })
     }
@@ -353,6 +375,9 @@ mod tests {
         assert!(bad.start(&u, &y).is_err(), "resonance above Nyquist");
         let fit = s.fit_validated(&OeParams::new(), &[], &u, &y, &mut crate::Silent);
         assert!(fit.is_err(), "no ridge candidate");
+        let sel =
+            MrDamperStructure::select(&[], &OeParams::new(), &[0.0], &u, &y, &mut crate::Silent);
+        assert!(sel.is_err(), "no structure");
     }
 
     #[test]

@@ -101,8 +101,9 @@ enum BestClass {
     },
     /// gb-model `MrDamperStructure`: Spencer-like wavelet grey-box state
     /// space (relative velocity, hysteretic state, voltage filter, two rig
-    /// resonances), output error with the ridge weight chosen on the last
-    /// 20 % of the training data (`crates/gb-model/examples/mr_damper.rs`).
+    /// resonances), output error with the resonance set and the ridge weight
+    /// chosen on the last 20 % of the training data
+    /// (`crates/gb-model/examples/mr_damper.rs`).
     MrDamper {
         max_level: i32,
         iterations: usize,
@@ -515,26 +516,33 @@ fn fit_class(
             train_rows,
         } => {
             let d = train.slice(0..train_rows.min(train.len()));
-            let structure = gb_model::MrDamperStructure::default();
             let mut bar: Box<dyn gb_model::Observer> = if quiet {
                 Box::new(gb_model::Silent)
             } else {
                 Box::new(gb_model::ProgressBar::new())
             };
-            // the ridge weight on the last 20 % of the training rows
-            let fit = structure
-                .fit_validated(
-                    &OeParams::new().max_iter(iterations).max_level(max_level),
-                    &[0.0, 1e3],
-                    &d.inputs,
-                    &d.output,
-                    bar.as_mut(),
-                )
-                .map_err(|e| e.to_string())?;
-            let (m, ridge) = (fit.model, fit.ridge);
+            // the resonance set and the ridge weight on the last 20 % of the
+            // training rows
+            let structures: Vec<gb_model::MrDamperStructure> = [vec![150.0], vec![150.0, 120.0]]
+                .into_iter()
+                .map(|r| gb_model::MrDamperStructure {
+                    resonances_hz: r,
+                    ..gb_model::MrDamperStructure::default()
+                })
+                .collect();
+            let fit = gb_model::MrDamperStructure::select(
+                &structures,
+                &OeParams::new().max_iter(iterations).max_level(max_level),
+                &[0.0, 1e3],
+                &d.inputs,
+                &d.output,
+                bar.as_mut(),
+            )
+            .map_err(|e| e.to_string())?;
+            let (m, ridge, structure) = (fit.model, fit.ridge, fit.structure);
             let text = format!(
-                "gb-model MR damper structure: relative velocity, hysteretic z, 2nd-order voltage filter, {} rig resonances; {} (ridge {:e} chosen on the last 20 % of the training rows)",
-                structure.resonances_hz.len(),
+                "gb-model MR damper structure: relative velocity, hysteretic z, 2nd-order voltage filter, rig resonances started at {:?} Hz; {} (resonances and ridge {:e} chosen on the last 20 % of the training rows)",
+                structure.resonances_hz,
                 m.describe(),
                 ridge
             );

@@ -836,7 +836,7 @@ fn run_fit_damper(a: StateSpaceFit, quiet: bool) -> Result<()> {
             bar.as_mut(),
         )
         .map_err(|e| format!("--model state-space+damper: {e}"))?;
-    for (r, e) in &fit.scores {
+    for (_, r, e) in &fit.scores {
         println!("ridge {r:e}: NRMSE {e:.4} on the last 20 % (fitted on the first 80 %)");
     }
     let (mut m, report) = (fit.model, fit.report);
