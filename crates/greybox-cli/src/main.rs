@@ -743,8 +743,18 @@ fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
         bar.as_mut(),
     )
     .map_err(|e| e.to_string())?;
+    save_state_space(&m, &report, &data, &a.out)
+}
+
+/// Writes a gb-model file (atomically) and prints what `fit` reports for it.
+fn save_state_space(
+    m: &gb_model::SparseStateSpace,
+    report: &gb_model::OeReport,
+    data: &DataSet,
+    out: &Path,
+) -> Result<()> {
     let bytes = m.to_bytes().map_err(|e| e.to_string())?;
-    gb_core::write_atomic(&a.out, &bytes).map_err(|e| e.to_string())?;
+    gb_core::write_atomic(out, &bytes).map_err(|e| e.to_string())?;
     println!("model: {}", m.describe());
     println!("parameters: {}", m.n_parameters());
     let sim = m.simulate(&data.inputs).map_err(|e| e.to_string())?;
@@ -753,7 +763,7 @@ fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
         "training NRMSE (free-run simulation): {nrmse:.4}; path {:?}, log-likelihood {:.1}",
         report.path, report.log_likelihood
     );
-    println!("saved to {}", a.out.display());
+    println!("saved to {}", out.display());
     Ok(())
 }
 
@@ -843,18 +853,7 @@ fn run_fit_damper(a: StateSpaceFit, quiet: bool) -> Result<()> {
     let mut names = data.input_names.clone();
     names.push(data.output_name.clone());
     m.signal_names = names;
-    let bytes = m.to_bytes().map_err(|e| e.to_string())?;
-    gb_core::write_atomic(&a.out, &bytes).map_err(|e| e.to_string())?;
-    println!("model: {}", m.describe());
-    println!("parameters: {}", m.n_parameters());
-    let sim = m.simulate(&data.inputs).map_err(|e| e.to_string())?;
-    let nrmse = gb_core::metrics::nrmse(&data.output, &sim).map_err(|e| e.to_string())?;
-    println!(
-        "training NRMSE (free-run simulation): {nrmse:.4}; path {:?}, log-likelihood {:.1}",
-        report.path, report.log_likelihood
-    );
-    println!("saved to {}", a.out.display());
-    Ok(())
+    save_state_space(&m, &report, &data, &a.out)
 }
 
 /// `greybox fit --model state-space+hysteresis`: a hidden hysteretic state
