@@ -59,21 +59,20 @@ fn add_noise(y: &[f64], frac: f64, seed: u64) -> Vec<f64> {
         .collect()
 }
 
-/// The true system is in the model class: a cubic spring on the velocity row
-/// (hidden velocity). The wavelet term must find it; the linear model cannot.
-#[test]
-fn output_error_identifies_a_hidden_state_nonlinearity() {
+/// The mechanical system with a cubic spring on the velocity row,
+/// f(p) = −h k₃ p³, tabulated on the hat grid of level `j` (the truth, not in
+/// any start model).
+fn cubic_spring_truth(j: i32) -> SparseStateSpace {
     let mut truth = mechanical(-H * 4.0, 1.0 - H * 0.6, H);
-    // f(p) = −h k₃ p³ tabulated on a fine hat grid (the truth, not in the start)
     let mut f = SparseExpansion::new("bior2.2", vec![-1.5], vec![1.5]).unwrap();
-    f.add_coarse_grid(5).unwrap();
+    f.add_coarse_grid(j).unwrap();
     let c = f.phi_center();
-    let norm = 2f64.powf(2.5);
+    let (cells, norm) = (2f64.powi(j), 2f64.powf(0.5 * j as f64));
     let vals: Vec<f64> = f
         .coefficients()
         .iter()
         .map(|co| {
-            let p = -1.5 + 3.0 * (co.shifts[0] as f64 + c) / 32.0;
+            let p = -1.5 + 3.0 * (co.shifts[0] as f64 + c) / cells;
             -H * 6.0 * p * p * p / norm
         })
         .collect();
@@ -83,6 +82,14 @@ fn output_error_identifies_a_hidden_state_nonlinearity() {
         args: vec![Signal::State(0)],
         expansion: f,
     });
+    truth
+}
+
+/// The true system is in the model class: a cubic spring on the velocity row
+/// (hidden velocity). The wavelet term must find it; the linear model cannot.
+#[test]
+fn output_error_identifies_a_hidden_state_nonlinearity() {
+    let truth = cubic_spring_truth(5);
     let u = input(3000, 1, 1.0);
     let y0 = truth.simulate(std::slice::from_ref(&u)).unwrap();
     let y = add_noise(&y0, 0.01, 2);
@@ -142,24 +149,7 @@ fn output_error_identifies_a_hidden_state_nonlinearity() {
 /// keeps the training error, a strong one trades it for a smaller norm.
 #[test]
 fn ridge_shrinks_the_wavelet_coefficients() {
-    let mut truth = mechanical(-H * 4.0, 1.0 - H * 0.6, H);
-    let mut f = SparseExpansion::new("bior2.2", vec![-1.5], vec![1.5]).unwrap();
-    f.add_coarse_grid(4).unwrap();
-    let c = f.phi_center();
-    let vals: Vec<f64> = f
-        .coefficients()
-        .iter()
-        .map(|co| {
-            let p = -1.5 + 3.0 * (co.shifts[0] as f64 + c) / 16.0;
-            -H * 6.0 * p * p * p / 4.0
-        })
-        .collect();
-    f.set_values(&vals).unwrap();
-    truth.terms.push(NonlinearTerm {
-        target: Target::State(1),
-        args: vec![Signal::State(0)],
-        expansion: f,
-    });
+    let truth = cubic_spring_truth(4);
     let u = vec![input(2000, 3, 1.0)];
     let y = add_noise(&truth.simulate(&u).unwrap(), 0.01, 4);
     let pmax = y.iter().fold(0.0f64, |a, v| a.max(v.abs())) * 1.1;
