@@ -4,10 +4,10 @@ use serde::{Deserialize, Serialize};
 /// Columns that are never taken as inputs by default (time or sample index).
 const INDEX_COLUMNS: [&str; 4] = ["t", "time", "k", "ts"];
 
-/// A measured (or simulated) experiment: input signals and one output,
-/// equidistantly sampled.
+/// One record (experiment) of measured or simulated data: named input
+/// signals and one output, equidistantly sampled.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct DataSet {
+pub struct Record {
     /// Names of the input signals.
     pub input_names: Vec<String>,
     /// Name of the output signal.
@@ -16,7 +16,14 @@ pub struct DataSet {
     pub inputs: Vec<Vec<f64>>,
     /// Output samples.
     pub output: Vec<f64>,
+    /// Sample time in seconds, when known (from a uniform `t` column or the
+    /// user).
+    #[serde(default)]
+    pub sample_time: Option<f64>,
 }
+
+/// The former name of [`Record`].
+pub type DataSet = Record;
 
 /// Three contiguous blocks of a record: fit, select (model choice) and report.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -29,7 +36,7 @@ pub struct BlockSplit {
     pub len: usize,
 }
 
-impl DataSet {
+impl Record {
     /// Build a data set, checking that all signals have the same length.
     pub fn new(
         input_names: Vec<String>,
@@ -70,6 +77,7 @@ impl DataSet {
             output_name,
             inputs,
             output,
+            sample_time: None,
         })
     }
 
@@ -120,6 +128,12 @@ impl DataSet {
         Self::new(input_names, output_name, u, y)
     }
 
+    /// The same record with a known sample time (seconds).
+    pub fn with_sample_time(mut self, ts: f64) -> Self {
+        self.sample_time = Some(ts).filter(|t| *t > 0.0 && t.is_finite());
+        self
+    }
+
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.output.len()
@@ -146,6 +160,7 @@ impl DataSet {
                 .map(|u| u[range.clone()].to_vec())
                 .collect(),
             output: self.output[range].to_vec(),
+            sample_time: self.sample_time,
         }
     }
 
@@ -195,6 +210,105 @@ impl DataSet {
             select_end: select_end.min(n),
             len: n,
         }
+    }
+}
+
+/// Several records of the same signals (separate experiments): a model is
+/// fitted on all of them, and no regressor or state spans two records.
+///
+/// ```
+/// use gb_core::{Record, Records};
+/// let a = Record::new(vec!["u".into()], "y".into(), vec![vec![0.0, 1.0]], vec![1.0, 2.0]).unwrap();
+/// let b = Record::new(vec!["u".into()], "y".into(), vec![vec![2.0]], vec![3.0]).unwrap();
+/// let r = Records::new(vec![a.clone(), b]).unwrap();
+/// assert_eq!((r.len(), r.total_samples()), (2, 3));
+/// let c = Record::new(vec!["v".into()], "y".into(), vec![vec![0.0]], vec![0.0]).unwrap();
+/// assert!(Records::new(vec![a, c]).is_err());
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Records {
+    records: Vec<Record>,
+}
+
+impl Records {
+    /// At least one record; all with the same input and output names.
+    pub fn new(records: Vec<Record>) -> Result<Self, CoreError> {
+        let first = records
+            .first()
+            .ok_or_else(|| CoreError::InvalidArgument("no record given".into()))?;
+        if let Some(r) = records
+            .iter()
+            .find(|r| r.input_names != first.input_names || r.output_name != first.output_name)
+        {
+            return Err(CoreError::InvalidArgument(format!(
+                "records hold different signals: {} -> {} and {} -> {}",
+                first.input_names.join(","),
+                first.output_name,
+                r.input_names.join(","),
+                r.output_name
+            )));
+        }
+        Ok(Self { records })
+    }
+
+    /// One record.
+    pub fn single(record: Record) -> Self {
+        Self {
+            records: vec![record],
+        }
+    }
+
+    /// The records.
+    pub fn as_slice(&self) -> &[Record] {
+        &self.records
+    }
+
+    /// Iterate over the records.
+    pub fn iter(&self) -> std::slice::Iter<'_, Record> {
+        self.records.iter()
+    }
+
+    /// The first record (there is always one).
+    pub fn first(&self) -> &Record {
+        &self.records[0]
+    }
+
+    /// Number of records.
+    pub fn len(&self) -> usize {
+        self.records.len()
+    }
+
+    /// Always false (there is at least one record).
+    pub fn is_empty(&self) -> bool {
+        self.records.is_empty()
+    }
+
+    /// Samples over all records.
+    pub fn total_samples(&self) -> usize {
+        self.records.iter().map(Record::len).sum()
+    }
+
+    /// Input names (shared by all records).
+    pub fn input_names(&self) -> &[String] {
+        &self.first().input_names
+    }
+
+    /// Output name (shared by all records).
+    pub fn output_name(&self) -> &str {
+        &self.first().output_name
+    }
+
+    /// The records, consumed.
+    pub fn into_vec(self) -> Vec<Record> {
+        self.records
+    }
+}
+
+impl<'a> IntoIterator for &'a Records {
+    type Item = &'a Record;
+    type IntoIter = std::slice::Iter<'a, Record>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.records.iter()
     }
 }
 

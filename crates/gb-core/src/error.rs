@@ -99,4 +99,13 @@ pub enum CoreError {
     /// Any other invalid argument.
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
+    /// The operation is not available for this model class.
+    #[error("{0}")]
+    Unsupported(String),
+    /// A model file cannot be read (the message names the file).
+    #[error("{0}")]
+    ModelFile(String),
+    /// A simulation or fit diverged.
+    #[error("unstable: {0}")]
+    Unstable(String),
 }

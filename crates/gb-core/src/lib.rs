@@ -1,14 +1,17 @@
 //! # gb-core
 //!
-//! The base of the greybox workspace: measured data ([`DataSet`]), CSV
-//! input/output with precise error messages ([`CsvTable`]), goodness-of-fit
-//! metrics ([`metrics`]), the [`Simulate`] / [`Model`] traits every model class
-//! implements, reproducible random streams ([`rng`]) and the crate error
-//! ([`CoreError`]).
+//! The base of the greybox workspace: measured data ([`Record`],
+//! [`Records`]), CSV input/output with precise error messages
+//! ([`CsvTable`]), goodness-of-fit metrics ([`metrics`]), the traits every
+//! model class implements ([`DynamicModel`], [`Identify`]), the fitted-model
+//! envelope and its file format ([`FittedModel`]), the noise model
+//! ([`NoiseModel`]), the one Levenberg–Marquardt [`solver`], the one
+//! [`Observer`] of long work, reproducible random streams ([`rng`]) and the
+//! crate error ([`CoreError`]).
 //!
 //! ```
-//! use gb_core::{DataSet, metrics};
-//! let ds = DataSet::new(vec!["u".into()], "y".into(), vec![vec![0.0, 1.0, 2.0]], vec![0.0, 1.0, 2.5]).unwrap();
+//! use gb_core::{Record, metrics};
+//! let ds = Record::new(vec!["u".into()], "y".into(), vec![vec![0.0, 1.0, 2.0]], vec![0.0, 1.0, 2.5]).unwrap();
 //! assert_eq!(ds.len(), 3);
 //! let e = metrics::nrmse(&ds.output, &[0.0, 1.0, 2.0]).unwrap();
 //! assert!(e > 0.0 && e < 0.5);
@@ -20,12 +23,21 @@
 mod csv_io;
 mod data;
 mod error;
+mod fitted;
 pub mod metrics;
 mod model;
+pub mod noise;
+mod observe;
 pub mod rng;
+pub mod solver;
 pub mod special;
 
 pub use csv_io::{write_atomic, write_csv_atomic, CsvTable};
-pub use data::{benchmark_data_dir, BlockSplit, DataSet};
+pub use data::{benchmark_data_dir, BlockSplit, DataSet, Record, Records};
 pub use error::CoreError;
-pub use model::{Model, Simulate};
+pub use fitted::{
+    decode_postcard, ClassDecoder, FittedModel, MODEL_FILE_MAGIC, MODEL_FORMAT_VERSION,
+};
+pub use model::{check_inputs, DynamicModel, Identify, Init, ModelView, Stepper, Workspace};
+pub use noise::NoiseModel;
+pub use observe::{IterationInfo, Observer, Silent, SubTask};

@@ -4,7 +4,7 @@
 use crate::evidence::Evidence;
 use crate::model::{GreyBoxModel, ModelFitOptions, Structure, MAX_ORDER};
 use crate::{stats, DiagnoseError};
-use gb_core::{metrics, DataSet, Model, Simulate};
+use gb_core::{metrics, DataSet};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::ops::Range;
@@ -203,7 +203,7 @@ fn evaluate(model: GreyBoxModel, d: &DiagnoseData) -> Result<Evaluated, Diagnose
     let start_r = d.report_range.start.max(EVAL_SKIP);
     let sd_s = metrics::std(&d.train.output[start_s..d.select.end]);
     let sd_r = metrics::std(&d.report.output[start_r..d.report_range.end]);
-    let noise = model.network.noise;
+    let noise = model.network.noise.clone();
     let scores = Scores {
         nrmse_select: metrics::rms(&es) / sd_s,
         nrmse: metrics::rms(&er) / sd_r,

@@ -3,7 +3,7 @@
 //! hysteresis columns and a Student-t noise model — or, when those do not
 //! suffice, the wavelet-sparse state space with hidden states of `gb-model`.
 use crate::DiagnoseError;
-use gb_core::{CoreError, DataSet, Model, Simulate};
+use gb_core::{CoreError, DataSet};
 use gb_lmn::{
     fit_linear_oe_warm, fit_lmn_oe, Experiment, FitOptions, LmnModel, LmnParams, LocalModelNetwork,
     LolimotOptions, NetworkSpec, SsLmnModel, SsLmnParams, WhParams, WienerHammersteinNetwork,
@@ -222,7 +222,7 @@ struct GreyBoxModelV2 {
 fn noise_placeholder(order: usize, data: &DataSet, res: &[f64]) -> LocalModelNetwork {
     let spec = NetworkSpec::order(order, data.n_inputs());
     let mut network = gb_lmn::zero_linear_network(&spec, &data.inputs, &data.output);
-    network.noise = gb_lmn::NoiseFit::gaussian(res);
+    network.noise = gb_core::NoiseModel::gaussian(res);
     network
 }
 
@@ -679,11 +679,13 @@ impl GreyBoxModel {
     }
 }
 
-impl Simulate for GreyBoxModel {
-    fn n_inputs(&self) -> usize {
+impl GreyBoxModel {
+    /// Number of inputs.
+    pub fn n_inputs(&self) -> usize {
         self.input_names.len()
     }
-    fn simulate(&self, inputs: &[Vec<f64>], init: &[f64]) -> Result<Vec<f64>, CoreError> {
+    /// Free-run simulation; `init` holds measured outputs for the output lags.
+    pub fn simulate(&self, inputs: &[Vec<f64>], init: &[f64]) -> Result<Vec<f64>, CoreError> {
         if let Some(ss) = &self.state_space {
             // the state space starts from its stored x₀; `init` (output
             // history of the input-output models) is not used
@@ -708,8 +710,9 @@ impl Simulate for GreyBoxModel {
     }
 }
 
-impl Model for GreyBoxModel {
-    fn describe(&self) -> String {
+impl GreyBoxModel {
+    /// One-line description.
+    pub fn describe(&self) -> String {
         if let Some(ss) = &self.state_space {
             return ss.describe();
         }
@@ -724,7 +727,8 @@ impl Model for GreyBoxModel {
             None => self.network.describe(),
         }
     }
-    fn n_parameters(&self) -> usize {
+    /// Number of estimated parameters.
+    pub fn n_parameters(&self) -> usize {
         if let Some(ss) = &self.state_space {
             return ss.n_parameters();
         }

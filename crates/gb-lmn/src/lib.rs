@@ -44,7 +44,9 @@
 // Index loops mirror the subscripts of the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod dynamic;
 mod hilomot;
+mod io_network;
 mod lmn;
 mod lolimot;
 mod narx;
@@ -60,13 +62,14 @@ pub mod tree;
 mod wiener_hammerstein;
 
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
+pub use io_network::{IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER};
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
 pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
 pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
-    zero_linear_network, FitOptions, NoiseFit, TrainReport,
+    zero_linear_network, FitOptions, TrainReport,
 };
 pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
 pub use relay::RelayGrid;
@@ -106,6 +109,9 @@ pub enum LmnError {
 
 impl From<LmnError> for gb_core::CoreError {
     fn from(e: LmnError) -> Self {
-        gb_core::CoreError::InvalidArgument(e.to_string())
+        match e {
+            LmnError::Unstable(m) => gb_core::CoreError::Unstable(m),
+            other => gb_core::CoreError::InvalidArgument(other.to_string()),
+        }
     }
 }

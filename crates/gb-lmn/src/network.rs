@@ -1,5 +1,5 @@
-use crate::noe::NoiseFit;
 use crate::{LmnError, NetworkSpec, Scaling};
+use gb_core::NoiseModel;
 use gb_preisach::PlayOperatorBank;
 use serde::{Deserialize, Serialize};
 
@@ -49,7 +49,7 @@ pub struct LocalModelNetwork {
     /// Indices into x_dyn of the partition variables.
     pub z_index: Vec<usize>,
     /// Residual (noise) model fitted on the training residuals, in physical units.
-    pub noise: NoiseFit,
+    pub noise: NoiseModel,
 }
 
 /// Scratch space for network evaluation (no allocation per time step).

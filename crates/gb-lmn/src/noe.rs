@@ -13,7 +13,7 @@
 //! radius ≥ 1) or the simulation diverge are rejected.
 use crate::network::{spectral_radius, EvalScratch, Leaf};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
-use gb_core::special::ln_gamma;
+use gb_core::NoiseModel;
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -21,119 +21,6 @@ use serde::{Deserialize, Serialize};
 const DIVERGED: f64 = 1e3;
 /// Largest accepted spectral radius of a local model.
 const MAX_RADIUS: f64 = 0.9995;
-
-/// The fitted noise model of the residuals (physical units).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[non_exhaustive]
-pub enum NoiseFit {
-    /// e ~ N(0, σ²).
-    Gaussian {
-        /// Standard deviation.
-        sigma: f64,
-    },
-    /// e ~ s · t_ν (Student-t, heavy tailed).
-    StudentT {
-        /// Degrees of freedom.
-        nu: f64,
-        /// Scale s.
-        scale: f64,
-    },
-}
-
-impl NoiseFit {
-    /// Gaussian noise fitted to residuals (ML: σ = rms).
-    pub fn gaussian(res: &[f64]) -> Self {
-        NoiseFit::Gaussian {
-            sigma: gb_core::metrics::rms(res).max(f64::MIN_POSITIVE.sqrt()),
-        }
-    }
-
-    /// Student-t noise fitted by maximum likelihood (EM for the scale on a
-    /// grid of ν).
-    pub fn student_t(res: &[f64]) -> Self {
-        let (nu, scale) = fit_student_t(res);
-        NoiseFit::StudentT { nu, scale }
-    }
-
-    /// Negative log-density of one residual.
-    pub fn nll(&self, e: f64) -> f64 {
-        match *self {
-            NoiseFit::Gaussian { sigma } => {
-                0.5 * (2.0 * std::f64::consts::PI * sigma * sigma).ln() + 0.5 * (e / sigma).powi(2)
-            }
-            NoiseFit::StudentT { nu, scale } => -student_t_logpdf(e / scale, nu) + scale.ln(),
-        }
-    }
-
-    /// Mean negative log-likelihood per sample.
-    pub fn mean_nll(&self, res: &[f64]) -> f64 {
-        if res.is_empty() {
-            return 0.0;
-        }
-        res.iter().map(|&e| self.nll(e)).sum::<f64>() / res.len() as f64
-    }
-
-    /// Short description.
-    pub fn describe(&self) -> String {
-        match *self {
-            NoiseFit::Gaussian { sigma } => format!("Gaussian (sigma {sigma:.3e})"),
-            NoiseFit::StudentT { nu, scale } => {
-                format!("Student-t (nu {nu:.2}, scale {scale:.3e})")
-            }
-        }
-    }
-
-    /// IRLS weight of a residual: 1 for Gaussian, (ν+1)/(ν+(e/s)²) for Student-t.
-    pub fn weight(&self, e: f64) -> f64 {
-        match *self {
-            NoiseFit::Gaussian { .. } => 1.0,
-            NoiseFit::StudentT { nu, scale } => (nu + 1.0) / (nu + (e / scale).powi(2)),
-        }
-    }
-}
-
-/// log density of the standard Student-t distribution with ν degrees of freedom.
-pub fn student_t_logpdf(t: f64, nu: f64) -> f64 {
-    ln_gamma(0.5 * (nu + 1.0))
-        - ln_gamma(0.5 * nu)
-        - 0.5 * (nu * std::f64::consts::PI).ln()
-        - 0.5 * (nu + 1.0) * (1.0 + t * t / nu).ln()
-}
-
-/// ML fit of (ν, s) for residuals e ~ s·t_ν: EM iterations for s at each ν on
-/// a grid, keeping the best log-likelihood.
-pub fn fit_student_t(res: &[f64]) -> (f64, f64) {
-    let n = res.len().max(1) as f64;
-    let s0 = gb_core::metrics::rms(res).max(1e-300);
-    let mut best = (f64::NEG_INFINITY, 200.0, s0);
-    for &nu in &[
-        1.2, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 7.0, 10.0, 15.0, 25.0, 50.0, 100.0, 300.0,
-    ] {
-        let mut s2 = s0 * s0;
-        for _ in 0..50 {
-            let mut acc = 0.0;
-            for &e in res {
-                let w = (nu + 1.0) / (nu + e * e / s2);
-                acc += w * e * e;
-            }
-            let new = (acc / n).max(1e-300);
-            let conv = (new - s2).abs() <= 1e-10 * s2;
-            s2 = new;
-            if conv {
-                break;
-            }
-        }
-        let s = s2.sqrt();
-        let ll: f64 = res
-            .iter()
-            .map(|&e| student_t_logpdf(e / s, nu) - s.ln())
-            .sum();
-        if ll > best.0 {
-            best = (ll, nu, s);
-        }
-    }
-    (best.1, best.2)
-}
 
 /// Options of output-error training.
 #[derive(Debug, Clone, PartialEq)]
@@ -838,7 +725,7 @@ pub fn refine_output_error(
             // residuals of the current model → Student-t weights
             cur.weighted_cost(&p, None, &mut buf);
             let res: Vec<f64> = (k0..n).map(|k| p.yn[k] - buf[k]).collect();
-            let nf = NoiseFit::student_t(&res);
+            let nf = NoiseModel::student_t(&res);
             let mut w = vec![0.0; n];
             for k in k0..n {
                 w[k] = nf.weight(p.yn[k] - buf[k]);
@@ -905,9 +792,9 @@ pub fn refine_output_error(
         .map(|k| (p.yn[k] - buf[k]) * cur.output_scaling.scale)
         .collect();
     cur.noise = if opts.robust {
-        NoiseFit::student_t(&res)
+        NoiseModel::student_t(&res)
     } else {
-        NoiseFit::gaussian(&res)
+        NoiseModel::gaussian(&res)
     };
     Ok((
         cur,
@@ -1021,7 +908,7 @@ pub(crate) fn linear_network(
         }],
         beta: vec![0.0; spec.n_hysteresis()],
         z_index,
-        noise: NoiseFit::Gaussian { sigma: 1.0 },
+        noise: NoiseModel::Gaussian { sd: 1.0 },
     }
 }
 
@@ -1252,6 +1139,8 @@ pub fn fit_linear_oe_warm(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gb_core::noise::fit_student_t;
+    use gb_core::special::ln_gamma;
 
     #[test]
     fn gram_block_matches_naive_sum() {

@@ -314,7 +314,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let y0 = simulate_truth(&us, |p| K * p + K3 * p * p * p);
     let s = 0.02 * metrics::std(&y0);
     // Student-t(3) measurement noise: outliers an output-error fit is pulled by
-    let t3 = gb_model::NoiseModel::StudentT { nu: 3.0, scale: s }.to_smc()?;
+    let t3 =
+        gb_smc::noise::Noise::from_model(&gb_model::NoiseModel::StudentT { nu: 3.0, scale: s })?;
     let mut rs = gb_core::rng::seeded(7);
     let y: Vec<f64> = y0.iter().map(|v| v + t3.sample(&mut rs)).collect();
     let mut start = mechanical_start(substeps)?;

@@ -34,8 +34,10 @@ mod error;
 mod everett;
 mod identify;
 mod init;
+mod legacy;
 mod linear;
 mod model;
+pub mod registry;
 mod smc;
 mod structures;
 

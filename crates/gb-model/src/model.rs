@@ -53,73 +53,7 @@ pub struct HysteresisTerm {
     pub everett: WaveletEverett,
 }
 
-/// A noise distribution (zero location) of the thesis' model class; converts
-/// to [`gb_smc::noise::Noise`].
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub enum NoiseModel {
-    /// `N(0, sd²)`.
-    Gaussian {
-        /// Standard deviation.
-        sd: f64,
-    },
-    /// Student-t with `nu` degrees of freedom and scale `scale`.
-    StudentT {
-        /// Degrees of freedom.
-        nu: f64,
-        /// Scale.
-        scale: f64,
-    },
-    /// Laplace with scale `b`.
-    Laplace {
-        /// Scale.
-        scale: f64,
-    },
-    /// Finite mixture `Σ w_k p_k`.
-    Mixture(Vec<(f64, NoiseModel)>),
-}
-
-impl NoiseModel {
-    /// The `gb-smc` distribution.
-    pub fn to_smc(&self) -> Result<gb_smc::noise::Noise> {
-        use gb_smc::noise::Noise;
-        Ok(match self {
-            NoiseModel::Gaussian { sd } => Noise::gaussian(0.0, *sd)?,
-            NoiseModel::StudentT { nu, scale } => Noise::student_t(*nu, 0.0, *scale)?,
-            NoiseModel::Laplace { scale } => Noise::laplace(0.0, *scale)?,
-            NoiseModel::Mixture(parts) => Noise::mixture(
-                parts
-                    .iter()
-                    .map(|(w, n)| n.to_smc().map(|n| (*w, n)))
-                    .collect::<Result<Vec<_>>>()?,
-            )?,
-        })
-    }
-    /// The same family with every scale multiplied by `k > 0`.
-    pub fn scaled(&self, k: f64) -> Self {
-        match self {
-            NoiseModel::Gaussian { sd } => NoiseModel::Gaussian { sd: sd * k },
-            NoiseModel::StudentT { nu, scale } => NoiseModel::StudentT {
-                nu: *nu,
-                scale: scale * k,
-            },
-            NoiseModel::Laplace { scale } => NoiseModel::Laplace { scale: scale * k },
-            NoiseModel::Mixture(p) => {
-                NoiseModel::Mixture(p.iter().map(|(w, n)| (*w, n.scaled(k))).collect())
-            }
-        }
-    }
-    /// A short description.
-    pub fn describe(&self) -> String {
-        match self {
-            NoiseModel::Gaussian { sd } => format!("Gaussian (sd {sd:.3e})"),
-            NoiseModel::StudentT { nu, scale } => {
-                format!("Student-t (nu {nu:.2}, scale {scale:.3e})")
-            }
-            NoiseModel::Laplace { scale } => format!("Laplace (scale {scale:.3e})"),
-            NoiseModel::Mixture(p) => format!("mixture of {} components", p.len()),
-        }
-    }
-}
+pub use gb_core::NoiseModel;
 
 /// Which entries of `A, B, C, D, x₀` identification may change (the rest is
 /// known physics). Row-major masks.
@@ -601,26 +535,69 @@ impl SparseStateSpace {
     }
 }
 
-impl gb_core::Simulate for SparseStateSpace {
-    fn n_inputs(&self) -> usize {
-        self.n_inputs
-    }
-    /// Simulates from the model's `x₀` (the model has no output lags, so
-    /// `init` is not used).
-    fn simulate(
-        &self,
-        inputs: &[Vec<f64>],
-        _init: &[f64],
-    ) -> std::result::Result<Vec<f64>, gb_core::CoreError> {
-        Ok(SparseStateSpace::simulate(self, inputs)?)
+impl SparseStateSpace {
+    /// Decode a model-file body of class `state-space` (checked).
+    pub fn decode(body: &[u8], version: u32) -> std::result::Result<Self, gb_core::CoreError> {
+        let m: Self = gb_core::decode_postcard("state-space", version, 1, body)?;
+        m.check().map_err(|e| {
+            gb_core::CoreError::ModelFile(format!("inconsistent 'state-space' model ({e})"))
+        })?;
+        Ok(m)
     }
 }
 
-impl gb_core::Model for SparseStateSpace {
+impl gb_core::DynamicModel for SparseStateSpace {
+    fn class(&self) -> &'static str {
+        "state-space"
+    }
+    fn n_inputs(&self) -> usize {
+        self.n_inputs
+    }
+    fn n_states(&self) -> usize {
+        self.n_states
+    }
     fn describe(&self) -> String {
         SparseStateSpace::describe(self)
     }
     fn n_parameters(&self) -> usize {
         SparseStateSpace::n_parameters(self)
+    }
+    /// `Rest` starts from the zero state, `State` from the given one,
+    /// `History`/`Window` from the state estimated on the measured outputs.
+    fn simulate_into(
+        &self,
+        u: &[Vec<f64>],
+        init: gb_core::Init<'_>,
+        y: &mut [f64],
+        _ws: &mut gb_core::Workspace,
+    ) -> std::result::Result<(), gb_core::CoreError> {
+        use gb_core::Init;
+        gb_core::check_inputs(self.n_inputs, u)?;
+        let sim = match init {
+            Init::State(x0) => self.simulate_from(u, x0)?.0,
+            Init::Window(w) | Init::History(w) if !w.is_empty() => {
+                self.simulate_init_window(u, w)?
+            }
+            _ => self.simulate_from(u, &vec![0.0; self.n_states])?.0,
+        };
+        if sim.len() != y.len() {
+            return Err(gb_core::CoreError::Dimension(format!(
+                "output buffer of {} samples for a simulation of {}",
+                y.len(),
+                sim.len()
+            )));
+        }
+        y.copy_from_slice(&sim);
+        Ok(())
+    }
+    fn encode(&self) -> std::result::Result<Vec<u8>, gb_core::CoreError> {
+        postcard::to_allocvec(self)
+            .map_err(|e| gb_core::CoreError::ModelFile(format!("cannot encode model: {e}")))
+    }
+    fn clone_box(&self) -> Box<dyn gb_core::DynamicModel> {
+        Box::new(self.clone())
+    }
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }

@@ -195,8 +195,8 @@ impl SmcParams {
                 "process_fraction must be > 0".into(),
             ));
         }
-        self.measurement.to_smc()?;
-        self.process.to_smc()?;
+        gb_smc::noise::Noise::from_model(&self.measurement)?;
+        gb_smc::noise::Noise::from_model(&self.process)?;
         Ok(Smc { params: self })
     }
 }
@@ -261,10 +261,10 @@ impl<'a> ParametricModel for Problem<'a> {
         let process = m
             .process_noise
             .iter()
-            .map(|n| n.to_smc())
-            .collect::<Result<Vec<_>>>()
+            .map(gb_smc::noise::Noise::from_model)
+            .collect::<std::result::Result<Vec<_>, _>>()
             .ok()?;
-        let measurement = m.measurement_noise.to_smc().ok()?;
+        let measurement = gb_smc::noise::Noise::from_model(&m.measurement_noise).ok()?;
         Some(NoisyModel {
             model: m,
             inputs: self.inputs,
@@ -308,9 +308,9 @@ impl Smc {
             process: model
                 .process_noise
                 .iter()
-                .map(|n| n.to_smc())
-                .collect::<Result<Vec<_>>>()?,
-            measurement: model.measurement_noise.to_smc()?,
+                .map(gb_smc::noise::Noise::from_model)
+                .collect::<std::result::Result<Vec<_>, _>>()?,
+            measurement: gb_smc::noise::Noise::from_model(&model.measurement_noise)?,
         };
         let pf = FilterConfig::new(self.params.particles)
             .seed(self.params.seed)

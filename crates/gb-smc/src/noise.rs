@@ -61,6 +61,23 @@ pub enum Noise {
 }
 
 impl Noise {
+    /// The zero-location distribution of a fitted model's noise model.
+    pub fn from_model(m: &gb_core::NoiseModel) -> Result<Self> {
+        use gb_core::NoiseModel as M;
+        match m {
+            M::Gaussian { sd } => Self::gaussian(0.0, *sd),
+            M::StudentT { nu, scale } => Self::student_t(*nu, 0.0, *scale),
+            M::Laplace { scale } => Self::laplace(0.0, *scale),
+            M::Mixture(parts) => Self::mixture(
+                parts
+                    .iter()
+                    .map(|(w, n)| Self::from_model(n).map(|n| (*w, n)))
+                    .collect::<Result<Vec<_>>>()?,
+            ),
+            _ => Err(SmcError::InvalidWeights("unsupported noise family")),
+        }
+    }
+
     /// Gaussian `N(mean, sd²)`, `sd > 0`.
     pub fn gaussian(mean: f64, sd: f64) -> Result<Self> {
         check("mean", mean, mean.is_finite(), "must be finite")?;

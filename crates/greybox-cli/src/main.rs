@@ -1,6 +1,6 @@
 //! The `greybox` command-line tool.
 use clap::{Args, Parser, Subcommand};
-use gb_core::{CsvTable, DataSet, Model, Simulate};
+use gb_core::{CsvTable, DataSet};
 use gb_diagnose::{
     diagnose, systems, DiagnoseData, DiagnoseOptions, GreyBoxModel, ModelFitOptions, OrderChoice,
     Report, Structure,

@@ -1,0 +1,501 @@
+//! The one Levenberg–Marquardt solver of the workspace.
+//!
+//! Every class that trains by nonlinear least squares (output-error /
+//! simulation-error fits, initial-state estimation, block-oriented models)
+//! describes its problem through [`LeastSquaresProblem`] — the cost
+//! `V(θ) = Σₜ wₜ eₜ²` (plus any penalty) and, at a point, the Gram matrix
+//! `G = JᵀWJ` and the gradient `g = JᵀWe` with `e = y − ŷ(θ)`, `J = ∂ŷ/∂θ` —
+//! and [`LevenbergMarquardt::minimize`] owns the loop, the damping, the
+//! termination and the observer calls (argmin's executor/solver split).
+//!
+//! One iteration solves
+//!
+//! ```text
+//! (G + D_λ) δ = g,   D_λ,ii = λ·(max(Gᵢᵢ, ρ·maxⱼ Gⱼⱼ) + a) + ε·maxⱼ Gⱼⱼ
+//! ```
+//!
+//! (Marquardt's scaling with a floor ρ, an additive term a and a jitter ε),
+//! and accepts θ + δ when it is admissible and lowers the cost; then
+//! `λ ← max(λ·down, λ_min)`. A rejected step raises `λ ← λ·up` (by `up_singular`
+//! when `G + D_λ` is not positive definite) and tries again, up to
+//! `max_trials` times. It stops when the relative decrease of an accepted
+//! step falls below `tol`, when no trial lowers the cost, when `λ > λ_max`,
+//! or after `max_iter` iterations.
+//!
+//! ```
+//! use gb_core::solver::{LeastSquaresProblem, LmParams, Termination};
+//! /// Fit y = a·exp(b·t) to data of a = 2, b = −0.5 with a small disturbance.
+//! struct Exp { t: Vec<f64>, y: Vec<f64> }
+//! impl LeastSquaresProblem for Exp {
+//!     fn n_params(&self) -> usize { 2 }
+//!     fn cost(&mut self, p: &[f64]) -> Option<f64> {
+//!         Some(self.t.iter().zip(&self.y).map(|(t, y)| (y - p[0] * (p[1] * t).exp()).powi(2)).sum())
+//!     }
+//!     fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+//!         gram.fill(0.0); grad.fill(0.0);
+//!         let mut c = 0.0;
+//!         for (t, y) in self.t.iter().zip(&self.y) {
+//!             let f = (p[1] * t).exp();
+//!             let e = y - p[0] * f;
+//!             let j = [f, p[0] * t * f];
+//!             for a in 0..2 { grad[a] += j[a] * e; for b in 0..2 { gram[a * 2 + b] += j[a] * j[b]; } }
+//!             c += e * e;
+//!         }
+//!         Some(c)
+//!     }
+//! }
+//! let t: Vec<f64> = (0..20).map(|k| k as f64 * 0.2).collect();
+//! let y = t.iter().enumerate().map(|(k, t)| 2.0 * (-0.5 * t).exp() + 1e-3 * (7.0 * k as f64).sin()).collect();
+//! let lm = LmParams::default().check().unwrap();
+//! let s = lm.minimize(&mut Exp { t, y }, &[1.0, 0.0], &gb_core::Silent).unwrap();
+//! assert!((s.theta[0] - 2.0).abs() < 1e-2 && (s.theta[1] + 0.5).abs() < 1e-2);
+//! assert_eq!(s.termination, Some(Termination::Converged));
+//! ```
+use crate::observe::{IterationInfo, Observer};
+use crate::CoreError;
+use nalgebra::DMatrix;
+
+/// A nonlinear least-squares problem in normal-equation form.
+pub trait LeastSquaresProblem {
+    /// Number of parameters θ.
+    fn n_params(&self) -> usize;
+
+    /// Cost `V(θ)`; `None` where θ is infeasible (the simulation diverges).
+    fn cost(&mut self, theta: &[f64]) -> Option<f64>;
+
+    /// Cost, Gram matrix `G = JᵀWJ` (n×n, row-major, both triangles) and
+    /// gradient `g = JᵀWe` (`e = y − ŷ`) at θ; `None` where θ is infeasible.
+    /// The returned cost must equal [`cost`](Self::cost) at the same θ.
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64>;
+
+    /// Whether a trial point may be evaluated at all (stability, bounds).
+    /// Checked before [`cost`](Self::cost) on every trial.
+    fn admissible(&mut self, theta: &[f64]) -> bool {
+        let _ = theta;
+        true
+    }
+}
+
+/// Why the solver stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Termination {
+    /// An accepted step lowered the cost by less than `tol` (relative).
+    Converged,
+    /// `max_iter` iterations ran.
+    MaxIterations,
+    /// No trial step lowered the cost.
+    NoImprovement,
+    /// The damping exceeded `lambda_max`.
+    DampingOverflow,
+    /// The problem could not be linearised at the current point.
+    Infeasible,
+}
+
+/// Settings of [`LevenbergMarquardt`]; validate with [`check`](Self::check).
+///
+/// | field | default | meaning |
+/// |---|---|---|
+/// | `max_iter` | 100 | iterations (each one linearisation) |
+/// | `tol` | 1e-8 | relative cost decrease that counts as converged |
+/// | `lambda_init` | 1e-3 | initial damping λ |
+/// | `lambda_up` | 4 | factor on λ after a rejected step |
+/// | `lambda_up_singular` | 10 | factor on λ when `G + D_λ` is singular |
+/// | `lambda_down` | 1/3 | factor on λ after an accepted step |
+/// | `lambda_min` | 1e-12 | smallest λ |
+/// | `lambda_max` | 1e12 | λ above which the solver gives up |
+/// | `max_trials` | 12 | trial steps per iteration |
+/// | `diag_floor` | 1e-9 | ρ: floor of the scaling, relative to `max Gⱼⱼ` |
+/// | `diag_add` | 0 | a: added to the scaling (absolute) |
+/// | `jitter` | 1e-12 | ε: added to the diagonal, relative to `max Gⱼⱼ` |
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LmParams {
+    /// Most iterations.
+    pub max_iter: usize,
+    /// Relative cost decrease below which an accepted step ends the run.
+    pub tol: f64,
+    /// Initial damping.
+    pub lambda_init: f64,
+    /// Damping factor after a rejected step.
+    pub lambda_up: f64,
+    /// Damping factor when the damped system is not positive definite.
+    pub lambda_up_singular: f64,
+    /// Damping factor after an accepted step.
+    pub lambda_down: f64,
+    /// Smallest damping.
+    pub lambda_min: f64,
+    /// Damping at which the solver gives up.
+    pub lambda_max: f64,
+    /// Trial steps per iteration.
+    pub max_trials: usize,
+    /// Floor ρ of the Marquardt scaling, relative to the largest diagonal.
+    pub diag_floor: f64,
+    /// Absolute term a added to the Marquardt scaling.
+    pub diag_add: f64,
+    /// Jitter ε added to the diagonal, relative to the largest diagonal.
+    pub jitter: f64,
+}
+
+impl Default for LmParams {
+    fn default() -> Self {
+        Self {
+            max_iter: 100,
+            tol: 1e-8,
+            lambda_init: 1e-3,
+            lambda_up: 4.0,
+            lambda_up_singular: 10.0,
+            lambda_down: 1.0 / 3.0,
+            lambda_min: 1e-12,
+            lambda_max: 1e12,
+            max_trials: 12,
+            diag_floor: 1e-9,
+            diag_add: 0.0,
+            jitter: 1e-12,
+        }
+    }
+}
+
+impl LmParams {
+    /// Most iterations.
+    pub fn max_iter(mut self, n: usize) -> Self {
+        self.max_iter = n;
+        self
+    }
+    /// Convergence tolerance (relative cost decrease).
+    pub fn tol(mut self, t: f64) -> Self {
+        self.tol = t;
+        self
+    }
+    /// Initial damping.
+    pub fn lambda_init(mut self, l: f64) -> Self {
+        self.lambda_init = l;
+        self
+    }
+
+    /// Validate once; the result runs fits.
+    pub fn check(self) -> Result<LevenbergMarquardt, CoreError> {
+        let pos = |name: &str, v: f64| -> Result<(), CoreError> {
+            if v > 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(CoreError::InvalidArgument(format!(
+                    "Levenberg-Marquardt: {name} must be positive and finite, got {v}"
+                )))
+            }
+        };
+        pos("lambda_init", self.lambda_init)?;
+        pos("lambda_min", self.lambda_min)?;
+        pos("lambda_max", self.lambda_max)?;
+        if !(self.lambda_up > 1.0 && self.lambda_up_singular > 1.0) {
+            return Err(CoreError::InvalidArgument(
+                "Levenberg-Marquardt: lambda_up and lambda_up_singular must exceed 1".into(),
+            ));
+        }
+        if !(self.lambda_down > 0.0 && self.lambda_down < 1.0) {
+            return Err(CoreError::InvalidArgument(
+                "Levenberg-Marquardt: lambda_down must be in (0, 1)".into(),
+            ));
+        }
+        if self.lambda_min > self.lambda_max || self.max_trials == 0 {
+            return Err(CoreError::InvalidArgument(
+                "Levenberg-Marquardt: lambda_min <= lambda_max and max_trials >= 1".into(),
+            ));
+        }
+        let nonneg = [self.tol, self.diag_floor, self.diag_add, self.jitter];
+        if nonneg.iter().any(|v| !(*v >= 0.0 && v.is_finite())) {
+            return Err(CoreError::InvalidArgument(
+                "Levenberg-Marquardt: tol, diag_floor, diag_add and jitter must be >= 0".into(),
+            ));
+        }
+        Ok(LevenbergMarquardt { p: self })
+    }
+}
+
+/// A validated Levenberg–Marquardt solver (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LevenbergMarquardt {
+    p: LmParams,
+}
+
+/// The solver's state between iterations.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LmState {
+    /// Current parameters.
+    pub theta: Vec<f64>,
+    /// Cost at `theta`.
+    pub cost: f64,
+    /// Cost at the start.
+    pub initial_cost: f64,
+    /// Current damping.
+    pub lambda: f64,
+    /// Iterations run.
+    pub iterations: usize,
+    /// Cost evaluations (linearisations included).
+    pub evaluations: usize,
+    /// Set when the solver has stopped.
+    pub termination: Option<Termination>,
+}
+
+/// Buffers of one run, allocated once.
+#[derive(Debug, Clone)]
+pub struct LmWorkspace {
+    gram: Vec<f64>,
+    grad: Vec<f64>,
+    trial: Vec<f64>,
+    a: DMatrix<f64>,
+}
+
+impl LmWorkspace {
+    /// Buffers for `n` parameters.
+    pub fn new(n: usize) -> Self {
+        Self {
+            gram: vec![0.0; n * n],
+            grad: vec![0.0; n],
+            trial: vec![0.0; n],
+            a: DMatrix::zeros(n, n),
+        }
+    }
+    /// The Gram matrix of the last linearisation (row-major n×n).
+    pub fn gram(&self) -> &[f64] {
+        &self.gram
+    }
+}
+
+impl LevenbergMarquardt {
+    /// The settings.
+    pub fn params(&self) -> &LmParams {
+        &self.p
+    }
+
+    /// Start state at `theta0`; an error when the problem is infeasible there.
+    pub fn init<P: LeastSquaresProblem + ?Sized>(
+        &self,
+        problem: &mut P,
+        theta0: &[f64],
+    ) -> Result<LmState, CoreError> {
+        let n = problem.n_params();
+        if theta0.len() != n {
+            return Err(CoreError::Dimension(format!(
+                "{} start values for {n} parameters",
+                theta0.len()
+            )));
+        }
+        let cost = problem
+            .cost(theta0)
+            .filter(|c| c.is_finite())
+            .ok_or_else(|| {
+                CoreError::InvalidArgument(
+                    "the start point is infeasible (the simulation diverges)".into(),
+                )
+            })?;
+        Ok(LmState {
+            theta: theta0.to_vec(),
+            cost,
+            initial_cost: cost,
+            lambda: self.p.lambda_init,
+            iterations: 0,
+            evaluations: 1,
+            termination: if n == 0 {
+                Some(Termination::Converged)
+            } else {
+                None
+            },
+        })
+    }
+
+    /// One iteration: linearise at `state.theta`, then try damped steps until
+    /// one is accepted or the damping runs out. Sets `state.termination`
+    /// when the run should stop.
+    pub fn next_iter<P: LeastSquaresProblem + ?Sized>(
+        &self,
+        problem: &mut P,
+        state: &mut LmState,
+        ws: &mut LmWorkspace,
+    ) {
+        let n = state.theta.len();
+        state.iterations += 1;
+        state.evaluations += 1;
+        let Some(cost) = problem
+            .linearize(&state.theta, &mut ws.gram, &mut ws.grad)
+            .filter(|c| c.is_finite())
+        else {
+            state.termination = Some(Termination::Infeasible);
+            return;
+        };
+        state.cost = cost;
+        let dmax = (0..n)
+            .map(|i| ws.gram[i * n + i])
+            .fold(0.0, f64::max)
+            .max(1e-300);
+        let p = &self.p;
+        for _ in 0..p.max_trials {
+            let lambda = state.lambda;
+            for i in 0..n {
+                for j in 0..n {
+                    ws.a[(i, j)] = ws.gram[i * n + j];
+                }
+                let g = ws.gram[i * n + i];
+                ws.a[(i, i)] +=
+                    lambda * (g.max(p.diag_floor * dmax) + p.diag_add) + p.jitter * dmax;
+            }
+            let Some(chol) = ws.a.clone().cholesky() else {
+                state.lambda *= p.lambda_up_singular;
+                if state.lambda > p.lambda_max {
+                    state.termination = Some(Termination::DampingOverflow);
+                    return;
+                }
+                continue;
+            };
+            let delta = chol.solve(&nalgebra::DVector::from_column_slice(&ws.grad));
+            for i in 0..n {
+                ws.trial[i] = state.theta[i] + delta[i];
+            }
+            if problem.admissible(&ws.trial) {
+                state.evaluations += 1;
+                if let Some(c) = problem.cost(&ws.trial).filter(|c| c.is_finite()) {
+                    if c < cost {
+                        let rel = (cost - c) / cost.max(1e-300);
+                        state.theta.copy_from_slice(&ws.trial);
+                        state.cost = c;
+                        state.lambda = (state.lambda * p.lambda_down).max(p.lambda_min);
+                        if rel < p.tol {
+                            state.termination = Some(Termination::Converged);
+                        }
+                        return;
+                    }
+                }
+            }
+            state.lambda *= p.lambda_up;
+            if state.lambda > p.lambda_max {
+                state.termination = Some(Termination::DampingOverflow);
+                return;
+            }
+        }
+        state.termination = Some(Termination::NoImprovement);
+    }
+
+    /// Run from `theta0` until a termination criterion holds, reporting
+    /// every iteration to `observer`.
+    pub fn minimize<P: LeastSquaresProblem + ?Sized>(
+        &self,
+        problem: &mut P,
+        theta0: &[f64],
+        observer: &dyn Observer,
+    ) -> Result<LmState, CoreError> {
+        let mut state = self.init(problem, theta0)?;
+        let mut ws = LmWorkspace::new(theta0.len());
+        self.run(problem, &mut state, &mut ws, observer);
+        Ok(state)
+    }
+
+    /// Continue `state` until a termination criterion holds (the executor).
+    pub fn run<P: LeastSquaresProblem + ?Sized>(
+        &self,
+        problem: &mut P,
+        state: &mut LmState,
+        ws: &mut LmWorkspace,
+        observer: &dyn Observer,
+    ) {
+        while state.termination.is_none() {
+            if state.iterations >= self.p.max_iter {
+                state.termination = Some(Termination::MaxIterations);
+                break;
+            }
+            self.next_iter(problem, state, ws);
+            observer.iteration(&IterationInfo {
+                solver: "levenberg-marquardt",
+                iteration: state.iterations,
+                cost: state.cost,
+                lambda: state.lambda,
+                evaluations: state.evaluations,
+            });
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rosenbrock as least squares: r = (10(θ₁ − θ₀²), 1 − θ₀).
+    struct Rosenbrock {
+        admissible_calls: usize,
+        /// Reject trial points with θ₀ > this bound.
+        bound: f64,
+    }
+    impl LeastSquaresProblem for Rosenbrock {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            let r = [10.0 * (t[1] - t[0] * t[0]), 1.0 - t[0]];
+            Some(r[0] * r[0] + r[1] * r[1])
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            // ŷ = −r (so e = y − ŷ = r with y = 0); J = ∂ŷ/∂θ = −∂r/∂θ
+            let r = [10.0 * (t[1] - t[0] * t[0]), 1.0 - t[0]];
+            let j = [[20.0 * t[0], -10.0], [1.0, 0.0]];
+            g.fill(0.0);
+            grad.fill(0.0);
+            for k in 0..2 {
+                for a in 0..2 {
+                    grad[a] += j[k][a] * r[k];
+                    for b in 0..2 {
+                        g[a * 2 + b] += j[k][a] * j[k][b];
+                    }
+                }
+            }
+            Some(r[0] * r[0] + r[1] * r[1])
+        }
+        fn admissible(&mut self, t: &[f64]) -> bool {
+            self.admissible_calls += 1;
+            t[0] <= self.bound
+        }
+    }
+
+    #[test]
+    fn finds_the_rosenbrock_minimum() {
+        let lm = LmParams::default().tol(1e-14).check().unwrap();
+        let mut p = Rosenbrock {
+            admissible_calls: 0,
+            bound: f64::INFINITY,
+        };
+        let s = lm.minimize(&mut p, &[-1.2, 1.0], &crate::Silent).unwrap();
+        assert!((s.theta[0] - 1.0).abs() < 1e-6, "{:?}", s.theta);
+        assert!((s.theta[1] - 1.0).abs() < 1e-6, "{:?}", s.theta);
+        assert!(s.cost < 1e-12 && s.cost < s.initial_cost);
+        assert!(p.admissible_calls > 0);
+    }
+
+    #[test]
+    fn inadmissible_trials_are_never_accepted() {
+        let lm = LmParams::default().check().unwrap();
+        let mut p = Rosenbrock {
+            admissible_calls: 0,
+            bound: 0.5,
+        };
+        let s = lm.minimize(&mut p, &[-1.2, 1.0], &crate::Silent).unwrap();
+        assert!(s.theta[0] <= 0.5);
+        // the constrained optimum lies on the bound θ₀ = 0.5
+        assert!(s.theta[0] > 0.3, "{:?}", s.theta);
+    }
+
+    #[test]
+    fn max_iterations_and_bad_params() {
+        let lm = LmParams::default().max_iter(2).check().unwrap();
+        let mut p = Rosenbrock {
+            admissible_calls: 0,
+            bound: f64::INFINITY,
+        };
+        let s = lm.minimize(&mut p, &[-1.2, 1.0], &crate::Silent).unwrap();
+        assert_eq!(s.iterations, 2);
+        assert_eq!(s.termination, Some(Termination::MaxIterations));
+        assert!(LmParams {
+            lambda_down: 2.0,
+            ..LmParams::default()
+        }
+        .check()
+        .is_err());
+        assert!(lm.minimize(&mut p, &[1.0], &crate::Silent).is_err());
+    }
+}

@@ -1,0 +1,184 @@
+//! Parameters of the input–output network class ([`LocalModelNetwork`]):
+//! a linear output-error model of order n, or a LOLIMOT local model network
+//! on the same regressors, each optionally with play-operator / discrete
+//! Preisach columns and a Student-t (robust, IRLS) noise model.
+//!
+//! | field | default | meaning |
+//! |---|---|---|
+//! | `order` | 2 | n = n_a = n_b per input |
+//! | `delay` | 1 per input | dead time n_k (0: direct feedthrough) |
+//! | `network` | false | LOLIMOT local model network instead of one linear model |
+//! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
+//! | `robust` | false | Student-t noise model, IRLS output-error fit |
+//! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
+//! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
+//! | `lolimot` | [`LolimotOptions::default`] | LOLIMOT settings |
+use crate::{
+    fit_linear_oe_warm, fit_lmn_oe, FitOptions, LmnError, LocalModelNetwork, LolimotOptions,
+    NetworkSpec,
+};
+use gb_core::{Identify, Observer, Record, Records};
+
+/// Largest order of an input–output network.
+pub const MAX_IO_ORDER: usize = 30;
+
+/// Parameters of an input–output network fit (see the module docs).
+#[derive(Debug, Clone, PartialEq)]
+pub struct IoNetworkParams {
+    /// Dynamic order n (n_a = n_b = n per input).
+    pub order: usize,
+    /// Dead time per input (empty: 1 for every input).
+    pub delay: Vec<usize>,
+    /// LOLIMOT local model network instead of one linear model.
+    pub network: bool,
+    /// Play-operator / discrete Preisach columns.
+    pub hysteresis: bool,
+    /// Student-t noise model with a robust (IRLS) fit.
+    pub robust: bool,
+    /// Capacity level of the nonlinear parts.
+    pub detail: u8,
+    /// Output-error training options.
+    pub fit: FitOptions,
+    /// LOLIMOT options (network structures only).
+    pub lolimot: LolimotOptions,
+}
+
+impl IoNetworkParams {
+    /// The linear output-error model of order `order`, dead time 1.
+    pub fn linear(order: usize) -> Self {
+        Self {
+            order,
+            delay: vec![],
+            network: false,
+            hysteresis: false,
+            robust: false,
+            detail: 0,
+            fit: FitOptions::default(),
+            lolimot: LolimotOptions::default(),
+        }
+    }
+
+    /// Largest number of local models: `10 + 5·detail`.
+    pub fn max_leaves(&self) -> usize {
+        10 + 5 * self.detail as usize
+    }
+
+    /// The components as a model SPEC (`linear`, `lmn+preisach+student-t`).
+    pub fn spec_name(&self) -> String {
+        let mut s = String::from(if self.network { "lmn" } else { "linear" });
+        if self.hysteresis {
+            s.push_str("+preisach");
+        }
+        if self.robust {
+            s.push_str("+student-t");
+        }
+        s
+    }
+
+    /// The regressor structure for `n_inputs` inputs.
+    pub fn network_spec(&self, n_inputs: usize) -> NetworkSpec {
+        let mut spec = NetworkSpec::order(self.order, n_inputs);
+        if self.delay.len() == n_inputs {
+            spec.nk = self.delay.clone();
+        }
+        if self.hysteresis {
+            // thresholds in normalised (unit-variance) output units
+            let d = 1 + self.detail as usize;
+            let (no, ni) = (6 * d, 8 * d);
+            spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
+            spec.output_relays = 6 + 2 * self.detail as usize;
+            // lags 1..n+1: the hysteretic force acts inside n-th order
+            // continuous dynamics and varies between samples
+            spec.hysteresis_lags = self.order + 1;
+            spec.input_play =
+                vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+        }
+        spec
+    }
+
+    /// Validate once; the result fits.
+    pub fn check(&self) -> Result<ValidIoNetworkParams, LmnError> {
+        if self.order == 0 || self.order > MAX_IO_ORDER {
+            return Err(LmnError::InvalidArgument(format!(
+                "order must be in 1..={MAX_IO_ORDER}, got {}",
+                self.order
+            )));
+        }
+        if self.delay.iter().any(|&d| d > 64) {
+            return Err(LmnError::InvalidArgument(
+                "a dead time of at most 64 samples".into(),
+            ));
+        }
+        self.fit.check()?;
+        self.lolimot.check()?;
+        Ok(ValidIoNetworkParams(self.clone()))
+    }
+}
+
+/// Validated [`IoNetworkParams`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct ValidIoNetworkParams(IoNetworkParams);
+
+/// Optional starts of an input–output network fit.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct WarmStart<'a> {
+    /// Free-run simulation of a previous model on the data, used as output
+    /// lags while LOLIMOT grows the network (output-error construction).
+    pub simulated_output: Option<&'a [f64]>,
+    /// A previous network whose parameters start a linear fit.
+    pub network: Option<&'a LocalModelNetwork>,
+}
+
+impl ValidIoNetworkParams {
+    /// The parameters.
+    pub fn params(&self) -> &IoNetworkParams {
+        &self.0
+    }
+
+    /// Fit on one record by output-error identification.
+    pub fn fit(&self, data: &Record, warm: WarmStart<'_>) -> Result<LocalModelNetwork, LmnError> {
+        let p = &self.0;
+        if !p.delay.is_empty() && p.delay.len() != data.n_inputs() {
+            return Err(LmnError::InvalidArgument(format!(
+                "{} dead times for {} inputs",
+                p.delay.len(),
+                data.n_inputs()
+            )));
+        }
+        let spec = p.network_spec(data.n_inputs());
+        let mut fopts = p.fit.clone();
+        fopts.robust = p.robust;
+        if p.network {
+            let mut lopts = p.lolimot.clone();
+            lopts.max_leaves = lopts.max_leaves.max(p.max_leaves());
+            fit_lmn_oe(
+                &spec,
+                &data.inputs,
+                &data.output,
+                warm.simulated_output,
+                &lopts,
+                &fopts,
+            )
+        } else {
+            fit_linear_oe_warm(&spec, &data.inputs, &data.output, &fopts, warm.network)
+        }
+    }
+}
+
+impl Identify for ValidIoNetworkParams {
+    type Model = LocalModelNetwork;
+    type Error = LmnError;
+    /// One record only (the network's regressors are built on one record).
+    fn identify(
+        &self,
+        data: &Records,
+        _observer: &dyn Observer,
+    ) -> Result<LocalModelNetwork, LmnError> {
+        if data.len() != 1 {
+            return Err(LmnError::InvalidArgument(
+                "an input-output network is fitted on one record; use the tree network (lmn with tree weights) for several".into(),
+            ));
+        }
+        self.fit(data.first(), WarmStart::default())
+    }
+}

@@ -1,0 +1,152 @@
+//! The model registry: every model class the workspace has, by the tag it
+//! is stored under, and the one reader of model files.
+//!
+//! A class joins by implementing [`gb_core::DynamicModel`] and a checked
+//! `decode(body, version)`, then one line in [`CLASSES`]. Files of format 4
+//! name their class; files of formats 1–3 (a fixed struct holding every
+//! class as an optional field) and the early state-space format (`GBS\x01`)
+//! are converted on load ([`legacy`](crate::legacy)).
+use crate::SparseStateSpace;
+use gb_core::{ClassDecoder, CoreError, DynamicModel, FittedModel, MODEL_FORMAT_VERSION};
+use gb_lmn::{LmnModel, LocalModelNetwork, SsLmnModel, WienerHammersteinNetwork};
+use std::path::Path;
+
+/// A registered model class.
+#[derive(Debug, Clone, Copy)]
+pub struct ModelClass {
+    /// Tag stored in model files ([`DynamicModel::class`]).
+    pub tag: &'static str,
+    /// One line for `--help` and the docs.
+    pub summary: &'static str,
+    /// Decodes (and checks) a model-file body of a class version.
+    pub decode: fn(&[u8], u32) -> Result<Box<dyn DynamicModel>, CoreError>,
+}
+
+fn boxed<T: DynamicModel + 'static>(
+    r: Result<T, CoreError>,
+) -> Result<Box<dyn DynamicModel>, CoreError> {
+    r.map(|m| Box::new(m) as Box<dyn DynamicModel>)
+}
+
+/// Every model class, in the order `--help` lists them.
+pub static CLASSES: &[ModelClass] = &[
+    ModelClass {
+        tag: "io-network",
+        summary: "input-output model: linear output-error or LOLIMOT local model network, optional play-operator/Preisach columns (gb-lmn)",
+        decode: |b, v| boxed(LocalModelNetwork::decode(b, v)),
+    },
+    ModelClass {
+        tag: "lmn-tree",
+        summary: "local model network with tree (HILOMOT) or Gaussian weights, oblique splits, pruning, NARX/NOE training (gb-lmn)",
+        decode: |b, v| boxed(LmnModel::decode(b, v)),
+    },
+    ModelClass {
+        tag: "wiener-hammerstein",
+        summary: "Wiener-Hammerstein network: linear filter, static local model network, linear filter (gb-lmn)",
+        decode: |b, v| boxed(WienerHammersteinNetwork::decode(b, v)),
+    },
+    ModelClass {
+        tag: "lmn-state-space",
+        summary: "state-space local model network with square-root basis and state bounds (gb-lmn)",
+        decode: |b, v| boxed(SsLmnModel::decode(b, v)),
+    },
+    ModelClass {
+        tag: "state-space",
+        summary: "wavelet-sparse grey-box state space with hidden states and Preisach terms (gb-model)",
+        decode: |b, v| boxed(SparseStateSpace::decode(b, v)),
+    },
+];
+
+/// The registry as a [`ClassDecoder`] for [`FittedModel::from_bytes`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Registry;
+
+impl ClassDecoder for Registry {
+    fn decode(
+        &self,
+        class: &str,
+        class_version: u32,
+        body: &[u8],
+    ) -> Option<Result<Box<dyn DynamicModel>, CoreError>> {
+        CLASSES
+            .iter()
+            .find(|c| c.tag == class)
+            .map(|c| (c.decode)(body, class_version))
+    }
+}
+
+/// Read a model file of any format greybox ever wrote; `name` labels errors.
+pub fn from_bytes(bytes: &[u8], name: &str) -> Result<FittedModel, CoreError> {
+    if bytes.len() >= 4 && &bytes[..4] == crate::model::MAGIC {
+        return crate::legacy::from_state_space_file(bytes, name);
+    }
+    match FittedModel::format_version(bytes, name)? {
+        MODEL_FORMAT_VERSION => FittedModel::from_bytes(bytes, name, &Registry),
+        v @ 1..=3 => crate::legacy::from_format_1_to_3(v, &bytes[8..], name),
+        v => Err(CoreError::ModelFile(format!(
+            "{name}: model format version {v} was written by a newer greybox (this one reads versions 1 to {MODEL_FORMAT_VERSION})"
+        ))),
+    }
+}
+
+/// Read a model file.
+pub fn load(path: &Path) -> Result<FittedModel, CoreError> {
+    let bytes = std::fs::read(path).map_err(|source| CoreError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    from_bytes(&bytes, &path.display().to_string())
+}
+
+/// The registered class of `tag`.
+pub fn class(tag: &str) -> Option<&'static ModelClass> {
+    CLASSES.iter().find(|c| c.tag == tag)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tags_are_unique_and_match_the_models() {
+        for (i, c) in CLASSES.iter().enumerate() {
+            assert!(CLASSES[i + 1..].iter().all(|d| d.tag != c.tag), "{}", c.tag);
+        }
+        let ss = SparseStateSpace::linear(vec![0.5], vec![1.0], vec![1.0], vec![0.0]).unwrap();
+        assert_eq!(DynamicModel::class(&ss), "state-space");
+        assert!(class("state-space").is_some() && class("nope").is_none());
+    }
+
+    #[test]
+    fn format_4_round_trip_and_errors() {
+        let ss = SparseStateSpace::linear(
+            vec![0.5, 0.1, -0.2, 0.3],
+            vec![1.0, 0.0],
+            vec![1.0, 0.0],
+            vec![0.0],
+        )
+        .unwrap();
+        let m = FittedModel::new(
+            vec!["u".into()],
+            vec!["y".into()],
+            Box::new(ss),
+            gb_core::NoiseModel::Gaussian { sd: 0.01 },
+        )
+        .unwrap();
+        let bytes = m.to_bytes().unwrap();
+        let back = from_bytes(&bytes, "m.gbm").unwrap();
+        let u = vec![vec![1.0, 0.0, -1.0, 2.0]];
+        assert_eq!(
+            back.simulate(&u, gb_core::Init::Rest).unwrap(),
+            m.simulate(&u, gb_core::Init::Rest).unwrap()
+        );
+        let mut v7 = bytes.clone();
+        v7[4] = 7;
+        let e = from_bytes(&v7, "m.gbm").unwrap_err().to_string();
+        assert!(e.contains("newer greybox"), "{e}");
+        let e = from_bytes(&bytes[..bytes.len() / 2], "m.gbm")
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("m.gbm") && e.contains("corrupt"), "{e}");
+    }
+}
