@@ -37,7 +37,7 @@ fn check(
         "{name}: causes {:?}, NRMSE {:.4} -> {:.4}",
         d.report.causes, d.report.baseline.nrmse, d.report.final_model.nrmse
     );
-    assert_eq!(d.report.causes.first().map(String::as_str), Some(expected));
+    assert_eq!(d.report.cause_names().first().copied(), Some(expected));
     assert!(d.report.final_model.nrmse < 0.6 * d.report.baseline.nrmse);
     d
 }
@@ -54,8 +54,12 @@ fn bouc_wen_benchmark_is_hysteresis() {
     let train = train.slice(8192..8192 * 3);
     let val = load(dir.join("bouc_wen/test_multisine.csv"));
     let d = check("Bouc-Wen", train, val, "hysteresis", 4);
-    assert_eq!(d.report.causes, ["hysteresis"]);
-    assert!(d.model.state_space.is_some(), "no hidden-state model");
+    assert_eq!(d.report.cause_names(), ["hysteresis"]);
+    assert_eq!(
+        d.model.dynamics.class(),
+        "state-space",
+        "no hidden-state model"
+    );
     assert!(d.report.final_model.nrmse < 0.2 * d.report.baseline.nrmse);
 }
 

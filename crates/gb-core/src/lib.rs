@@ -30,6 +30,7 @@ pub mod noise;
 mod observe;
 pub mod rng;
 pub mod solver;
+mod spec;
 pub mod special;
 
 pub use csv_io::{write_atomic, write_csv_atomic, CsvTable};
@@ -38,6 +39,9 @@ pub use error::CoreError;
 pub use fitted::{
     decode_postcard, ClassDecoder, FittedModel, MODEL_FILE_MAGIC, MODEL_FORMAT_VERSION,
 };
-pub use model::{check_inputs, DynamicModel, Identify, Init, ModelView, Stepper, Workspace};
+pub use model::{
+    check_inputs, DynamicModel, Identify, Init, ModelView, Series, Stepper, ViewData, Workspace,
+};
 pub use noise::NoiseModel;
 pub use observe::{IterationInfo, Observer, Silent, SubTask};
+pub use spec::{ModelSpec, Options};

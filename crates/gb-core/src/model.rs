@@ -22,6 +22,10 @@ pub enum Init<'a> {
     /// state from them as well as it can (the benchmark convention); the
     /// window's samples are not meant to be scored.
     Window(&'a [f64]),
+    /// The start the model stores: the initial state a state-space model
+    /// was fitted with, the training operating point of an input–output
+    /// model; [`Init::Rest`] for classes that store none.
+    Stored,
     /// An explicit initial state in the model's own coordinates
     /// ([`DynamicModel::n_states`] values).
     State(&'a [f64]),
@@ -62,47 +66,66 @@ pub trait Stepper {
     fn step(&mut self, u: &[f64], y: &mut [f64]) -> Result<(), CoreError>;
 }
 
-/// Data a report can draw for a model (its structure), independent of any
-/// plotting library.
+/// Data a report can draw for a model (its structure: a partition, a
+/// density, a nonlinear term), independent of any plotting library.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ModelView {
+    /// Short machine name, unique per model (`partition`, `preisach-density`).
+    pub key: String,
+    /// Title above the plot.
+    pub title: String,
+    /// One or two sentences saying how to read it.
+    pub caption: String,
+    /// What to draw.
+    pub data: ViewData,
+}
+
+/// The drawable content of a [`ModelView`].
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
-pub enum ModelView {
-    /// A function of two variables on a grid: `z[i * x.len() + j]` at
-    /// `(x[j], y[i])`.
-    Heatmap {
-        /// Title.
-        title: String,
+pub enum ViewData {
+    /// Rectangular cells `[x0, y0, x1, y1, value]`: a heat map (signed
+    /// values on a diverging scale, red positive, blue negative) or, with
+    /// `outline`, a partition drawn as cell borders.
+    Cells {
         /// Label of the horizontal axis.
         x_label: String,
         /// Label of the vertical axis.
         y_label: String,
-        /// Grid of the horizontal axis.
-        x: Vec<f64>,
-        /// Grid of the vertical axis.
-        y: Vec<f64>,
-        /// Values, row-major over `y` then `x`; NaN where undefined.
-        z: Vec<f64>,
+        /// The cells.
+        cells: Vec<[f64; 5]>,
+        /// Draw borders only (a partition) instead of filled values.
+        outline: bool,
     },
-    /// Curves `y(x)`, one per named series.
+    /// Curves `y(x)`.
     Curves {
-        /// Title.
-        title: String,
         /// Label of the horizontal axis.
         x_label: String,
         /// Label of the vertical axis.
         y_label: String,
-        /// (name, points) per series.
-        series: Vec<(String, Vec<(f64, f64)>)>,
+        /// The series.
+        series: Vec<Series>,
+        /// Logarithmic vertical axis.
+        log_y: bool,
     },
     /// A table of text.
     Table {
-        /// Title.
-        title: String,
         /// Column names.
         header: Vec<String>,
         /// Rows.
         rows: Vec<Vec<String>>,
     },
+}
+
+/// One series of a [`ViewData::Curves`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Series {
+    /// Legend name.
+    pub name: String,
+    /// Points `(x, y)`.
+    pub points: Vec<(f64, f64)>,
+    /// Draw as markers rather than a line.
+    pub markers: bool,
 }
 
 /// A fitted dynamic model of any class: the one interface of simulation.
@@ -190,8 +213,10 @@ pub trait DynamicModel: Debug + Send + Sync {
     /// The model's parameters encoded for a model file (postcard).
     fn encode(&self) -> Result<Vec<u8>, CoreError>;
 
-    /// Data a report can draw (partition, densities, wavelet terms).
-    fn views(&self) -> Vec<ModelView> {
+    /// Data a report can draw (partition, densities, wavelet terms);
+    /// the names label the axes.
+    fn views(&self, input_names: &[String], output_names: &[String]) -> Vec<ModelView> {
+        let _ = (input_names, output_names);
         vec![]
     }
 

@@ -9,30 +9,46 @@
 //! excluding zero, and a minimum effect size).
 //!
 //! ```no_run
-//! use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, systems};
+//! use gb_diagnose::{diagnose, Cause, DiagnoseData, DiagnoseOptions, systems};
 //! let g = systems::generate("bouc-wen", 1, 8000, 4000).unwrap();
 //! let data = DiagnoseData::with_validation(g.train, g.validate).unwrap();
 //! let d = diagnose(&data, &DiagnoseOptions::default(), None).unwrap();
-//! assert_eq!(d.report.causes, ["hysteresis"]);
+//! assert_eq!(d.report.causes, [Cause::Hysteresis]);
 //! ```
+//!
+//! The diagnosis is a loop over the [`EXTENSIONS`] registry: each
+//! [`Extension`] tests one [`Cause`], proposes candidates for the current
+//! model and fits them; the [`DecisionPolicy`] holds every threshold; the
+//! [`Diagnosis`] keeps every accepted model's residuals, so the text
+//! ([`Report::to_text`]), JSON and HTML ([`render_html`]) reports only render.
 #![warn(missing_docs)]
 // Index loops mirror the subscripts of the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod cause;
+pub mod curves;
+mod data;
+mod decide;
 mod diagnose;
+mod evaluate;
 pub mod evidence;
+mod extension;
+pub mod extensions;
 pub mod html;
-mod model;
+mod policy;
+mod report;
 pub mod stats;
 pub mod systems;
 
-pub use diagnose::{
-    diagnose, residuals_on, DataSummary, DiagnoseData, DiagnoseOptions, Diagnosis, ModelSummary,
-    Observer, OrderChoice, Report, Scores, Step, CAUSES, EVAL_SKIP,
-};
+pub use cause::Cause;
+pub use data::DiagnoseData;
+pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, OrderChoice};
+pub use evaluate::{evaluate, residuals_on, Evaluated, Lineage, Residuals, Scores};
 pub use evidence::Evidence;
+pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role, EXTENSIONS};
 pub use html::render_html;
-pub use model::{GreyBoxModel, ModelFitOptions, Structure, MAX_ORDER, MODEL_FORMAT_VERSION};
+pub use policy::DecisionPolicy;
+pub use report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
 
 /// Errors of the diagnosis crate.
 #[derive(Debug, thiserror::Error)]
@@ -47,9 +63,6 @@ pub enum DiagnoseError {
     /// Hidden-state model problem.
     #[error(transparent)]
     StateSpace(#[from] gb_model::ModelError),
-    /// Unknown model SPEC.
-    #[error("unknown model spec '{0}' (known: linear, lmn, linear+preisach, lmn+preisach, each optionally +student-t)")]
-    UnknownSpec(String),
     /// Model file problem.
     #[error("{0}")]
     ModelFile(String),

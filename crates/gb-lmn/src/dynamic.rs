@@ -62,6 +62,7 @@ impl DynamicModel for LocalModelNetwork {
         let sim = match init {
             Init::Window(w) => self.simulate_with_init_window(u, w)?,
             Init::History(h) | Init::State(h) => self.simulate_signals(u, h)?,
+            Init::Stored => self.simulate_signals(u, &[])?,
             _ => self.simulate_signals(u, &vec![0.0; self.spec.max_lag()])?,
         };
         copy_out(&sim, y)
@@ -69,8 +70,8 @@ impl DynamicModel for LocalModelNetwork {
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         encode(self)
     }
-    fn views(&self) -> Vec<ModelView> {
-        vec![]
+    fn views(&self, input_names: &[String], output_names: &[String]) -> Vec<ModelView> {
+        crate::views::network_views(self, input_names, output_names)
     }
     fn clone_box(&self) -> Box<dyn DynamicModel> {
         Box::new(self.clone())
@@ -115,6 +116,7 @@ impl DynamicModel for LmnModel {
         let n = u.first().map_or(0, Vec::len);
         let (history, used) = match init {
             Init::Window(h) | Init::History(h) | Init::State(h) => (padded(h, n), h.len().min(n)),
+            Init::Stored => (vec![], 0),
             _ => (vec![0.0; n], 0),
         };
         let sim = self.simulate(&Experiment::new(u.to_vec(), history), used)?;

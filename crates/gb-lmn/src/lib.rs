@@ -59,6 +59,7 @@ mod scaling;
 mod spec;
 pub mod ssnet;
 pub mod tree;
+mod views;
 mod wiener_hammerstein;
 
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};

@@ -98,7 +98,7 @@ struct V3 {
 /// Decode `body` as `T`, requiring every byte to be used.
 fn exact<T: DeserializeOwned>(body: &[u8]) -> Option<T> {
     match postcard::take_from_bytes::<T>(body) {
-        Ok((v, rest)) if rest.is_empty() => Some(v),
+        Ok((v, [])) => Some(v),
         _ => None,
     }
 }

@@ -37,9 +37,11 @@ mod init;
 mod legacy;
 mod linear;
 mod model;
+pub mod recipes;
 pub mod registry;
 mod smc;
 mod structures;
+mod views;
 
 pub use basis::{Coefficient, EvalScratch, SparseExpansion, MAX_DIMS, TABLE_RESOLUTION};
 pub use damper::{MrDamperStructure, ValidatedFit};

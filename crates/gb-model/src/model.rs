@@ -562,8 +562,9 @@ impl gb_core::DynamicModel for SparseStateSpace {
     fn n_parameters(&self) -> usize {
         SparseStateSpace::n_parameters(self)
     }
-    /// `Rest` starts from the zero state, `State` from the given one,
-    /// `History`/`Window` from the state estimated on the measured outputs.
+    /// `Rest` starts from the zero state, `Stored` from the fitted `x₀`,
+    /// `State` from the given one, `History`/`Window` from the state
+    /// estimated on the measured outputs.
     fn simulate_into(
         &self,
         u: &[Vec<f64>],
@@ -575,6 +576,7 @@ impl gb_core::DynamicModel for SparseStateSpace {
         gb_core::check_inputs(self.n_inputs, u)?;
         let sim = match init {
             Init::State(x0) => self.simulate_from(u, x0)?.0,
+            Init::Stored => self.simulate(u)?,
             Init::Window(w) | Init::History(w) if !w.is_empty() => {
                 self.simulate_init_window(u, w)?
             }
@@ -593,6 +595,9 @@ impl gb_core::DynamicModel for SparseStateSpace {
     fn encode(&self) -> std::result::Result<Vec<u8>, gb_core::CoreError> {
         postcard::to_allocvec(self)
             .map_err(|e| gb_core::CoreError::ModelFile(format!("cannot encode model: {e}")))
+    }
+    fn views(&self, input_names: &[String], _outputs: &[String]) -> Vec<gb_core::ModelView> {
+        crate::views::state_space_views(self, input_names)
     }
     fn clone_box(&self) -> Box<dyn gb_core::DynamicModel> {
         Box::new(self.clone())

@@ -11,6 +11,9 @@ use gb_core::{ClassDecoder, CoreError, DynamicModel, FittedModel, MODEL_FORMAT_V
 use gb_lmn::{LmnModel, LocalModelNetwork, SsLmnModel, WienerHammersteinNetwork};
 use std::path::Path;
 
+/// Decodes (and checks) a model-file body of a class version.
+pub type DecodeFn = fn(&[u8], u32) -> Result<Box<dyn DynamicModel>, CoreError>;
+
 /// A registered model class.
 #[derive(Debug, Clone, Copy)]
 pub struct ModelClass {
@@ -19,7 +22,7 @@ pub struct ModelClass {
     /// One line for `--help` and the docs.
     pub summary: &'static str,
     /// Decodes (and checks) a model-file body of a class version.
-    pub decode: fn(&[u8], u32) -> Result<Box<dyn DynamicModel>, CoreError>,
+    pub decode: DecodeFn,
 }
 
 fn boxed<T: DynamicModel + 'static>(

@@ -5,9 +5,10 @@
 //! training data (fit and select blocks of the training record; the test
 //! records are never used for a decision), then the final model is
 //! simulated in free run on each official test set with its init window.
-use gb_core::{metrics, CsvTable, DataSet};
-use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, GreyBoxModel, OrderChoice};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use crate::progress::Bar;
+use gb_core::{metrics, CsvTable, DataSet, DynamicModel, FittedModel};
+use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice};
+use indicatif::ProgressBar;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -382,12 +383,24 @@ struct Row {
     class: Option<(Option<f64>, String, usize, f64)>,
 }
 
-/// A fitted benchmark-grade model.
-enum Fitted {
-    Lmn(gb_lmn::LmnModel),
-    StateSpace(gb_model::SparseStateSpace),
-    WienerHammerstein(gb_lmn::WienerHammersteinNetwork),
-    SsLmn(gb_lmn::SsLmnModel),
+/// A fitted benchmark-grade model and how the benchmark scores it.
+struct Fitted {
+    model: Box<dyn DynamicModel>,
+    /// An init window estimates the initial state (else the model starts
+    /// from rest and the window is only left unscored).
+    estimate_state: bool,
+    /// Periods simulated for the periodic steady state.
+    periods: usize,
+}
+
+impl Fitted {
+    fn new(model: impl DynamicModel + 'static, estimate_state: bool, periods: usize) -> Self {
+        Self {
+            model: Box::new(model),
+            estimate_state,
+            periods,
+        }
+    }
 }
 
 /// Fit `c` on the first `train_rows` rows of `train`.
@@ -425,7 +438,7 @@ fn fit_class(
                 nk + nb - 1,
                 m.n_parameters()
             );
-            Ok((Fitted::Lmn(m), text, d.len()))
+            Ok((Fitted::new(m, true, 2), text, d.len()))
         }
         BestClass::HystereticStateSpace {
             ts,
@@ -459,7 +472,7 @@ fn fit_class(
                 "gb-model state space: position, velocity, hidden hysteretic force z; sparse bior2.2 term f(v, z), {} parameters, {substeps} sub-steps",
                 m.n_parameters()
             );
-            Ok((Fitted::StateSpace(m), text, d.len()))
+            Ok((Fitted::new(m, false, 3), text, d.len()))
         }
         BestClass::WienerHammerstein {
             knots,
@@ -487,7 +500,8 @@ fn fit_class(
                 .and_then(|f| f.fit(u, &d.output))
                 .map_err(|e| e.to_string())?;
             pb.finish_and_clear();
-            Ok((Fitted::WienerHammerstein(m.clone()), m.describe(), d.len()))
+            let text = m.describe();
+            Ok((Fitted::new(m, false, 2), text, d.len()))
         }
         BestClass::StateSpaceLmn {
             n_states,
@@ -508,7 +522,7 @@ fn fit_class(
                 "{}; leaves chosen on the last 20 % of the training data, LM on the simulation error",
                 fit.model.describe()
             );
-            Ok((Fitted::SsLmn(fit.model), text, train.len()))
+            Ok((Fitted::new(fit.model, true, 2), text, train.len()))
         }
         BestClass::MrDamper {
             max_level,
@@ -546,7 +560,7 @@ fn fit_class(
                 m.describe(),
                 ridge
             );
-            Ok((Fitted::StateSpace(m), text, d.len()))
+            Ok((Fitted::new(m, false, 3), text, d.len()))
         }
     }
 }
@@ -554,83 +568,24 @@ fn fit_class(
 /// Test RMSE (file units) of a benchmark-grade model under `init`.
 fn score_class(f: &Fitted, test: &DataSet, init: Init) -> Result<f64, String> {
     let n = test.len();
-    let (y, sim): (&[f64], Vec<f64>) = match f {
-        Fitted::Lmn(m) => {
-            let e = |inputs: Vec<Vec<f64>>, out: Vec<f64>| gb_lmn::Experiment::new(inputs, out);
-            match init {
-                Init::Window(w) => {
-                    let w = w.min(n / 2);
-                    let sim = m
-                        .simulate(&e(test.inputs.clone(), test.output.clone()), w)
-                        .map_err(|e| e.to_string())?;
-                    (&test.output[w..], sim[w..].to_vec())
-                }
-                Init::Periodic => {
-                    let twice: Vec<Vec<f64>> = test.inputs.iter().map(|u| u.repeat(2)).collect();
-                    let sim = m
-                        .simulate(&e(twice, vec![0.0; 2 * n]), 0)
-                        .map_err(|e| e.to_string())?;
-                    (&test.output[..], sim[n..].to_vec())
-                }
-                Init::Rest => {
-                    let sim = m
-                        .simulate(&e(test.inputs.clone(), vec![0.0; n]), 0)
-                        .map_err(|e| e.to_string())?;
-                    (&test.output[..], sim)
-                }
-            }
+    let (start, skip) = match init {
+        Init::Window(w) => {
+            let w = w.min(n / 2);
+            let s = if f.estimate_state {
+                gb_core::Init::Window(&test.output[..w])
+            } else {
+                gb_core::Init::Rest
+            };
+            (s, w)
         }
-        Fitted::WienerHammerstein(m) => {
-            // from the zero state; the init window's samples are not scored
-            match init {
-                Init::Periodic => {
-                    let twice: Vec<f64> = test.inputs[0].repeat(2);
-                    (&test.output[..], m.simulate(&twice)[n..].to_vec())
-                }
-                Init::Rest => (&test.output[..], m.simulate(&test.inputs[0])),
-                Init::Window(w) => {
-                    let w = w.min(n / 2);
-                    (&test.output[w..], m.simulate(&test.inputs[0])[w..].to_vec())
-                }
-            }
-        }
-        Fitted::SsLmn(m) => match init {
-            Init::Window(w) => {
-                let w = w.min(n / 2);
-                let sim = m
-                    .simulate_with_init_window(&test.inputs, &test.output, w)
-                    .map_err(|e| e.to_string())?;
-                (&test.output[w..], sim[w..].to_vec())
-            }
-            Init::Rest | Init::Periodic => {
-                let sim = m
-                    .simulate_from(&test.inputs, &vec![0.0; m.n_states()])
-                    .map_err(|e| e.to_string())?;
-                (&test.output[..], sim)
-            }
-        },
-        Fitted::StateSpace(m) => {
-            let mut rest = m.clone();
-            rest.x0 = vec![0.0; rest.x0.len()];
-            match init {
-                Init::Periodic => {
-                    let thrice: Vec<Vec<f64>> = test.inputs.iter().map(|u| u.repeat(3)).collect();
-                    let sim = rest.simulate(&thrice).map_err(|e| e.to_string())?;
-                    (&test.output[..], sim[2 * n..].to_vec())
-                }
-                Init::Rest | Init::Window(_) => {
-                    let skip = if let Init::Window(w) = init {
-                        w.min(n / 2)
-                    } else {
-                        0
-                    };
-                    let sim = rest.simulate(&test.inputs).map_err(|e| e.to_string())?;
-                    (&test.output[skip..], sim[skip..].to_vec())
-                }
-            }
-        }
+        Init::Periodic => (gb_core::Init::Periodic { periods: f.periods }, 0),
+        Init::Rest => (gb_core::Init::Rest, 0),
     };
-    metrics::rmse(y, &sim).map_err(|e| e.to_string())
+    let sim = f
+        .model
+        .simulate(&test.inputs, start)
+        .map_err(|e| e.to_string())?;
+    metrics::rmse(&test.output[skip..], &sim[skip..]).map_err(|e| e.to_string())
 }
 
 fn load(path: &Path, inputs: &[&str], output: &str) -> Result<DataSet, String> {
@@ -656,7 +611,7 @@ fn increments(d: &DataSet) -> DataSet {
 /// `init`; with `integrating`, `m` simulates the increments of the output and
 /// the simulated output is their running sum from the last initial sample.
 fn score(
-    m: &GreyBoxModel,
+    m: &FittedModel,
     test: &DataSet,
     init: Init,
     integrating: bool,
@@ -668,7 +623,7 @@ fn score(
         let n = n.clamp(1, test.len() / 2);
         let inc = increments(test);
         let sim = m
-            .simulate_init_window(&inc.inputs, &inc.output[..n])
+            .simulate(&inc.inputs, gb_core::Init::Window(&inc.output[..n]))
             .map_err(|e| e.to_string())?;
         let mut y_sim = Vec::with_capacity(test.len() - n);
         let mut acc = test.output[n - 1];
@@ -685,18 +640,19 @@ fn score(
         Init::Window(n) => {
             let n = n.min(test.len() / 2);
             let sim = m
-                .simulate_init_window(&test.inputs, &test.output[..n])
+                .simulate(&test.inputs, gb_core::Init::Window(&test.output[..n]))
                 .map_err(|e| e.to_string())?;
             (test.output[n..].to_vec(), sim[n..].to_vec())
         }
         Init::Periodic => {
-            let twice: Vec<Vec<f64>> = test.inputs.iter().map(|u| u.repeat(2)).collect();
-            let sim = m.simulate_from_rest(&twice).map_err(|e| e.to_string())?;
-            (test.output.clone(), sim[test.len()..].to_vec())
+            let sim = m
+                .simulate(&test.inputs, gb_core::Init::Periodic { periods: 2 })
+                .map_err(|e| e.to_string())?;
+            (test.output.clone(), sim)
         }
         Init::Rest => {
             let sim = m
-                .simulate_from_rest(&test.inputs)
+                .simulate(&test.inputs, gb_core::Init::Rest)
                 .map_err(|e| e.to_string())?;
             (test.output.clone(), sim)
         }
@@ -704,16 +660,6 @@ fn score(
     let rmse = metrics::rmse(&y, &sim).map_err(|e| e.to_string())?;
     let nrmse = metrics::nrmse(&y, &sim).map_err(|e| e.to_string())?;
     Ok((rmse, nrmse, y.len()))
-}
-
-struct Observer(ProgressBar);
-
-impl gb_diagnose::Observer for Observer {
-    fn progress(&self, done: usize, total: usize, message: &str) {
-        self.0.set_length(total as u64);
-        self.0.set_position(done as u64);
-        self.0.set_message(message.to_string());
-    }
 }
 
 fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, String> {
@@ -745,19 +691,7 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
         }
         tests.push(d);
     }
-    let pb = ProgressBar::new(3);
-    if o.quiet {
-        pb.set_draw_target(ProgressDrawTarget::hidden());
-    } else {
-        pb.set_style(
-            ProgressStyle::with_template(
-                "{spinner} {prefix} [{bar:20}] {pos}/{len} {msg} ({elapsed})",
-            )
-            .unwrap_or_else(|_| ProgressStyle::default_bar()),
-        );
-        pb.set_prefix(b.name);
-        pb.enable_steady_tick(std::time::Duration::from_millis(120));
-    }
+    let pb = Bar::new(o.quiet, 3, b.name);
     let t0 = Instant::now();
     let (train_m, val_m) = if b.integrating {
         (increments(&train), increments(&tests[0]))
@@ -770,11 +704,10 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
         max_steps: if o.quick { 1 } else { 2 },
         ..DiagnoseOptions::default()
     };
-    let obs = Observer(pb.clone());
-    let dg = diagnose(&data, &opts, Some(&obs)).map_err(|e| e.to_string())?;
+    let dg = diagnose(&data, &opts, Some(&pb)).map_err(|e| e.to_string())?;
     let fit_s = t0.elapsed().as_secs_f64();
-    pb.finish_and_clear();
-    let baseline = dg.chain.first().unwrap_or(&dg.model);
+    pb.finish();
+    let baseline = dg.chain.first().map_or(&dg.model, |e| &e.model);
     let class = match b.class.filter(|_| !b.integrating) {
         Some(c) => {
             let c = if o.quick { c.quick() } else { c };
@@ -805,7 +738,12 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
                 dg.report.final_model.order,
                 dg.report.final_model.parameters
             ),
-            causes: dg.report.causes.clone(),
+            causes: dg
+                .report
+                .cause_names()
+                .iter()
+                .map(|c| c.to_string())
+                .collect(),
             fit_s,
             samples: n,
             train_rows: train.len(),

@@ -1,0 +1,269 @@
+//! Whether a candidate pays: moving-block-bootstrap intervals of its gain on
+//! the select block, and the choice among the candidates of an iteration.
+use crate::evaluate::{evaluate, Evaluated, Lineage};
+use crate::extension::{io_model, Context, Extension, GainMetric, Proposal, Role};
+use crate::{stats, Cause, DecisionPolicy, DiagnoseError};
+use gb_core::metrics;
+
+/// Relative RMS gain `1 − rms(after)/rms(before)` and its 95 % moving-block
+/// bootstrap interval.
+pub(crate) fn relative_gain_ci(
+    before: &[f64],
+    after: &[f64],
+    block: usize,
+    reps: usize,
+    seed: u64,
+) -> (f64, [f64; 2]) {
+    let sb: f64 = before.iter().map(|v| v * v).sum();
+    let sa: f64 = after.iter().map(|v| v * v).sum();
+    let g = 1.0 - (sa / sb.max(1e-300)).sqrt();
+    let (lo, hi) = stats::block_bootstrap(before.len(), block, reps, seed, |idx| {
+        let (mut b, mut a) = (0.0, 0.0);
+        for &i in idx {
+            b += before[i] * before[i];
+            a += after[i] * after[i];
+        }
+        1.0 - (a / b.max(1e-300)).sqrt()
+    });
+    (g, [lo, hi])
+}
+
+/// Mean nll gain per sample and its 95 % moving-block bootstrap interval.
+fn nll_gain_ci(nb: &[f64], na: &[f64], block: usize, reps: usize, seed: u64) -> (f64, [f64; 2]) {
+    let d: Vec<f64> = nb.iter().zip(na).map(|(a, b)| a - b).collect();
+    let g = metrics::mean(&d);
+    let (lo, hi) = stats::block_bootstrap(d.len(), block, reps, seed, |idx| {
+        idx.iter().map(|&i| d[i]).sum::<f64>() / idx.len() as f64
+    });
+    (g, [lo, hi])
+}
+
+/// A fitted candidate of one iteration.
+pub(crate) struct Candidate {
+    pub ext: &'static dyn Extension,
+    pub proposal: Proposal,
+    pub fitted: Evaluated,
+    /// Select-block gain against the current model.
+    pub gain: f64,
+    /// Its 95 % interval.
+    pub ci: [f64; 2],
+    /// Whether it pays.
+    pub pays: bool,
+}
+
+impl Candidate {
+    pub fn role(&self) -> Role {
+        self.ext.role()
+    }
+    pub fn cause(&self) -> Cause {
+        self.proposal.cause
+    }
+    /// A new structural cause (not a refinement, not noise).
+    pub fn structural_new(&self) -> bool {
+        self.role() == Role::NewCause && self.cause().is_structural()
+    }
+}
+
+/// Score `fitted` against the current model: gain, interval and whether it
+/// pays (significant, large enough, and admitted by its extension).
+pub(crate) fn score(
+    ext: &'static dyn Extension,
+    proposal: Proposal,
+    fitted: Evaluated,
+    ctx: &Context,
+    seed: u64,
+) -> Candidate {
+    let pol = ctx.policy();
+    let cur = ctx.current;
+    let block = pol.block(cur.select.e.len());
+    let (gain, ci, pays) = match ext.metric() {
+        GainMetric::Nll => {
+            let nb: Vec<f64> = cur
+                .select
+                .e
+                .iter()
+                .map(|&e| cur.model.noise.nll(e))
+                .collect();
+            let na: Vec<f64> = fitted
+                .select
+                .e
+                .iter()
+                .map(|&e| fitted.model.noise.nll(e))
+                .collect();
+            let (g, ci) = nll_gain_ci(&nb, &na, block, pol.bootstrap, seed);
+            (g, ci, ci[0] > 0.0 && g >= pol.min_nll_gain)
+        }
+        GainMetric::Nrmse => {
+            let (g, ci) =
+                relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
+            (g, ci, ci[0] > 0.0 && g >= pol.min_gain)
+        }
+    };
+    let pays = pays && ext.admits(ctx, &fitted);
+    Candidate {
+        ext,
+        proposal,
+        fitted,
+        gain,
+        ci,
+        pays,
+    }
+}
+
+/// Whether `after` pays significantly against `before` (select residuals).
+pub(crate) fn pays_against(before: &[f64], after: &[f64], pol: &DecisionPolicy, seed: u64) -> bool {
+    let (g, ci) = relative_gain_ci(before, after, pol.block(before.len()), pol.bootstrap, seed);
+    ci[0] > 0.0 && g >= pol.min_gain
+}
+
+/// The choice of an iteration among scored candidates (indices into
+/// `cands`): the new structural cause with the largest gain that also beats
+/// any paying refinement; else the refinement; else a paying noise model.
+/// A nonlinearity/hysteresis tie is resolved by unique contributions.
+pub(crate) fn choose(
+    cands: &mut [Candidate],
+    ctx: &Context,
+    it: usize,
+) -> (Option<usize>, Option<String>) {
+    let pol = ctx.policy();
+    let refine = cands
+        .iter()
+        .position(|c| c.pays && c.role() == Role::Refinement);
+    if let Some(r) = refine {
+        // a new structural cause must also beat "more of what we have"
+        let base = cands[r].fitted.select.e.clone();
+        for (i, c) in cands.iter_mut().enumerate() {
+            if c.pays && c.structural_new() {
+                c.pays = pays_against(
+                    &base,
+                    &c.fitted.select.e,
+                    pol,
+                    pol.seed.wrapping_add(5000 + i as u64),
+                );
+            }
+        }
+    }
+    let mut chosen = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.pays && c.structural_new())
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
+        .map(|(i, _)| i);
+    let mut note = None;
+    if let Some(ci) = chosen {
+        if let Some((pick, text)) = tie_break(cands, ci, ctx) {
+            chosen = Some(pick);
+            note = Some(text);
+        }
+    }
+    let _ = it;
+    let chosen = chosen.or(refine).or_else(|| {
+        cands
+            .iter()
+            .position(|c| c.pays && c.cause() == Cause::Noise && c.role() == Role::NewCause)
+    });
+    (chosen, note)
+}
+
+/// Hysteresis and nonlinearity both pay and their intervals overlap: fit
+/// the input–output model with both and keep the cause with the larger
+/// unique contribution (the gain of adding it to the other one).
+fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
+    let other = match cands[ci].cause() {
+        Cause::Nonlinearity => Cause::Hysteresis,
+        Cause::Hysteresis => Cause::Nonlinearity,
+        _ => return None,
+    };
+    let o = cands
+        .iter()
+        .position(|c| c.pays && c.structural_new() && c.cause() == other)?;
+    let (best, oc) = (cands[ci].ci, cands[o].ci);
+    if !(oc[1] >= best[0] && best[1] >= oc[0]) {
+        return None;
+    }
+    let (ni, hi) = if cands[ci].cause() == Cause::Nonlinearity {
+        (ci, o)
+    } else {
+        (o, ci)
+    };
+    let comb = combined(&cands[ni].fitted, &cands[hi].fitted, ctx).ok()?;
+    let pol = ctx.policy();
+    let block = pol.block(comb.select.e.len());
+    let (g_h, _) = relative_gain_ci(
+        &cands[ni].fitted.select.e,
+        &comb.select.e,
+        block,
+        pol.tie_bootstrap,
+        pol.tie_seed,
+    );
+    let (g_n, _) = relative_gain_ci(
+        &cands[hi].fitted.select.e,
+        &comb.select.e,
+        block,
+        pol.tie_bootstrap,
+        pol.tie_seed,
+    );
+    let pick = if g_h > g_n { hi } else { ni };
+    Some((
+        pick,
+        format!(
+            "; tie with {other} resolved by unique contributions: hysteresis adds {:+.1}% to a network, a network adds {:+.1}% to hysteresis",
+            100.0 * g_h,
+            100.0 * g_n
+        ),
+    ))
+}
+
+/// The model with both a network and hysteresis: the network with
+/// zero-weight hysteresis columns trained further by LM, or the hysteresis
+/// model itself, whichever simulates the fit block better.
+fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluated, DiagnoseError> {
+    let (Some(pl), Some(ph)) = (lmn.lineage.io(), hyst.lineage.io()) else {
+        return Err(DiagnoseError::InvalidArgument(
+            "not input-output networks".into(),
+        ));
+    };
+    let both = gb_lmn::IoNetworkParams {
+        network: true,
+        hysteresis: true,
+        ..pl.clone()
+    };
+    let as_net = |e: &Evaluated| {
+        e.model
+            .dynamics
+            .as_any()
+            .downcast_ref::<gb_lmn::LocalModelNetwork>()
+            .cloned()
+    };
+    let (Some(nl), Some(nh)) = (as_net(lmn), as_net(hyst)) else {
+        return Err(DiagnoseError::InvalidArgument(
+            "not input-output networks".into(),
+        ));
+    };
+    let fit = ctx.fit;
+    let cost = |n: &gb_lmn::LocalModelNetwork| -> f64 {
+        n.simulation_residuals(&fit.inputs, &fit.output)
+            .map_or(f64::INFINITY, |e| metrics::rms(&e))
+    };
+    let mut best = nh;
+    let mut best_cost = cost(&best);
+    let spec = both.network_spec(fit.n_inputs());
+    if let Some(start) = gb_lmn::embed_hysteresis(&nl, &spec) {
+        if let Ok((net, _)) =
+            gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &ctx.options.fit)
+        {
+            let c = cost(&net);
+            if c < best_cost {
+                best_cost = c;
+                best = net;
+            }
+        }
+    }
+    let _ = (best_cost, ph);
+    evaluate(
+        io_model(best, fit)?,
+        Lineage::Io(both),
+        ctx.data,
+        ctx.policy(),
+    )
+}

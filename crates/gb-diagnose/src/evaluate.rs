@@ -1,0 +1,151 @@
+//! A fitted model as the diagnosis sees it: how it was built, its scores and
+//! its residuals on the select and report blocks (kept, so that reports are
+//! pure renderers).
+use crate::{DecisionPolicy, DiagnoseData, DiagnoseError};
+use gb_core::{metrics, FittedModel, Init, Record};
+use gb_lmn::IoNetworkParams;
+use serde::{Deserialize, Serialize};
+use std::ops::Range;
+
+/// How a model was built: what the extensions can extend further.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Lineage {
+    /// An input–output network (linear OE or LOLIMOT, optional Preisach
+    /// columns, optional Student-t noise) with these parameters.
+    Io(IoNetworkParams),
+    /// The hidden-state model of gb-model with `order` states, hysteretic
+    /// or not.
+    HiddenState {
+        /// Number of states.
+        order: usize,
+        /// Whether it has a hysteretic part.
+        hysteresis: bool,
+    },
+}
+
+impl Lineage {
+    /// The model SPEC (`greybox fit --model`).
+    pub fn spec(&self) -> String {
+        match self {
+            Lineage::Io(p) => {
+                let mut s = p.spec_name();
+                if p.detail > 0 {
+                    s.push_str(&format!(" (detail {})", p.detail));
+                }
+                s
+            }
+            Lineage::HiddenState { hysteresis, .. } => {
+                if *hysteresis {
+                    "state-space+hysteresis".into()
+                } else {
+                    "state-space".into()
+                }
+            }
+        }
+    }
+
+    /// Dynamic order (states of the hidden-state model).
+    pub fn order(&self) -> usize {
+        match self {
+            Lineage::Io(p) => p.order,
+            Lineage::HiddenState { order, .. } => *order,
+        }
+    }
+
+    /// The input–output network parameters, if that is the class.
+    pub fn io(&self) -> Option<&IoNetworkParams> {
+        match self {
+            Lineage::Io(p) => Some(p),
+            Lineage::HiddenState { .. } => None,
+        }
+    }
+}
+
+/// Scores of one model.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Scores {
+    /// NRMSE on the select block.
+    pub nrmse_select: f64,
+    /// NRMSE on the report block.
+    pub nrmse: f64,
+    /// Mean nll per sample on the select block.
+    pub nll_select: f64,
+    /// Mean nll per sample on the report block.
+    pub nll: f64,
+}
+
+/// Residuals `e = y − ŷ` and the simulated output `ŷ` over the scored
+/// samples of one block.
+#[derive(Debug, Clone, Default)]
+pub struct Residuals {
+    /// Residuals.
+    pub e: Vec<f64>,
+    /// Simulated output.
+    pub yhat: Vec<f64>,
+}
+
+/// A model with its lineage, scores and residuals.
+#[derive(Debug, Clone)]
+pub struct Evaluated {
+    /// The fitted model.
+    pub model: FittedModel,
+    /// How it was built.
+    pub lineage: Lineage,
+    /// Scores.
+    pub scores: Scores,
+    /// Residuals on the select block.
+    pub select: Residuals,
+    /// Residuals on the report block.
+    pub report: Residuals,
+}
+
+/// Residuals of `model` on `range` of `data`, simulating in free run from
+/// the record's start with the initial state estimated from its first
+/// `init_window` outputs; samples before the window's end are not scored.
+pub fn residuals_on(
+    model: &FittedModel,
+    data: &Record,
+    range: &Range<usize>,
+    init_window: usize,
+) -> Result<Residuals, DiagnoseError> {
+    let end = range.end;
+    let inputs: Vec<Vec<f64>> = data.inputs.iter().map(|u| u[..end].to_vec()).collect();
+    let sim = model.simulate(&inputs, Init::Window(&data.output[..init_window.min(end)]))?;
+    let start = range.start.max(init_window).min(end);
+    Ok(Residuals {
+        e: (start..end).map(|k| data.output[k] - sim[k]).collect(),
+        yhat: sim[start..end].to_vec(),
+    })
+}
+
+/// Score `model` on the select and report blocks of `d`.
+pub fn evaluate(
+    model: FittedModel,
+    lineage: Lineage,
+    d: &DiagnoseData,
+    policy: &DecisionPolicy,
+) -> Result<Evaluated, DiagnoseError> {
+    let w = policy.init_window;
+    let select = residuals_on(&model, &d.train, &d.select, w)?;
+    let report = residuals_on(&model, &d.report, &d.report_range, w)?;
+    let sd_s = metrics::std(&d.train.output[d.select_scored(w)]);
+    let sd_r = metrics::std(&d.report.output[d.report_scored(w)]);
+    let scores = Scores {
+        nrmse_select: metrics::rms(&select.e) / sd_s,
+        nrmse: metrics::rms(&report.e) / sd_r,
+        nll_select: model.noise.mean_nll(&select.e),
+        nll: model.noise.mean_nll(&report.e),
+    };
+    if !(scores.nrmse.is_finite() && scores.nrmse_select.is_finite() && scores.nll.is_finite()) {
+        return Err(DiagnoseError::Core(gb_core::CoreError::Unstable(
+            "non-finite score".into(),
+        )));
+    }
+    Ok(Evaluated {
+        model,
+        lineage,
+        scores,
+        select,
+        report,
+    })
+}

@@ -1,0 +1,165 @@
+//! Candidate extensions: each a type that says which cause it tests, when it
+//! applies to the current model, how it fits the extended model, and what
+//! evidence it shows. The diagnosis loops over [`EXTENSIONS`].
+//!
+//! Adding an extension (or a cause, with its variant in [`Cause`]) is one
+//! file in `extensions/` and one line in [`EXTENSIONS`].
+use crate::evaluate::{Evaluated, Lineage, Residuals};
+use crate::extensions::{
+    Capacity, HiddenState, LinearOrder, Lolimot, PreisachColumns, StudentTNoise,
+};
+use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
+use gb_core::{FittedModel, ModelView, Observer, Record};
+
+/// What a candidate does for the diagnosis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    /// Tests a cause (named when it pays).
+    NewCause,
+    /// More capacity for a cause already named: a new cause must beat it.
+    Refinement,
+    /// The last resort when a named cause stays unexplained and no new cause
+    /// pays: tried at most once, must beat the simple choice too.
+    Escalation,
+}
+
+/// How a candidate's gain is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GainMetric {
+    /// Relative NRMSE reduction of the free-run simulation.
+    Nrmse,
+    /// Reduction of the negative log-likelihood per sample (nats).
+    Nll,
+}
+
+impl GainMetric {
+    /// Name in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            GainMetric::Nrmse => "nrmse",
+            GainMetric::Nll => "nll",
+        }
+    }
+}
+
+/// One candidate an extension proposes for the current model.
+#[derive(Debug, Clone)]
+pub struct Proposal {
+    /// The cause it tests (an escalation tests the cause it escalates).
+    pub cause: Cause,
+    /// The structure to fit.
+    pub lineage: Lineage,
+    /// What the extension does, in words.
+    pub text: String,
+}
+
+/// What an extension sees of the diagnosis.
+pub struct Context<'a> {
+    /// The data.
+    pub data: &'a DiagnoseData,
+    /// The fit block.
+    pub fit: &'a Record,
+    /// The current model.
+    pub current: &'a Evaluated,
+    /// Causes named so far, in order.
+    pub causes: &'a [Cause],
+    /// Residual evidence of the current model (select block).
+    pub evidence: &'a Evidence,
+    /// The options (policy and fit settings).
+    pub options: &'a DiagnoseOptions,
+    /// Free-run simulation of the current model on the fit block.
+    pub simulated_fit: Option<&'a [f64]>,
+    /// Progress of long fits.
+    pub observer: &'a dyn Observer,
+}
+
+impl Context<'_> {
+    /// The decision policy.
+    pub fn policy(&self) -> &DecisionPolicy {
+        &self.options.policy
+    }
+    /// Whether `c` has been named.
+    pub fn named(&self, c: Cause) -> bool {
+        self.causes.contains(&c)
+    }
+}
+
+/// A candidate extension of the current model.
+pub trait Extension: Sync {
+    /// Short name (unique).
+    fn name(&self) -> &'static str;
+    /// The cause it tests.
+    fn cause(&self) -> Cause;
+    /// Its role.
+    fn role(&self) -> Role {
+        Role::NewCause
+    }
+    /// How its gain is measured.
+    fn metric(&self) -> GainMetric {
+        GainMetric::Nrmse
+    }
+    /// Tried at most once per diagnosis.
+    fn once(&self) -> bool {
+        false
+    }
+    /// The candidates for the current model (none when it does not apply).
+    fn propose(&self, ctx: &Context) -> Vec<Proposal>;
+    /// Fit a proposal on the fit block.
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError>;
+    /// An acceptance condition beyond a significant gain.
+    fn admits(&self, ctx: &Context, candidate: &Evaluated) -> bool {
+        let _ = (ctx, candidate);
+        true
+    }
+    /// The evidence sentence of its row.
+    fn evidence(&self, p: &Proposal, ctx: &Context) -> String;
+    /// The extension text of its row, once fitted.
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        let _ = fitted;
+        p.text.clone()
+    }
+    /// The evidence plot of its cause from the residuals before and after
+    /// (report block), for [`Role::NewCause`] extensions.
+    fn evidence_view(
+        &self,
+        before: &Residuals,
+        after: &Residuals,
+        output: &str,
+    ) -> Option<ModelView> {
+        let _ = (before, after, output);
+        None
+    }
+}
+
+/// Every extension, in the order candidates are fitted and listed.
+pub static EXTENSIONS: &[&dyn Extension] = &[
+    &Capacity,
+    &Lolimot,
+    &PreisachColumns,
+    &LinearOrder,
+    &StudentTNoise,
+    &HiddenState,
+];
+
+/// The extension that introduces `cause` as a new cause (for its evidence
+/// text and plot).
+pub fn introducing(cause: Cause) -> Option<&'static dyn Extension> {
+    EXTENSIONS
+        .iter()
+        .copied()
+        .find(|e| e.cause() == cause && e.role() == Role::NewCause)
+}
+
+/// The fitted model of an input–output network, named like `data`.
+pub(crate) fn io_model(
+    net: gb_lmn::LocalModelNetwork,
+    data: &Record,
+) -> Result<FittedModel, DiagnoseError> {
+    let noise = net.noise.clone();
+    Ok(FittedModel::new(
+        data.input_names.clone(),
+        vec![data.output_name.clone()],
+        Box::new(net),
+        noise,
+    )?)
+}

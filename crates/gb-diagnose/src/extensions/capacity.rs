@@ -1,0 +1,73 @@
+//! More capacity for a cause already named: more local models / operators
+//! and one more lag of every regressor. A new cause must beat it.
+use crate::evaluate::Lineage;
+use crate::extension::{Context, Extension, Proposal, Role};
+use crate::{Cause, DiagnoseError};
+use gb_core::FittedModel;
+
+/// More of what the model has, for the last named structural cause.
+pub struct Capacity;
+
+/// Highest capacity level.
+const MAX_DETAIL: u8 = 2;
+
+impl Extension for Capacity {
+    fn name(&self) -> &'static str {
+        "capacity"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Nonlinearity
+    }
+    fn role(&self) -> Role {
+        Role::Refinement
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        let Some(p) = ctx.current.lineage.io() else {
+            return vec![];
+        };
+        let last = ctx
+            .causes
+            .iter()
+            .rev()
+            .find(|c| matches!(c, Cause::Nonlinearity | Cause::Hysteresis));
+        let Some(&cause) = last else {
+            return vec![];
+        };
+        if p.detail >= MAX_DETAIL {
+            return vec![];
+        }
+        // a nonlinear force inside continuous dynamics reaches the sampled
+        // output through more lags than the linear part needs
+        let s = gb_lmn::IoNetworkParams {
+            detail: p.detail + 1,
+            order: (p.order + 1).min(ctx.policy().max_order),
+            ..p.clone()
+        };
+        let text = if s.network && cause == Cause::Nonlinearity {
+            format!(
+                "more capacity for the named nonlinearity: up to {} local models, regressor lags {}",
+                s.max_leaves(),
+                s.order
+            )
+        } else {
+            let l = 6 + 2 * s.detail as usize;
+            format!(
+                "more capacity for the named hysteresis: {} play operators and {} relays on the output, regressor lags {}",
+                6 * (1 + s.detail as usize),
+                l * (l + 1) / 2,
+                s.order
+            )
+        };
+        vec![Proposal {
+            cause,
+            lineage: Lineage::Io(s),
+            text,
+        }]
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)
+    }
+    fn evidence(&self, p: &Proposal, _ctx: &Context) -> String {
+        format!("the named {} pays further with more capacity", p.cause)
+    }
+}

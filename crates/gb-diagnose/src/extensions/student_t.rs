@@ -1,0 +1,78 @@
+//! `noise`: a Student-t noise model with a robust (IRLS) output-error fit.
+use crate::curves::qq;
+use crate::evaluate::{Evaluated, Lineage, Residuals};
+use crate::extension::{Context, Extension, GainMetric, Proposal};
+use crate::{Cause, DiagnoseError};
+use gb_core::{FittedModel, ModelView, Series, ViewData};
+
+/// Model the noise as Student-t and fit robustly. Counts only when the
+/// residual is heavy-tailed and the fit does not lose simulation accuracy.
+pub struct StudentTNoise;
+
+impl Extension for StudentTNoise {
+    fn name(&self) -> &'static str {
+        "student-t-noise"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Noise
+    }
+    fn metric(&self) -> GainMetric {
+        GainMetric::Nll
+    }
+    fn once(&self) -> bool {
+        true
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        match ctx.current.lineage.io() {
+            Some(p) if !p.robust => vec![Proposal {
+                cause: Cause::Noise,
+                lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                    robust: true,
+                    ..p.clone()
+                }),
+                text: "Student-t noise model, robust (IRLS) output-error fit".into(),
+            }],
+            _ => vec![],
+        }
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)
+    }
+    /// Heavy tails (Jarque–Bera rejects and the excess kurtosis is large)
+    /// and the simulation no worse than the policy's tolerance.
+    fn admits(&self, ctx: &Context, c: &Evaluated) -> bool {
+        let pol = ctx.policy();
+        let n = ctx.evidence.normality;
+        let heavy = n.3 < pol.heavy_tail_p && n.1 > pol.heavy_tail_kurtosis;
+        heavy
+            && c.scores.nrmse_select <= ctx.current.scores.nrmse_select * pol.noise_nrmse_tolerance
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.noise_text()
+    }
+    fn evidence_view(&self, b: &Residuals, _a: &Residuals, _output: &str) -> Option<ModelView> {
+        let (q, line) = qq(&b.e);
+        Some(ModelView {
+            key: "noise".into(),
+            title: "Normal Q-Q plot of the residual: bent tails are heavy-tailed noise".into(),
+            caption: String::new(),
+            data: ViewData::Curves {
+                x_label: "normal quantile".into(),
+                y_label: "standardised residual".into(),
+                series: vec![
+                    Series {
+                        name: "residual".into(),
+                        points: q,
+                        markers: true,
+                    },
+                    Series {
+                        name: "normal".into(),
+                        points: line,
+                        markers: false,
+                    },
+                ],
+                log_y: false,
+            },
+        })
+    }
+}

@@ -1,0 +1,176 @@
+//! Every threshold the diagnosis decides with, in one place.
+use crate::DiagnoseError;
+
+/// The decision policy of a diagnosis: when a candidate extension "pays",
+/// when noise is heavy-tailed, when residuals count as unexplained, how
+/// data are split. Validate with [`check`](Self::check).
+///
+/// | field | default | rationale |
+/// |---|---|---|
+/// | `min_gain` | 0.05 | a structural extension must lower the select-block NRMSE by ≥ 5 % (an effect size, on top of significance) |
+/// | `min_nll_gain` | 0.02 | a noise model must lower the select-block negative log-likelihood by ≥ 0.02 nats/sample |
+/// | `bootstrap` | 400 | moving-block bootstrap replicates of every gain interval (95 %) |
+/// | `seed` | 1 | seed of the bootstrap streams (a diagnosis is reproducible) |
+/// | `block_divisor`, `block_min`, `block_max` | 40, 25, 200 | bootstrap block length `clamp(n/40, 25, 200)`: long enough to keep the residuals' correlation |
+/// | `auto_orders` | 1..=6 | orders tried by `--order auto` |
+/// | `auto_order_tolerance` | 1.02 | `--order auto` takes the lowest order within 2 % of the best select-block NRMSE (parsimony) |
+/// | `heavy_tail_p` | 1e-3 | noise is heavy-tailed when the Jarque–Bera p-value is below this … |
+/// | `heavy_tail_kurtosis` | 0.5 | … and the excess kurtosis above this (skewed but light tails are not "noise") |
+/// | `noise_nrmse_tolerance` | 1.02 | a noise model may not worsen the select-block NRMSE by more than 2 % |
+/// | `tie_bootstrap`, `tie_seed` | 50, 0 | replicates and seed of the unique-contribution comparison when nonlinearity and hysteresis tie |
+/// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
+/// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
+/// | `init_window` | 50 | leading samples of every evaluated record that set the initial state and are not scored (the benchmark convention) |
+/// | `min_block` | 100 | fewest samples of the select and report blocks |
+/// | `min_fit` | 60 | fewest samples of the fit block |
+/// | `max_order` | 8 | highest linear order the dynamics extension proposes |
+#[derive(Debug, Clone, PartialEq)]
+pub struct DecisionPolicy {
+    /// Smallest relative NRMSE gain on the select block that counts.
+    pub min_gain: f64,
+    /// Smallest nll gain per sample (nats) that counts for `noise`.
+    pub min_nll_gain: f64,
+    /// Bootstrap replicates.
+    pub bootstrap: usize,
+    /// Seed of the bootstrap.
+    pub seed: u64,
+    /// Bootstrap block length divisor: `n / block_divisor`.
+    pub block_divisor: usize,
+    /// Shortest bootstrap block.
+    pub block_min: usize,
+    /// Longest bootstrap block.
+    pub block_max: usize,
+    /// Orders tried by `--order auto`.
+    pub auto_orders: std::ops::RangeInclusive<usize>,
+    /// Relative tolerance of the parsimonious order choice.
+    pub auto_order_tolerance: f64,
+    /// Jarque–Bera p-value below which the residual is non-Gaussian.
+    pub heavy_tail_p: f64,
+    /// Excess kurtosis above which a non-Gaussian residual is heavy-tailed.
+    pub heavy_tail_kurtosis: f64,
+    /// Most relative NRMSE loss a noise model may cause.
+    pub noise_nrmse_tolerance: f64,
+    /// Replicates of the tie-break comparison.
+    pub tie_bootstrap: usize,
+    /// Seed of the tie-break comparison.
+    pub tie_seed: u64,
+    /// p-value below which residual evidence counts as unexplained.
+    pub unexplained_p: f64,
+    /// Most fit samples of the hidden-state model.
+    pub hidden_state_fit_samples: usize,
+    /// Init window of every evaluated record (not scored).
+    pub init_window: usize,
+    /// Fewest samples of the select and report blocks.
+    pub min_block: usize,
+    /// Fewest samples of the fit block.
+    pub min_fit: usize,
+    /// Highest linear order proposed.
+    pub max_order: usize,
+}
+
+impl Default for DecisionPolicy {
+    fn default() -> Self {
+        Self {
+            min_gain: 0.05,
+            min_nll_gain: 0.02,
+            bootstrap: 400,
+            seed: 1,
+            block_divisor: 40,
+            block_min: 25,
+            block_max: 200,
+            auto_orders: 1..=6,
+            auto_order_tolerance: 1.02,
+            heavy_tail_p: 1e-3,
+            heavy_tail_kurtosis: 0.5,
+            noise_nrmse_tolerance: 1.02,
+            tie_bootstrap: 50,
+            tie_seed: 0,
+            unexplained_p: 1e-3,
+            hidden_state_fit_samples: 4000,
+            init_window: 50,
+            min_block: 100,
+            min_fit: 60,
+            max_order: 8,
+        }
+    }
+}
+
+impl DecisionPolicy {
+    /// Validate.
+    pub fn check(&self) -> Result<(), DiagnoseError> {
+        let bad = |m: &str| {
+            Err(DiagnoseError::InvalidArgument(format!(
+                "decision policy: {m}"
+            )))
+        };
+        if !(0.0..1.0).contains(&self.min_gain) || self.bootstrap < 50 {
+            return bad("min_gain in [0,1), bootstrap >= 50");
+        }
+        if !(self.min_nll_gain >= 0.0 && self.min_nll_gain.is_finite()) {
+            return bad("min_nll_gain >= 0");
+        }
+        if self.block_divisor == 0 || self.block_min == 0 || self.block_min > self.block_max {
+            return bad("block_divisor >= 1, 1 <= block_min <= block_max");
+        }
+        if self.auto_orders.is_empty() || *self.auto_orders.start() == 0 {
+            return bad("auto_orders must be a non-empty range of orders >= 1");
+        }
+        if self.auto_order_tolerance < 1.0 || self.noise_nrmse_tolerance < 1.0 {
+            return bad("tolerances >= 1");
+        }
+        let p_ok = |p: f64| p > 0.0 && p < 1.0;
+        if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) {
+            return bad("p-value levels in (0,1)");
+        }
+        if self.tie_bootstrap < 10 || self.min_block < 10 || self.min_fit < 10 {
+            return bad("tie_bootstrap, min_block and min_fit >= 10");
+        }
+        if self.max_order == 0 || self.max_order > gb_lmn::MAX_IO_ORDER {
+            return bad("max_order in 1..=30");
+        }
+        Ok(())
+    }
+
+    /// Bootstrap block length for `n` samples.
+    pub fn block(&self, n: usize) -> usize {
+        (n / self.block_divisor).clamp(self.block_min, self.block_max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_are_valid_and_bad_values_are_refused() {
+        let p = DecisionPolicy::default();
+        assert!(p.check().is_ok());
+        assert_eq!(p.block(8000), 200);
+        assert_eq!(p.block(2000), 50);
+        assert_eq!(p.block(100), 25);
+        for bad in [
+            DecisionPolicy {
+                min_gain: 1.5,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                bootstrap: 10,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                auto_orders: 0..=3,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                heavy_tail_p: 0.0,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                block_min: 300,
+                ..p.clone()
+            },
+        ] {
+            assert!(bad.check().is_err(), "{bad:?}");
+        }
+    }
+}

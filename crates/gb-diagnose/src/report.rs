@@ -1,0 +1,184 @@
+//! The report of a diagnosis (its JSON form) and the plain-text renderer.
+use crate::evaluate::Evaluated;
+use crate::{Cause, Evidence};
+use serde::{Deserialize, Serialize};
+use std::fmt::Write as _;
+
+/// Version of the report format.
+pub const REPORT_VERSION: u32 = 2;
+
+/// One row of the diagnosis: a candidate extension and whether it paid.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Step {
+    /// Iteration (1-based).
+    pub iteration: usize,
+    /// Cause tested.
+    pub cause: Cause,
+    /// Residual evidence for the cause.
+    pub evidence: String,
+    /// The extension fitted.
+    pub extension: String,
+    /// Report-block NRMSE before.
+    pub nrmse_before: f64,
+    /// Report-block NRMSE after.
+    pub nrmse_after: f64,
+    /// Gain on the report block: relative NRMSE reduction (structural causes)
+    /// or nll reduction per sample (noise).
+    pub gain: f64,
+    /// Which metric `gain` is: "nrmse" or "nll".
+    pub gain_metric: String,
+    /// Gain on the select block (the decision's data).
+    pub gain_select: f64,
+    /// 95 % moving-block-bootstrap interval of the select-block gain.
+    pub gain_ci: [f64; 2],
+    /// Report-block nll per sample before.
+    pub nll_before: f64,
+    /// Report-block nll per sample after.
+    pub nll_after: f64,
+    /// Whether the extension was kept.
+    pub accepted: bool,
+}
+
+/// Summary of a model in the report.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ModelSummary {
+    /// Description.
+    pub model: String,
+    /// Model class tag (the registry's).
+    pub class: String,
+    /// SPEC string (`greybox fit --model`).
+    pub spec: String,
+    /// Order.
+    pub order: usize,
+    /// Report-block NRMSE (free-run simulation).
+    pub nrmse: f64,
+    /// Report-block nll per sample.
+    pub nll: f64,
+    /// Select-block NRMSE.
+    pub nrmse_select: f64,
+    /// Parameters.
+    pub parameters: usize,
+}
+
+impl ModelSummary {
+    pub(crate) fn of(e: &Evaluated) -> Self {
+        Self {
+            model: e.model.describe(),
+            class: e.model.dynamics.class().to_string(),
+            spec: e.lineage.spec(),
+            order: e.lineage.order(),
+            nrmse: e.scores.nrmse,
+            nll: e.scores.nll,
+            nrmse_select: e.scores.nrmse_select,
+            parameters: e.model.dynamics.n_parameters(),
+        }
+    }
+}
+
+/// Data description in the report.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct DataSummary {
+    /// Input names.
+    pub inputs: Vec<String>,
+    /// Output name.
+    pub output: String,
+    /// Samples used for fitting.
+    pub samples_fit: usize,
+    /// Samples of the select block.
+    pub samples_select: usize,
+    /// Samples the report NRMSE is computed on.
+    pub samples_validate: usize,
+    /// How the data were split.
+    pub split: String,
+}
+
+/// The diagnosis (the `--json` report).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Report {
+    /// Report format version.
+    pub version: u32,
+    /// Data description.
+    pub data: DataSummary,
+    /// The engineer's model.
+    pub baseline: ModelSummary,
+    /// Candidate extensions, per iteration.
+    pub steps: Vec<Step>,
+    /// Accepted causes in order (`[]`: no extension paid).
+    pub causes: Vec<Cause>,
+    /// The final model.
+    #[serde(rename = "final")]
+    pub final_model: ModelSummary,
+    /// Residual evidence of the baseline (select block).
+    pub evidence: Evidence,
+    /// Residual evidence of the final model.
+    pub final_evidence: Evidence,
+}
+
+impl Report {
+    /// The causes as names.
+    pub fn cause_names(&self) -> Vec<&'static str> {
+        self.causes.iter().map(|c| c.name()).collect()
+    }
+
+    /// The step table and verdict as plain text (what `greybox diagnose`
+    /// prints).
+    pub fn to_text(&self) -> String {
+        let mut s = String::new();
+        let r = self;
+        let _ = writeln!(
+            s,
+            "data: inputs {} -> output {}; fit {} / select {} / report {} samples",
+            r.data.inputs.join(","),
+            r.data.output,
+            r.data.samples_fit,
+            r.data.samples_select,
+            r.data.samples_validate
+        );
+        let _ = writeln!(
+            s,
+            "baseline: {}  NRMSE {:.4}  nll {:.3}\n",
+            r.baseline.model, r.baseline.nrmse, r.baseline.nll
+        );
+        let _ = writeln!(
+            s,
+            "{:<4} {:<14} {:>8} {:>8} {:>8} {:>25} {:<8} extension / evidence",
+            "step", "cause", "NRMSE", "->", "gain", "select gain [95%]", "accepted"
+        );
+        for st in &r.steps {
+            let gain = if st.gain_metric == "nll" {
+                format!("{:+.3}nll", st.gain)
+            } else {
+                format!("{:+.1}%", 100.0 * st.gain)
+            };
+            let _ = writeln!(
+                s,
+                "{:<4} {:<14} {:>8.4} {:>8.4} {:>8} {:>+7.3} [{:+.2},{:+.2}] {:<8} {}",
+                st.iteration,
+                st.cause.name(),
+                st.nrmse_before,
+                st.nrmse_after,
+                gain,
+                st.gain_select,
+                st.gain_ci[0],
+                st.gain_ci[1],
+                if st.accepted { "yes" } else { "no" },
+                st.extension
+            );
+            if st.accepted {
+                let _ = writeln!(s, "               evidence: {}", st.evidence);
+            }
+        }
+        let causes = if r.causes.is_empty() {
+            "none (no extension paid on held-out data)".to_string()
+        } else {
+            r.cause_names().join(", ")
+        };
+        let _ = writeln!(s, "\ncauses: {causes}");
+        let _ = writeln!(
+            s,
+            "final: {}  NRMSE {:.4}  nll {:.3}",
+            r.final_model.model, r.final_model.nrmse, r.final_model.nll
+        );
+        s
+    }
+}

@@ -1,0 +1,537 @@
+//! Named recipes that build and fit a gb-model structure from data alone
+//! (every number comes from the data or the caller).
+use crate::error::Result as ModelResult;
+use crate::identify::OeParams;
+use crate::SparseStateSpace;
+use gb_core::metrics;
+
+/// The hidden-state model the diagnosis offers when input–output
+/// extensions leave a named cause unexplained:
+///
+/// * `hysteresis` with one input and an oscillating best linear model: the
+///   mechanical structure with a hidden restoring force z (`ż = f(v, z)`,
+///   Bouc-Wen shape; [`hysteretic_mechanical_start`](crate::hysteretic_mechanical_start)),
+///   4 sub-steps per sample, 8 when the fit with 4 improves on the linear
+///   model by less than 10 % (symplectic Euler needs sub-steps to follow
+///   the linear model), wavelet levels 1–2;
+/// * otherwise the black-box start of [`fit_state_space`](crate::fit_state_space)
+///   with `order` states and, with `hysteresis`, a Preisach component of
+///   the first input with a wavelet Everett function.
+///
+/// `names`: the inputs' and the output's names.
+pub fn fit_hidden_state(
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    order: usize,
+    hysteresis: bool,
+    names: Vec<String>,
+) -> ModelResult<SparseStateSpace> {
+    let mut silent = crate::Silent;
+    if hysteresis && inputs.len() == 1 {
+        if let Some(m) = mechanical(inputs, y, &names) {
+            return Ok(m);
+        }
+    }
+    Ok(crate::fit_state_space(inputs, y, order, hysteresis, names, &mut silent)?.0)
+}
+
+/// The mechanical hysteretic structure with the sub-step retry; `None` when
+/// it cannot be built or fitted.
+fn mechanical(inputs: &[Vec<f64>], y: &[f64], names: &[String]) -> Option<SparseStateSpace> {
+    let mut silent = crate::Silent;
+    let u = &inputs[0];
+    let err = |m: &SparseStateSpace| -> f64 {
+        m.simulate(inputs)
+            .ok()
+            .and_then(|s| metrics::nrmse(y, &s).ok())
+            .filter(|e| e.is_finite())
+            .unwrap_or(f64::INFINITY)
+    };
+    let mut best: Option<(SparseStateSpace, f64)> = None;
+    for substeps in [4, 8] {
+        let Ok((mut s0, lin)) = crate::hysteretic_mechanical_start(u, y, 0..y.len(), 1.0, substeps)
+        else {
+            break;
+        };
+        s0.signal_names = names.to_vec();
+        let e_lin = err(&lin);
+        let Ok((m, _)) = OeParams::new()
+            .max_iter(30)
+            .coarse_level(1)
+            .max_level(2)
+            .max_new(24)
+            .check()
+            .and_then(|p| p.fit(s0, inputs, y, &mut silent))
+        else {
+            break;
+        };
+        let e = err(&m);
+        // retry with 8 sub-steps only when stuck near the linear model
+        // (less than 10 % better; not when it is not better at all)
+        let retry = e < e_lin && e >= 0.9 * e_lin;
+        if best.as_ref().is_none_or(|b| e < b.1) {
+            best = Some((m, e));
+        }
+        if !retry {
+            break;
+        }
+    }
+    best.map(|(m, _)| m)
+}
+
+use gb_core::{CoreError, FittedModel, ModelSpec, NoiseModel, Observer, Options, Record, Records};
+
+/// What a recipe fitted, with lines worth printing.
+#[derive(Debug, Clone)]
+pub struct Fitted {
+    /// The model.
+    pub model: FittedModel,
+    /// Facts about the fit (chosen structure, scores), one per line.
+    pub notes: Vec<String>,
+}
+
+/// Fits one recipe's spec on records.
+pub type RecipeFit = fn(&ModelSpec, &Records, &dyn Observer) -> Result<Fitted, CoreError>;
+
+/// A named way to fit a model class from data: `greybox fit --model SPEC`.
+#[derive(Debug, Clone, Copy)]
+pub struct Recipe {
+    /// The spec name.
+    pub name: &'static str,
+    /// The components it accepts.
+    pub components: &'static [&'static str],
+    /// One line for `--help`.
+    pub summary: &'static str,
+    /// Its options: `key=default: meaning`.
+    pub options: &'static [&'static str],
+    /// The fit.
+    pub fit: RecipeFit,
+}
+
+/// Every recipe, in the order `--help` lists them.
+pub static RECIPES: &[Recipe] = &[
+    Recipe {
+        name: "linear",
+        components: &["preisach", "student-t"],
+        summary: "linear output-error model of order n (+preisach: play-operator and discrete Preisach columns; +student-t: heavy-tailed noise, robust fit)",
+        options: &["order=2: n = n_a = n_b", "delay=1: input dead time, one or one per input (a/b)"],
+        fit: fit_io_network,
+    },
+    Recipe {
+        name: "lmn",
+        components: &["preisach", "student-t"],
+        summary: "LOLIMOT local model network on the order-n regressors; any tree option selects the full tree network (HILOMOT/oblique, several records allowed)",
+        options: &[
+            "order=2", "delay=1", "weights=tree: gauss|tree", "splits=axis: axis|oblique",
+            "prune=false", "focus=simulation: simulation|prediction", "max_leaves=20",
+            "degree=1: 1..3", "dead_time=1 (list)", "input_lags=order (list)", "output_lags=order",
+            "criterion=aicc: aicc|bic", "partition=all: all|y1",
+        ],
+        fit: fit_lmn,
+    },
+    Recipe {
+        name: "wiener-hammerstein",
+        components: &[],
+        summary: "static local model network between two linear filters, from the best linear approximation (one input)",
+        options: &["max_leaves=16: local models of the static network"],
+        fit: fit_wiener_hammerstein,
+    },
+    Recipe {
+        name: "lmn-state-space",
+        components: &[],
+        summary: "state-space local model network: hidden states, square-root basis, learned state bounds",
+        options: &["order=2: states", "max_leaves=2: most local models (1..=8, chosen on a hold-out)", "output_max: known upper limit of the output"],
+        fit: fit_ss_lmn,
+    },
+    Recipe {
+        name: "state-space",
+        components: &["preisach", "hysteresis", "damper"],
+        summary: "wavelet-sparse state space (gb-model): +preisach a Preisach component with a wavelet Everett function; +hysteresis a hidden hysteretic state with a wavelet law; +damper the Spencer-like MR damper structure (inputs displacement, velocity, voltage [, acceleration])",
+        options: &["order=2: states", "resonances: +damper, start frequencies of rig resonances in Hz (a/b)", "sample_rate: +damper, Hz (default: the record's)", "ridge: +damper, Tikhonov weight (default: 0 or 1000, chosen on the last 20 %)"],
+        fit: fit_sparse_state_space,
+    },
+];
+
+/// The recipe of `name`.
+pub fn recipe(name: &str) -> Option<&'static Recipe> {
+    RECIPES.iter().find(|r| r.name == name)
+}
+
+/// Fit `spec` on `data`: the recipe of its name, after checking its
+/// components.
+pub fn fit(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitted, CoreError> {
+    let r = recipe(&spec.name).ok_or_else(|| {
+        CoreError::InvalidArgument(format!(
+            "unknown model '{}' (known: {})",
+            spec.name,
+            RECIPES
+                .iter()
+                .map(|r| r.name)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ))
+    })?;
+    if let Some(c) = spec
+        .components
+        .iter()
+        .find(|c| !r.components.contains(&c.as_str()))
+    {
+        return Err(CoreError::InvalidArgument(format!(
+            "unknown component '{c}' of model '{}' (known: {})",
+            r.name,
+            if r.components.is_empty() {
+                "none".to_string()
+            } else {
+                r.components.join(", ")
+            }
+        )));
+    }
+    (r.fit)(spec, data, obs)
+}
+
+/// The recipes as help text.
+pub fn help() -> String {
+    let mut s = String::from("Model SPEC = NAME[+COMPONENT...][:KEY=VALUE,...] (lists: a/b/c)\n");
+    for r in RECIPES {
+        let comps = r
+            .components
+            .iter()
+            .map(|c| format!("[+{c}]"))
+            .collect::<String>();
+        s.push_str(&format!(
+            "  {}{comps}: {}\n      options: {}\n",
+            r.name,
+            r.summary,
+            r.options.join("; ")
+        ));
+    }
+    s
+}
+
+fn one_record<'a>(data: &'a Records, what: &str) -> Result<&'a Record, CoreError> {
+    if data.len() != 1 {
+        return Err(CoreError::InvalidArgument(format!(
+            "{what} is fitted on one record, got {}",
+            data.len()
+        )));
+    }
+    Ok(data.first())
+}
+
+/// Gaussian noise of the free-run residuals `y − ŷ` from sample `k0` on.
+fn residual_noise(y: &[f64], sim: &[f64], k0: usize) -> NoiseModel {
+    let k0 = k0.min(y.len());
+    let res: Vec<f64> = y[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b).collect();
+    NoiseModel::gaussian(&res)
+}
+
+fn wrap(
+    data: &Record,
+    dynamics: Box<dyn gb_core::DynamicModel>,
+    noise: NoiseModel,
+    notes: Vec<String>,
+) -> Result<Fitted, CoreError> {
+    let mut model = FittedModel::new(
+        data.input_names.clone(),
+        vec![data.output_name.clone()],
+        dynamics,
+        noise,
+    )?;
+    model.sample_time = data.sample_time;
+    Ok(Fitted { model, notes })
+}
+
+/// `linear` and `lmn` without tree options: the input–output network.
+fn fit_io_network(
+    spec: &ModelSpec,
+    data: &Records,
+    _obs: &dyn Observer,
+) -> Result<Fitted, CoreError> {
+    let mut o = spec.options();
+    let d = one_record(data, "an input-output network")?;
+    let order = o.usize("order", 2, 1, gb_lmn::MAX_IO_ORDER)?;
+    let delay = o.usize_list("delay", d.n_inputs(), 1, 0, 64)?;
+    o.finish(&["order", "delay"])?;
+    let min = 20 * (order + 1) * (d.n_inputs() + 1) + 50;
+    d.check_identifiable("training record", min)?;
+    let p = gb_lmn::IoNetworkParams {
+        delay,
+        network: spec.name == "lmn",
+        hysteresis: spec.has("preisach"),
+        robust: spec.has("student-t"),
+        ..gb_lmn::IoNetworkParams::linear(order)
+    };
+    let net = p.check()?.fit(d, gb_lmn::WarmStart::default())?;
+    let noise = net.noise.clone();
+    wrap(d, Box::new(net), noise, vec![])
+}
+
+const TREE_KEYS: [&str; 11] = [
+    "weights",
+    "splits",
+    "prune",
+    "focus",
+    "max_leaves",
+    "degree",
+    "dead_time",
+    "input_lags",
+    "output_lags",
+    "criterion",
+    "partition",
+];
+
+/// `lmn`: the tree network when a tree option is given or there are several
+/// records, else the LOLIMOT input–output network.
+fn fit_lmn(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitted, CoreError> {
+    let o = spec.options();
+    if !TREE_KEYS.iter().any(|k| o.given(k)) && data.len() == 1 {
+        return fit_io_network(spec, data, obs);
+    }
+    if !spec.components.is_empty() {
+        return Err(CoreError::InvalidArgument(format!(
+            "model spec '{spec}': the tree options and several records need plain lmn (no components)"
+        )));
+    }
+    let (p, order) = tree_params(spec, data.first().n_inputs())?;
+    for (i, r) in data.iter().enumerate() {
+        let min = if i == 0 {
+            20 * (order + 1) * (r.n_inputs() + 1) + 50
+        } else {
+            20
+        };
+        r.check_identifiable(&format!("record {}", i + 1), min)?;
+    }
+    let exps: Vec<gb_lmn::Experiment> = data.iter().map(gb_lmn::Experiment::from).collect();
+    let lmn = p.fit(&exps)?;
+    let mut res = vec![];
+    for (e, d) in exps.iter().zip(data.iter()) {
+        let k0 = lmn.max_lag().min(d.len());
+        let sim = lmn.simulate(e, k0)?;
+        res.extend(d.output[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b));
+    }
+    let notes = vec![format!(
+        "leaves: {}, effective parameters {:.1}, chosen by {:?} ({:.4e}), pruned splits {}",
+        lmn.n_leaves(),
+        lmn.effective_parameters(),
+        lmn.summary.criterion,
+        lmn.summary.criterion_value,
+        lmn.summary.pruned
+    )];
+    wrap(
+        data.first(),
+        Box::new(lmn),
+        NoiseModel::gaussian(&res),
+        notes,
+    )
+}
+
+/// The tree network's parameters from the options.
+fn tree_params(spec: &ModelSpec, n_inputs: usize) -> Result<(gb_lmn::LmnParams, usize), CoreError> {
+    use gb_lmn::{Criterion, Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
+    let mut o: Options = spec.options();
+    let order = o.usize("order", 2, 1, 64)?;
+    let degree = o.usize("degree", 1, 1, 3)?;
+    let nk = o.usize_list("dead_time", n_inputs, 1, 0, 64)?;
+    let nb = o.usize_list("input_lags", n_inputs, order, 0, 64)?;
+    let na = o.usize("output_lags", order, 0, 64)?;
+    let criterion = match o.choice("criterion", "aicc", &["aicc", "bic"])? {
+        "bic" => Criterion::Bic,
+        _ => Criterion::Aicc,
+    };
+    let weights = match o.choice("weights", "tree", &["tree", "gauss"])? {
+        "gauss" => WeightKind::Gaussian,
+        _ => WeightKind::Tree,
+    };
+    let splits = match o.choice("splits", "axis", &["axis", "oblique"])? {
+        "oblique" => SplitKind::Oblique,
+        _ => SplitKind::Axis,
+    };
+    let focus = match o.choice("focus", "simulation", &["simulation", "prediction"])? {
+        "prediction" => Focus::Prediction,
+        _ => Focus::Simulation,
+    };
+    let prune = o.flag("prune", false)?;
+    let max_leaves = o.usize("max_leaves", 20, 1, 256)?;
+    let mut reg = RegressorSpec::arx(na, &nb, &nk);
+    if o.choice("partition", "all", &["all", "y1"])? == "y1" {
+        reg = reg.with_z(vec![1], vec![vec![]; n_inputs]);
+    }
+    let mut known = vec!["order"];
+    known.extend(TREE_KEYS);
+    o.finish(&known)?;
+    let p = LmnParams::new(reg.with_degree(degree))
+        .weights(weights)
+        .splits(splits)
+        .prune(prune)
+        .focus(focus)
+        .criterion(criterion)
+        .max_leaves(max_leaves);
+    p.check()?;
+    Ok((p, order))
+}
+
+/// `wiener-hammerstein`.
+fn fit_wiener_hammerstein(
+    spec: &ModelSpec,
+    data: &Records,
+    _obs: &dyn Observer,
+) -> Result<Fitted, CoreError> {
+    let mut o = spec.options();
+    let d = one_record(data, "a Wiener-Hammerstein network")?;
+    let leaves = o.usize("max_leaves", 16, 1, 61)?;
+    o.finish(&["max_leaves"])?;
+    if d.n_inputs() != 1 {
+        return Err(CoreError::InvalidArgument(format!(
+            "a Wiener-Hammerstein network needs exactly one input, got {} ({})",
+            d.n_inputs(),
+            d.input_names.join(", ")
+        )));
+    }
+    d.check_identifiable("training record", 1000)?;
+    let (w, rep) = gb_lmn::WhParams::new()
+        .knots(leaves - 1)
+        .check()?
+        .fit(&d.inputs[0], &d.output)?;
+    let sim = w.simulate(&d.inputs[0]);
+    // past the transient of the zero state
+    let noise = residual_noise(&d.output, &sim, 200.min(d.len() / 4));
+    let notes = vec![format!(
+        "best linear approximation RMSE {:.4e}; {} pole/zero splits scanned, best {:.4e}; after LM {:.4e}",
+        rep.bla_rmse, rep.splits_tried, rep.best_split_rmse, rep.rmse
+    )];
+    wrap(d, Box::new(w), noise, notes)
+}
+
+/// `lmn-state-space`.
+fn fit_ss_lmn(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<Fitted, CoreError> {
+    let mut o = spec.options();
+    let d = one_record(data, "a state-space network")?;
+    let n_states = o.usize("order", 2, 1, 8)?;
+    let leaves = o.usize("max_leaves", 2, 1, 8)?;
+    let output_upper = o.f64_opt("output_max", f64::MIN, f64::MAX)?;
+    o.finish(&["order", "max_leaves", "output_max"])?;
+    let params = gb_lmn::SsLmnParams {
+        n_states,
+        leaves: (1..=leaves).collect(),
+        output_upper,
+        ..gb_lmn::SsLmnParams::default()
+    };
+    params.check(d.n_inputs())?;
+    d.check_identifiable("training record", 100)?;
+    let fit = gb_lmn::fit_ss_lmn(&params, &d.inputs, &d.output)?;
+    let w = params.init_window.min(d.len());
+    let sim = fit
+        .model
+        .simulate_with_init_window(&d.inputs, &d.output, w)?;
+    let noise = residual_noise(&d.output, &sim, w);
+    wrap(d, Box::new(fit.model), noise, vec![])
+}
+
+/// `state-space[+preisach|+hysteresis|+damper]`.
+fn fit_sparse_state_space(
+    spec: &ModelSpec,
+    data: &Records,
+    _obs: &dyn Observer,
+) -> Result<Fitted, CoreError> {
+    let d = one_record(data, "a state-space model")?;
+    if spec.components.len() > 1 {
+        return Err(CoreError::InvalidArgument(format!(
+            "model spec '{spec}': at most one of +preisach, +hysteresis, +damper"
+        )));
+    }
+    if spec.has("damper") {
+        return fit_damper(spec, d);
+    }
+    let mut o = spec.options();
+    let order = o.usize("order", 2, 1, 8)?;
+    o.finish(&["order"])?;
+    d.check_identifiable("training record", 20 * (order + 1) + 50)?;
+    let names: Vec<String> = d
+        .input_names
+        .iter()
+        .chain(std::iter::once(&d.output_name))
+        .cloned()
+        .collect();
+    let (m, notes) = if spec.has("hysteresis") {
+        (
+            fit_hidden_state(&d.inputs, &d.output, order, true, names)?,
+            vec![],
+        )
+    } else {
+        let mut silent = crate::Silent;
+        let (m, rep) = crate::fit_state_space(
+            &d.inputs,
+            &d.output,
+            order,
+            spec.has("preisach"),
+            names,
+            &mut silent,
+        )?;
+        let note = format!(
+            "path {:?}, log-likelihood {:.1}",
+            rep.path, rep.log_likelihood
+        );
+        (m, vec![note])
+    };
+    let sim = m.simulate(&d.inputs)?;
+    let noise = residual_noise(&d.output, &sim, 0);
+    wrap(d, Box::new(m), noise, notes)
+}
+
+/// `state-space+damper`.
+fn fit_damper(spec: &ModelSpec, d: &Record) -> Result<Fitted, CoreError> {
+    let mut o = spec.options();
+    let resonances_hz = o.f64_list("resonances")?;
+    let sample_rate = o.f64_opt("sample_rate", 1e-9, 1e12)?;
+    let ridge = o.f64_opt("ridge", 0.0, 1e300)?;
+    o.finish(&["resonances", "sample_rate", "ridge"])?;
+    if !(3..=4).contains(&d.n_inputs()) {
+        return Err(CoreError::InvalidArgument(format!(
+            "state-space+damper takes 3 or 4 inputs (displacement, velocity, voltage [, acceleration], in that order), got {} ({})",
+            d.n_inputs(),
+            d.input_names.join(", ")
+        )));
+    }
+    d.check_identifiable("training record", 500)?;
+    let sample_rate = match (sample_rate, d.sample_time) {
+        (Some(f), _) => f,
+        (None, Some(ts)) => 1.0 / ts,
+        (None, None) if resonances_hz.is_empty() => 1.0,
+        (None, None) => {
+            return Err(CoreError::InvalidArgument(
+                "state-space+damper with resonances needs the sample rate: a `t` column or the option sample_rate".into(),
+            ))
+        }
+    };
+    let structure = crate::MrDamperStructure {
+        sample_rate,
+        resonances_hz,
+        ..crate::MrDamperStructure::default()
+    };
+    // without a ridge: 0 or 10³, chosen on the last 20 % of the record
+    let ridges = ridge.map_or(vec![0.0, 1e3], |r| vec![r]);
+    let fit = structure.fit_validated(
+        &OeParams::new(),
+        &ridges,
+        &d.inputs,
+        &d.output,
+        &mut crate::Silent,
+    )?;
+    let notes = fit
+        .scores
+        .iter()
+        .map(|(_, r, e)| {
+            format!("ridge {r:e}: NRMSE {e:.4} on the last 20 % (fitted on the first 80 %)")
+        })
+        .collect();
+    let mut m = fit.model;
+    m.signal_names = d
+        .input_names
+        .iter()
+        .chain(std::iter::once(&d.output_name))
+        .cloned()
+        .collect();
+    let sim = m.simulate(&d.inputs)?;
+    let noise = residual_noise(&d.output, &sim, 0);
+    wrap(d, Box::new(m), noise, notes)
+}

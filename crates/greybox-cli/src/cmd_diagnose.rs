@@ -1,0 +1,106 @@
+//! `greybox diagnose`: the diagnosis on files or a generated example.
+use crate::io::load;
+use crate::progress::Bar;
+use crate::{DiagnoseArgs, Result};
+use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions, OrderChoice};
+
+fn parse_order(s: &str, max: usize) -> Result<OrderChoice> {
+    if s == "auto" {
+        return Ok(OrderChoice::Auto);
+    }
+    match s.parse::<usize>() {
+        Ok(n) if (1..=max).contains(&n) => Ok(OrderChoice::Fixed(n)),
+        _ => Err(format!("--order must be 1..={max} or auto, got '{s}'")),
+    }
+}
+
+/// The data of the diagnosis: an example, or the training file (with the
+/// validation file, or split into blocks).
+fn data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
+    if let Some(name) = &a.example {
+        let g = systems::generate(name, 1, 8000, 4000).map_err(|e| e.to_string())?;
+        println!(
+            "example '{name}': generated {} training + {} validation samples (seed 1, SNR {:.1} dB, noise floor NRMSE {:.4})",
+            g.train.len(),
+            g.validate.len(),
+            g.snr_db,
+            g.noise_floor_nrmse
+        );
+        return DiagnoseData::with_validation(g.train, g.validate).map_err(|e| e.to_string());
+    }
+    let train_path = a
+        .train
+        .as_ref()
+        .ok_or("a training CSV or --example is needed")?;
+    let train = load(train_path, &a.signals)?;
+    match &a.validate {
+        Some(v) => {
+            let val = load(v, &a.signals)?;
+            DiagnoseData::with_validation(train, val).map_err(|e| format!("{}: {e}", v.display()))
+        }
+        None => {
+            let d = DiagnoseData::from_single(train);
+            println!(
+                "no --validate: {} split into contiguous blocks fit {}..{}, select {}..{}, report {}..{}",
+                train_path.display(),
+                d.fit.start,
+                d.fit.end,
+                d.select.start,
+                d.select.end,
+                d.report_range.start,
+                d.report_range.end
+            );
+            Ok(d)
+        }
+    }
+}
+
+/// Run the diagnosis, print the report, then write the requested files
+/// (each atomically, only after everything succeeded).
+pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
+    let defaults = DiagnoseOptions::default();
+    let order = parse_order(&a.order, defaults.policy.max_order)?;
+    if a.max_steps == 0 || a.max_steps > 4 {
+        return Err(format!("--max-steps must be 1..=4, got {}", a.max_steps));
+    }
+    let data = data(&a)?;
+    let opts = DiagnoseOptions {
+        order,
+        max_steps: a.max_steps,
+        ..defaults
+    };
+    let bar = Bar::new(quiet, 1 + a.max_steps, "");
+    let d = diagnose(&data, &opts, Some(&bar)).map_err(|e| e.to_string())?;
+    bar.finish();
+    println!();
+    print!("{}", d.report.to_text());
+    // render before writing anything: a failure leaves no output file behind
+    let html = match &a.report {
+        Some(_) => {
+            let title = match (&a.example, &a.train) {
+                (Some(ex), _) => format!("greybox diagnosis: example {ex}"),
+                (None, Some(p)) => format!("greybox diagnosis: {}", p.display()),
+                _ => "greybox diagnosis".to_string(),
+            };
+            Some(gb_diagnose::render_html(&d, &data, &title).map_err(|e| e.to_string())?)
+        }
+        None => None,
+    };
+    let json = match &a.json {
+        Some(_) => Some(serde_json::to_string_pretty(&d.report).map_err(|e| e.to_string())?),
+        None => None,
+    };
+    if let (Some(p), Some(h)) = (&a.report, &html) {
+        gb_core::write_atomic(p, h.as_bytes()).map_err(|e| e.to_string())?;
+        println!("HTML report written to {}", p.display());
+    }
+    if let (Some(j), Some(text)) = (&a.json, &json) {
+        gb_core::write_atomic(j, text.as_bytes()).map_err(|e| e.to_string())?;
+        println!("report written to {}", j.display());
+    }
+    if let Some(s) = &a.save {
+        d.model.save(s).map_err(|e| e.to_string())?;
+        println!("final model saved to {}", s.display());
+    }
+    Ok(())
+}

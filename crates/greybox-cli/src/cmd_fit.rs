@@ -1,0 +1,86 @@
+//! `greybox fit --model SPEC`: any recipe of the model registry.
+use crate::io::load;
+use crate::progress::Bar;
+use crate::{FitArgs, Result};
+use gb_core::{Init, ModelSpec, Records};
+
+/// The `--help` text of `fit`: the spec grammar, every recipe, examples.
+pub fn help() -> String {
+    format!(
+        "{}\nExpert flags map to options: --order, --weights, --splits, --prune, --focus, --max-leaves, --degree, --dead-time, --input-lags, --output-lags, --criterion, --partition, --output-max, --resonances, --sample-rate, --ridge (comma lists become a/b).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model 'lmn:weights=tree,splits=oblique,prune=true,max_leaves=10' -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm\n  greybox fit train.csv --model state-space+hysteresis -o m.gbm\n  greybox fit mr.csv --model state-space+damper --input D --input V --input Y --output F --resonances 150,120 -o mr.gbm",
+        gb_model::recipes::help()
+    )
+}
+
+/// The spec with the expert flags added as options.
+fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
+    let mut s: ModelSpec = a
+        .model
+        .parse()
+        .map_err(|e: gb_core::CoreError| e.to_string())?;
+    let list = |v: &str| v.replace(',', "/");
+    let mut set = |k: &str, v: Option<String>| {
+        if let Some(v) = v {
+            s.set_default(k, v);
+        }
+    };
+    set("order", a.order.map(|v| v.to_string()));
+    set("weights", a.weights.clone());
+    set("splits", a.splits.clone());
+    set("prune", a.prune.then(|| "true".to_string()));
+    set("focus", a.focus.clone());
+    set("max_leaves", a.max_leaves.map(|v| v.to_string()));
+    set("degree", a.degree.map(|v| v.to_string()));
+    set("dead_time", a.dead_time.as_deref().map(list));
+    set("input_lags", a.input_lags.as_deref().map(list));
+    set("output_lags", a.output_lags.map(|v| v.to_string()));
+    set("criterion", a.criterion.clone());
+    set("partition", a.partition.clone());
+    set("output_max", a.output_max.map(|v| v.to_string()));
+    set("resonances", a.resonances.as_deref().map(list));
+    set("sample_rate", a.sample_rate.map(|v| v.to_string()));
+    set("ridge", a.ridge.map(|v| v.to_string()));
+    Ok(s)
+}
+
+/// Fit, save, and print the model, its notes and the training NRMSE.
+pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
+    let spec = spec_of(&a)?;
+    let first = load(&a.train, &a.signals)?;
+    let mut records = vec![first];
+    for f in &a.experiments {
+        let e = load(f, &a.signals)?;
+        e.check_identifiable(&f.display().to_string(), 20)
+            .map_err(|e| e.to_string())?;
+        records.push(e);
+    }
+    let data = Records::new(records).map_err(|e| e.to_string())?;
+    let bar = Bar::spinner(quiet, &format!("fitting {spec}"));
+    let fitted = gb_model::recipes::fit(&spec, &data, &bar)
+        .map_err(|e| format!("{}: {e}", a.train.display()))?;
+    bar.finish();
+    let m = &fitted.model;
+    let d = data.first();
+    // training error: free run, the first samples (the model's lags, or an
+    // init window of 50 for state-space models) set the initial state
+    let h = m.dynamics.history_len();
+    let w = if h > 0 { h } else { 50.min(d.len() / 10) };
+    let init = if h > 0 {
+        Init::History(&d.output[..h.min(d.len())])
+    } else {
+        Init::Window(&d.output[..w])
+    };
+    let sim = m.simulate(&d.inputs, init).map_err(|e| e.to_string())?;
+    let w = w.min(d.len());
+    let nrmse = gb_core::metrics::nrmse(&d.output[w..], &sim[w..]).map_err(|e| e.to_string())?;
+    m.save(&a.out).map_err(|e| e.to_string())?;
+    println!("model: {}", m.describe());
+    println!("class: {}; spec: {spec}", m.dynamics.class());
+    println!("parameters: {}", m.dynamics.n_parameters());
+    for n in &fitted.notes {
+        println!("{n}");
+    }
+    println!("training NRMSE (free-run simulation): {nrmse:.4}");
+    println!("saved to {}", a.out.display());
+    Ok(())
+}

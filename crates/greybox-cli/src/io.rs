@@ -1,0 +1,64 @@
+//! Reading records and writing simulations.
+use crate::{Result, SignalArgs};
+use gb_core::{CsvTable, Record};
+use std::path::Path;
+
+/// A record of `path` with the columns `s` names.
+pub fn load(path: &Path, s: &SignalArgs) -> Result<Record> {
+    let t = CsvTable::read(path).map_err(|e| e.to_string())?;
+    let mut r =
+        Record::from_table(&t, &s.inputs, s.output.as_deref()).map_err(|e| e.to_string())?;
+    if let Some(ts) = sample_time(&t) {
+        r = r.with_sample_time(ts);
+    }
+    Ok(r)
+}
+
+/// The sample time of a uniform `t` column (relative spread of the steps
+/// below 1e-6), if there is one.
+pub fn sample_time(t: &CsvTable) -> Option<f64> {
+    let c = t.column("t").ok()?;
+    let n = c.len();
+    if n < 2 {
+        return None;
+    }
+    let dt = (c[n - 1] - c[0]) / (n - 1) as f64;
+    let uniform = c
+        .windows(2)
+        .all(|w| ((w[1] - w[0]) - dt).abs() <= 1e-6 * dt.abs().max(1e-300) + 1e-9 * dt.abs());
+    (dt > 0.0 && dt.is_finite() && uniform).then_some(dt)
+}
+
+/// Writes the inputs, the measured output (if any) and `y_sim` to `out`
+/// (atomically), then prints the errors over samples `n0..`.
+pub fn write_simulation(
+    out: &Path,
+    in_names: &[String],
+    inputs: &[Vec<f64>],
+    y: Option<&[f64]>,
+    sim: &[f64],
+    n0: usize,
+) -> Result<()> {
+    let mut names: Vec<&str> = in_names.iter().map(String::as_str).collect();
+    let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
+    if let Some(y) = y {
+        names.push("y");
+        cols.push(y);
+    }
+    names.push("y_sim");
+    cols.push(sim);
+    gb_core::write_csv_atomic(out, &names, &cols).map_err(|e| e.to_string())?;
+    if let Some(y) = y {
+        let n0 = n0.min(y.len().saturating_sub(1));
+        let rmse = gb_core::metrics::rmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
+        let nrmse = gb_core::metrics::nrmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
+        println!(
+            "samples {}..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
+            n0,
+            y.len(),
+            100.0 * (1.0 - nrmse)
+        );
+    }
+    println!("simulation written to {}", out.display());
+    Ok(())
+}
