@@ -21,9 +21,11 @@
 
 mod diagnose;
 pub mod evidence;
+pub mod generator;
 pub mod html;
 mod model;
 pub mod stats;
+pub mod sweep;
 pub mod systems;
 
 pub use diagnose::{
