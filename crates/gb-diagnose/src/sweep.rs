@@ -258,3 +258,6 @@ pub fn run(
         specs.iter().map(one).collect()
     }
 }
+
+#[cfg(test)]
+mod tests;

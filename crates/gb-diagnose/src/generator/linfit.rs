@@ -126,6 +126,23 @@ impl Arx {
     }
 }
 
+impl Arx {
+    /// One-step-ahead prediction NRMSE on (u, y) (measured outputs in the
+    /// regressors), scored after the start-up samples.
+    pub fn one_step_nrmse(&self, u: &[Vec<f64>], y: &[f64]) -> Result<f64, CoreError> {
+        let start = Self::start(self.na, &self.lags).min(y.len());
+        let (my, sy) = self.scale[u.len()];
+        let mut phi = Vec::with_capacity(self.theta.len());
+        let yh: Vec<f64> = (start..y.len())
+            .map(|k| {
+                self.regressor(u, y, k, &mut phi);
+                my + sy * phi.iter().zip(&self.theta).map(|(a, b)| a * b).sum::<f64>()
+            })
+            .collect();
+        metrics::nrmse(&y[start..], &yh)
+    }
+}
+
 /// Fit an ARX model on the training pair, return its free-run NRMSE on the
 /// validation pair.
 pub fn arx_misfit(

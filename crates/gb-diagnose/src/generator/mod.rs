@@ -277,8 +277,10 @@ pub fn draw(family: &str, seed: u64) -> Result<Case, CoreError> {
     draw_with(family, seed, &Knobs::default())
 }
 
-/// A case of `family` from `seed` with some knobs fixed. The system's
-/// parameters depend only on (family, seed), not on the knobs.
+/// A case of `family` from `seed` with some knobs fixed. The random
+/// numbers drawn for the system do not depend on the knobs (levels set
+/// relative to the signals, such as a saturation at a quantile of |u|, and
+/// the sample time, set by the samples per period, do).
 pub fn draw_with(family: &str, seed: u64, knobs: &Knobs) -> Result<Case, CoreError> {
     let fam = Family::parse(family)?;
     knobs.check()?;
