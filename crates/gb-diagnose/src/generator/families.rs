@@ -48,7 +48,10 @@ fn order_of(s: &Section) -> usize {
     }
 }
 
-fn cascade(r: &mut R, order: usize, spp: f64) -> Cascade {
+/// The other sections lie within a factor 3 of the reference in frequency,
+/// with at least 4 samples per resonance period (half a sample per time
+/// constant) and at least 15 periods (30 time constants) in the record.
+fn cascade(r: &mut R, order: usize, spp: f64, n: usize) -> Cascade {
     let resonant = order >= 2 && r.random::<f64>() < 0.75;
     let (t_ref, w_ref, first) = if resonant {
         let f0 = logu(r, 0.1, 50.0);
@@ -60,19 +63,22 @@ fn cascade(r: &mut R, order: usize, spp: f64) -> Cascade {
         (tau, 1.0 / tau, Section::First { tau })
     };
     let ts = t_ref / spp;
+    let span = n as f64 * ts;
     let mut sections = vec![first];
     let mut left = order.saturating_sub(order_of(&first));
     while left > 0 {
         if left >= 2 && r.random::<f64>() < 0.6 {
             // at least 4 samples per period of every resonance
-            let wn = (w_ref * logu(r, 0.3, 3.0)).min(2.0 * PI / (4.0 * ts));
+            let wn = (w_ref * logu(r, 0.3, 3.0))
+                .min(2.0 * PI / (4.0 * ts))
+                .max(30.0 * PI / span);
             sections.push(Section::Second {
                 wn,
                 zeta: logu(r, 0.05, 0.7),
             });
             left -= 2;
         } else {
-            let tau = (logu(r, 0.3, 3.0) / w_ref).max(0.5 * ts);
+            let tau = (logu(r, 0.3, 3.0) / w_ref).max(0.5 * ts).min(span / 30.0);
             sections.push(Section::First { tau });
             left -= 1;
         }
@@ -118,7 +124,7 @@ fn cascade_system(
     order: usize,
     n_inputs: usize,
 ) -> Result<(System, Cascade), CoreError> {
-    let c = cascade(r, order, ctx.drawn.spp);
+    let c = cascade(r, order, ctx.drawn.spp, ctx.drawn.n_train);
     let mut sys = System::new(Core::Cascade(c.sections.clone()), n_inputs);
     for j in 0..n_inputs {
         sys.input_scale[j] = logu(r, 0.1, 10.0);
