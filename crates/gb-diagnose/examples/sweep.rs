@@ -1,63 +1,200 @@
-//! Run the diagnosis on every generated system for a few seeds and print
-//! the named causes against the hidden ones.
+//! Run the diagnosis on cases drawn from the generator's families and
+//! tabulate right causes, final NRMSE against the noise floor and time.
 //!
-//! `cargo run --release -p gb-diagnose --example sweep [SYSTEM...]`
-use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions};
+//! ```sh
+//! cargo run --release -p gb-diagnose --example sweep -- --seeds 10 --markdown docs/sweep-baseline.md
+//! cargo run --release -p gb-diagnose --example sweep -- --quick
+//! cargo run --release -p gb-diagnose --example sweep -- --families duffing,backlash --seeds 3 --dry-run
+//! ```
+//!
+//! Flags: `--families a,b,..` (default all), `--seeds N` (seeds 1..=N,
+//! default 10), `--first-seed S`, `--quick` (a fixed small subset),
+//! `--markdown FILE`, `--json FILE`, `--order case|auto|N` (default: the
+//! case's engineer order), `--sequential`, `--dry-run` (list the cases),
+//! knob overrides `--n-train N`, `--snr DB`, `--excitation multisine|noise|prbs|sweep`,
+//! `--spp X`.
+use gb_diagnose::generator::{draw_with, ExcitationKind, Knobs, FAMILIES};
+use gb_diagnose::sweep::{markdown, run, CaseResult, CaseSpec, OrderMode, SweepOptions};
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+struct Args {
+    families: Vec<String>,
+    seeds: u64,
+    first_seed: u64,
+    quick: bool,
+    markdown: Option<String>,
+    json: Option<String>,
+    opts: SweepOptions,
+    dry_run: bool,
+    knobs: Knobs,
+}
+
+fn parse() -> Result<Args, String> {
+    let mut a = Args {
+        families: FAMILIES.iter().map(|s| s.to_string()).collect(),
+        seeds: 10,
+        first_seed: 1,
+        quick: false,
+        markdown: None,
+        json: None,
+        opts: SweepOptions::default(),
+        dry_run: false,
+        knobs: Knobs::default(),
+    };
+    let mut it = std::env::args().skip(1);
+    while let Some(f) = it.next() {
+        let mut val = || it.next().ok_or(format!("{f} needs a value"));
+        let num = |s: String| {
+            s.parse::<f64>()
+                .map_err(|_| format!("{f}: '{s}' is not a number"))
+        };
+        match f.as_str() {
+            "--families" => a.families = val()?.split(',').map(str::to_string).collect(),
+            "--seeds" => a.seeds = num(val()?)? as u64,
+            "--first-seed" => a.first_seed = num(val()?)? as u64,
+            "--quick" => a.quick = true,
+            "--markdown" => a.markdown = Some(val()?),
+            "--json" => a.json = Some(val()?),
+            "--sequential" => a.opts.parallel = false,
+            "--dry-run" => a.dry_run = true,
+            "--order" => {
+                a.opts.order = match val()?.as_str() {
+                    "case" => OrderMode::Case,
+                    "auto" => OrderMode::Auto,
+                    n => OrderMode::Fixed(num(n.to_string())? as usize),
+                }
+            }
+            "--n-train" => a.knobs.n_train = Some(num(val()?)? as usize),
+            "--snr" => a.knobs.snr_db = Some(num(val()?)?),
+            "--spp" => a.knobs.samples_per_period = Some(num(val()?)?),
+            "--excitation" => {
+                let v = val()?;
+                a.knobs.excitation =
+                    Some(ExcitationKind::parse(&v).ok_or(format!("unknown excitation '{v}'"))?)
+            }
+            other => return Err(format!("unknown flag '{other}'")),
+        }
+    }
+    for f in &a.families {
+        if !FAMILIES.contains(&f.as_str()) {
+            return Err(format!(
+                "unknown family '{f}' (known: {})",
+                FAMILIES.join(", ")
+            ));
+        }
+    }
+    Ok(a)
+}
+
+fn specs(a: &Args) -> Vec<CaseSpec> {
+    if a.quick {
+        let knobs = Knobs {
+            n_train: Some(1500),
+            n_validate: Some(750),
+            ..Knobs::default()
+        };
+        let fams = ["linear", "duffing", "backlash", "two-mass", "student-t"];
+        return fams
+            .iter()
+            .flat_map(|f| {
+                let k = knobs.clone();
+                (1..=2).map(move |s| CaseSpec {
+                    family: f.to_string(),
+                    seed: s,
+                    knobs: k.clone(),
+                })
+            })
+            .collect();
+    }
+    let names: Vec<&str> = a.families.iter().map(String::as_str).collect();
+    let mut v = CaseSpec::grid(&names, a.first_seed..=a.first_seed + a.seeds.max(1) - 1);
+    v.iter_mut().for_each(|s| s.knobs = a.knobs.clone());
+    v
+}
 
 fn main() {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let list: Vec<String> = if args.is_empty() {
-        systems::SYSTEMS.iter().map(|s| s.to_string()).collect()
-    } else {
-        args
+    let a = match parse() {
+        Ok(a) => a,
+        Err(e) => {
+            eprintln!("sweep: {e}");
+            std::process::exit(2);
+        }
     };
-    for s in &list {
-        for seed in [1u64, 2] {
-            let t = std::time::Instant::now();
-            let g = match systems::generate(s, seed, 8000, 4000) {
-                Ok(g) => g,
-                Err(e) => {
-                    println!("{s}: {e}");
-                    continue;
-                }
-            };
-            let floor = g.noise_floor_nrmse;
-            let d = DiagnoseData::with_validation(g.train, g.validate).unwrap();
-            match diagnose(&d, &DiagnoseOptions::default(), None) {
-                Ok(r) => {
-                    let rep = &r.report;
-                    println!(
-                        "{s:>15} seed {seed}: expect {:?} got {:?}  base {:.4} final {:.4} floor {:.4} ratio {:.2}  {:.1}s",
-                        systems::expected_cause(s),
-                        rep.causes,
-                        rep.baseline.nrmse,
-                        rep.final_model.nrmse,
-                        floor,
-                        rep.final_model.nrmse / floor,
-                        t.elapsed().as_secs_f64()
-                    );
-                    for st in &rep.steps {
-                        println!(
-                            "      it{} {:12} sel {:+.3} [{:+.3},{:+.3}] rep {:+.3} {} {}",
-                            st.iteration,
-                            st.cause,
-                            st.gain_select,
-                            st.gain_ci[0],
-                            st.gain_ci[1],
-                            st.gain,
-                            st.gain_metric,
-                            if st.accepted { "ACCEPT" } else { "" }
-                        );
-                    }
-                    println!(
-                        "      mem F {:.1} p {:.1e}; static F {:.1}",
-                        rep.evidence.memory.0,
-                        rep.evidence.memory.1,
-                        rep.evidence.static_nonlinearity.0
-                    );
-                }
-                Err(e) => println!("{s} seed {seed}: error {e}"),
+    let specs = specs(&a);
+    if a.dry_run {
+        for s in &specs {
+            match draw_with(&s.family, s.seed, &s.knobs) {
+                Ok(c) => println!(
+                    "{} {}: expect [{}] floor {:.4} strength {:.3} | {}",
+                    s.family,
+                    s.seed,
+                    c.expected.join(","),
+                    c.noise_floor_nrmse,
+                    c.effect_strength,
+                    c.description
+                ),
+                Err(e) => println!("{} {}: error {e}", s.family, s.seed),
             }
+        }
+        return;
+    }
+    let done = AtomicUsize::new(0);
+    let total = specs.len();
+    let progress = |r: &CaseResult| {
+        let k = done.fetch_add(1, Ordering::Relaxed) + 1;
+        eprintln!(
+            "[{k}/{total}] {} {}: expect [{}] named [{}] final/floor {:.2} {} {:.1}s{}",
+            r.family,
+            r.seed,
+            r.expected.join(","),
+            r.named.join(","),
+            r.ratio,
+            if r.right { "RIGHT" } else { "wrong" },
+            r.seconds,
+            r.error
+                .as_deref()
+                .map(|e| format!(" error: {e}"))
+                .unwrap_or_default()
+        );
+    };
+    let t = std::time::Instant::now();
+    let results = run(&specs, &a.opts, Some(&progress));
+    let wall = t.elapsed().as_secs_f64();
+    let title = format!(
+        "Diagnosis sweep: {} cases ({}), order {:?}, {} threads, {:.0} s wall",
+        results.len(),
+        if a.quick {
+            "--quick".to_string()
+        } else {
+            format!(
+                "seeds {}..={}",
+                a.first_seed,
+                a.first_seed + a.seeds.max(1) - 1
+            )
+        },
+        a.opts.order,
+        if a.opts.parallel {
+            rayon::current_num_threads()
+        } else {
+            1
+        },
+        wall
+    );
+    let md = markdown(&results, &title);
+    println!("{md}");
+    let write = |path: &str, text: String| {
+        if let Err(e) = std::fs::write(path, text) {
+            eprintln!("sweep: {path}: {e}");
+            std::process::exit(2);
+        }
+    };
+    if let Some(p) = &a.markdown {
+        write(p, md);
+    }
+    if let Some(p) = &a.json {
+        match serde_json::to_string_pretty(&results) {
+            Ok(s) => write(p, s),
+            Err(e) => eprintln!("sweep: {e}"),
         }
     }
 }

@@ -34,10 +34,12 @@ mod evaluate;
 pub mod evidence;
 mod extension;
 pub mod extensions;
+pub mod generator;
 pub mod html;
 mod policy;
 mod report;
 pub mod stats;
+pub mod sweep;
 pub mod systems;
 
 pub use cause::Cause;
