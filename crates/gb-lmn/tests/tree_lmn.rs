@@ -132,6 +132,12 @@ fn pruning_removes_a_split_added_on_pure_noise() {
 
 /// A mildly nonlinear second-order system (bounded by the tanh terms).
 fn nl_system(n: usize, noise: f64, seed: u64) -> Experiment {
+    nl_system_with_truth(n, noise, seed).0
+}
+
+/// [`nl_system`] and the same record without the measurement noise (the
+/// truth a simulation should reproduce).
+fn nl_system_with_truth(n: usize, noise: f64, seed: u64) -> (Experiment, Experiment) {
     let mut r = rng(seed);
     let u: Vec<f64> = (0..n).map(|_| r.random_range(-1.0..1.0)).collect();
     let mut y0 = vec![0.0; n];
@@ -148,7 +154,10 @@ fn nl_system(n: usize, noise: f64, seed: u64) -> Experiment {
             v + noise * e
         })
         .collect();
-    Experiment::new(vec![u], y)
+    (
+        Experiment::new(vec![u.clone()], y),
+        Experiment::new(vec![u], y0),
+    )
 }
 
 fn check_gradient(m: &LmnModel, e: &[Experiment], focus: Focus) {
@@ -323,21 +332,50 @@ fn fast_tree_simulation_agrees_with_the_generic_evaluation() {
     }
 }
 
+/// The output-error construction grows a second network on simulated output
+/// lags and keeps it only if it simulates the TRAINING data better — so
+/// checking the training data again proves nothing. Judged instead on a
+/// fresh record of the same system against its noise-free truth: the kept
+/// network never simulates worse than the plain one, and where the
+/// construction switched networks (seed 13) it simulates clearly better.
 #[test]
-fn output_error_construction_never_simulates_worse_on_the_data() {
-    let e = nl_system(1500, 0.02, 11);
+fn output_error_construction_does_not_simulate_fresh_data_worse() {
     let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
     let p = LmnParams::new(reg).max_leaves(6).lm_iterations(10);
-    let rms = |m: &LmnModel| {
-        let s = m.simulate(&e, 0).unwrap();
-        gb_core::metrics::rmse(&e.output[2..], &s[2..]).unwrap()
+    // truth RMSE of the simulation (from the true initial outputs)
+    let rms = |m: &LmnModel, truth: &Experiment| {
+        let s = m.simulate(truth, 0).unwrap();
+        gb_core::metrics::rmse(&truth.output[2..], &s[2..]).unwrap()
     };
-    let a = p.clone().fit(std::slice::from_ref(&e)).unwrap();
-    let b = p
-        .noe_construction(true)
-        .fit(std::slice::from_ref(&e))
-        .unwrap();
-    assert!(rms(&b) <= rms(&a) + 1e-12, "{} vs {}", rms(&b), rms(&a));
+    for (seed, noise, switches) in [
+        (11, 0.02, false),
+        (11, 0.05, false),
+        (12, 0.02, false),
+        (13, 0.05, true),
+    ] {
+        let e = nl_system(1500, noise, seed);
+        let (_, truth) = nl_system_with_truth(3000, noise, seed + 100);
+        let plain = p.clone().fit(std::slice::from_ref(&e)).unwrap();
+        let noe = p
+            .clone()
+            .noe_construction(true)
+            .fit(std::slice::from_ref(&e))
+            .unwrap();
+        let (a, b) = (rms(&plain, &truth), rms(&noe, &truth));
+        eprintln!("seed {seed}, noise {noise}: fresh-data truth RMSE plain {a:.5}, NOE construction {b:.5}");
+        // measured: 0.0831/0.0831, 0.0633/0.0633, 0.0821/0.0821, 0.0905/0.0716;
+        // keeping the second network regardless would give 0.0931, 0.0919, 0.0878
+        assert!(
+            b <= 1.02 * a,
+            "seed {seed}: construction {b} vs plain {a} on fresh data"
+        );
+        if switches {
+            assert!(
+                b < 0.9 * a,
+                "seed {seed}: construction {b} vs plain {a} on fresh data"
+            );
+        }
+    }
 }
 
 #[test]

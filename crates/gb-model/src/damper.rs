@@ -24,7 +24,7 @@ use crate::identify::{Observer, OeParams, OeReport, OutputError};
 use crate::model::{NoiseModel, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
 
 /// Options of the [MR damper structure](self); `Default` is the structure
-/// of `examples/mr_damper.rs`.
+/// of `examples/model_mr_damper.rs`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MrDamperStructure {
     /// Sample rate in Hz (for the resonance start frequencies).

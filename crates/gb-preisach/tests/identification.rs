@@ -86,10 +86,83 @@ fn identification_recovers_known_density_from_noisy_data() {
         / yv.len() as f64)
         .sqrt();
     assert!(rmse < 0.01, "validation rmse {rmse}");
-    // A wrong (shuffled) density must not fit: the test can fail.
-    let mut wrong = g.masses().to_vec();
-    wrong.reverse();
-    assert!(rel_err(&wrong) > 0.5);
+    // the identified model has the loops of the truth (positive control of
+    // `negative_control_no_hysteresis_in_static_data`)
+    let (w_fit, w_true) = (loop_width(&fit.model), loop_width(&model));
+    eprintln!("loop width: fit {w_fit}, truth {w_true}");
+    assert!(
+        (w_fit - w_true).abs() < 0.1 * w_true,
+        "loop width {w_fit} vs truth {w_true}"
+    );
+    assert!(off_diagonal_fraction(fit.model.everett()) > 0.5);
+}
+
+/// Share of the identified mass in square cells (α > β, the hysteretic
+/// part); the diagonal cells (α = β) are the reversible part.
+fn off_diagonal_fraction(g: &GridEverett) -> f64 {
+    let cells = g.density_table();
+    let total: f64 = cells.iter().map(|c| c.mass.abs()).sum();
+    let off: f64 = cells
+        .iter()
+        .filter(|c| !c.diagonal)
+        .map(|c| c.mass.abs())
+        .sum();
+    off / total
+}
+
+/// Largest vertical width of the major loop (-1 -> 1 -> -1), relative to its
+/// height: 0 for a single-valued (non-hysteretic) model.
+fn loop_width<E: Everett>(p: &Preisach<E>) -> f64 {
+    let m = 200;
+    let up: Vec<f64> = (0..=m).map(|k| -1.0 + 2.0 * k as f64 / m as f64).collect();
+    let x: Vec<f64> = up.iter().chain(up.iter().rev().skip(1)).copied().collect();
+    let y = p.simulate(&x, &InitialState::NegativeSaturation).unwrap();
+    let height =
+        y.iter().fold(f64::MIN, |a, &b| a.max(b)) - y.iter().fold(f64::MAX, |a, &b| a.min(b));
+    // y on the way up at up[k] is y[k]; on the way down it is y[2m - k]
+    (0..=m)
+        .map(|k| (y[2 * m - k] - y[k]).abs())
+        .fold(0.0, f64::max)
+        / height
+}
+
+/// Negative control: the same identifier on data WITHOUT hysteresis (a
+/// static, single-valued, increasing function of the same input plus the
+/// same noise) must find (almost) none — the mass goes to the diagonal
+/// (reversible) cells and the identified model has no loop — while the
+/// hysteretic data above give the truth's loop.
+#[test]
+fn negative_control_no_hysteresis_in_static_data() {
+    let n = 10;
+    let init = InitialState::NegativeSaturation;
+    let x = random_input(1, -1.0, 1.0, 500, 6);
+    let mut rng = Xoshiro256PlusPlus::seed_from_u64(2);
+    let noise = Normal::new(0.0, 0.01).unwrap();
+    let y: Vec<f64> = x
+        .iter()
+        .map(|&v| 0.5 * (1.0 + (2.0 * v).tanh()) + noise.sample(&mut rng))
+        .collect();
+    let reg = GridPreisachRegressor::new(-1.0, 1.0, n, init.clone()).unwrap();
+    let opts = FitOptions {
+        bias: true,
+        ..FitOptions::default()
+    };
+    let fit = fit_grid_preisach(&x, &y, &reg, &opts).unwrap();
+    // the static function is fitted (to the noise and the grid's
+    // piecewise-linear interpolation)
+    assert!(fit.rmse < 0.02, "rmse {}", fit.rmse);
+    let frac = off_diagonal_fraction(fit.model.everett());
+    let width = loop_width(&fit.model);
+    let truth_width = loop_width(&Preisach::new(truth(n)));
+    eprintln!("static data: off-diagonal mass {frac}, loop width {width} (hysteretic truth {truth_width})");
+    assert!(
+        frac < 0.05,
+        "hysteretic mass fraction {frac} on static data"
+    );
+    assert!(
+        width < 0.05 * truth_width,
+        "loop width {width} on static data (truth with hysteresis: {truth_width})"
+    );
 }
 
 #[test]

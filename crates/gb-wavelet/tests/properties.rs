@@ -110,8 +110,21 @@ proptest! {
         let data: Vec<f64> = (0..rows * cols).map(|i| ((i * 7919) % 97) as f64 - 48.0).collect();
         let img = Array2D::new(rows, cols, data).expect("image");
         let w = Wavelet::new(name).expect("wavelet");
-        let Ok(c) = wavedec2(&img, &w, mode, Some(level)) else { return Ok(()); };
-        let Ok(back) = waverec2(&c, &w, mode) else { return Ok(()); };
+        // a non-empty image at a level <= MAX_LEVEL is valid input, whatever
+        // its size relative to the filter: both transforms must succeed
+        // (the invalid inputs are `two_dimensional_invalid_inputs_are_typed_errors`)
+        let c = wavedec2(&img, &w, mode, Some(level)).map_err(|e| {
+            TestCaseError::fail(format!("wavedec2 {name} {mode} {rows}x{cols} level {level}: {e}"))
+        })?;
+        prop_assert_eq!(c.details.len(), level);
+        let back = waverec2(&c, &w, mode).map_err(|e| {
+            TestCaseError::fail(format!("waverec2 {name} {mode} {rows}x{cols} level {level}: {e}"))
+        })?;
+        // odd sizes come back at most one row/column larger (as in PyWavelets)
+        prop_assert!(
+            (rows..=rows + 1).contains(&back.rows()) && (cols..=cols + 1).contains(&back.cols()),
+            "{}x{} back as {:?}", rows, cols, back.shape()
+        );
         for r in 0..rows {
             for col in 0..cols {
                 let (a, b) = (back.get(r, col).expect("in range"), img.get(r, col).expect("in range"));
@@ -141,6 +154,55 @@ proptest! {
             prop_assert!((u - v).abs() <= 1e-15 * v.abs());
         }
     }
+}
+
+/// The only inputs the 2-D transforms reject: an empty image, a level above
+/// `MAX_LEVEL`, sub-bands of different shapes, an approximation that does
+/// not fit the next details, and coefficients too short for the filter.
+#[test]
+fn two_dimensional_invalid_inputs_are_typed_errors() {
+    let w = Wavelet::new("db5").expect("wavelet");
+    let empty = Array2D::new(0, 4, vec![]).expect("empty image");
+    assert!(matches!(
+        wavedec2(&empty, &w, Mode::Symmetric, Some(1)),
+        Err(WaveletError::EmptyInput(_))
+    ));
+    let img = Array2D::new(8, 8, (0..64).map(f64::from).collect()).expect("image");
+    assert!(matches!(
+        wavedec2(&img, &w, Mode::Symmetric, Some(gb_wavelet::MAX_LEVEL + 1)),
+        Err(WaveletError::InvalidParameter(_))
+    ));
+    // one level of an 8x8 image, then damaged coefficients
+    let c = wavedec2(&img, &w, Mode::Symmetric, Some(1)).expect("wavedec2");
+    assert!(waverec2(&c, &w, Mode::Symmetric).is_ok());
+    let mut bad = c.clone();
+    bad.details[0].diagonal = Array2D::zeros(2, 2);
+    assert!(matches!(
+        waverec2(&bad, &w, Mode::Symmetric),
+        Err(WaveletError::ShapeMismatch(_))
+    ));
+    let mut bad = c.clone();
+    bad.approx = Array2D::zeros(1, 1);
+    assert!(matches!(
+        waverec2(&bad, &w, Mode::Symmetric),
+        Err(WaveletError::ShapeMismatch(_))
+    ));
+    // 1x1 sub-bands: 2*1 + 2 - 10 < 1 output samples for db5 (filter length 10)
+    let one = || Array2D::zeros(1, 1);
+    let tiny = gb_wavelet::Coefficients2D {
+        approx: one(),
+        details: vec![gb_wavelet::Details2D {
+            horizontal: one(),
+            vertical: one(),
+            diagonal: one(),
+        }],
+    };
+    assert!(matches!(
+        waverec2(&tiny, &w, Mode::Symmetric),
+        Err(WaveletError::TooShort { .. })
+    ));
+    // the same 1x1 sub-bands are valid with periodization (2x2 output)
+    assert!(waverec2(&tiny, &w, Mode::Periodization).is_ok());
 }
 
 #[test]

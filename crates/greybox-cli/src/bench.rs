@@ -104,7 +104,7 @@ enum BestClass {
     /// space (relative velocity, hysteretic state, voltage filter, two rig
     /// resonances), output error with the resonance set and the ridge weight
     /// chosen on the last 20 % of the training data
-    /// (`crates/gb-model/examples/mr_damper.rs`).
+    /// (`crates/gb-model/examples/model_mr_damper.rs`).
     MrDamper {
         max_level: i32,
         iterations: usize,

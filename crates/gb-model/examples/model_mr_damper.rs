@@ -18,7 +18,7 @@
 //! (`MrDamperStructure::select`), then the model is refitted on all of it.
 //!
 //! ```sh
-//! cargo run --release -p gb-model --example mr_damper [-- OUT_DIR]
+//! cargo run --release -p gb-model --example model_mr_damper [-- OUT_DIR]
 //! ```
 //!
 //! `OUT_DIR` receives `mr_damper_loops.csv` (velocity, displacement,

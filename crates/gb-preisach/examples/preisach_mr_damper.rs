@@ -7,7 +7,7 @@
 //! Data: `$GREYBOX_DATA/mr_damper_labcontrol/sinusoidal_tests.csv`, or
 //! `../shared/data/...` relative to the repository root. Skipped with a
 //! notice when absent. Run:
-//! `cargo run --release -p gb-preisach --example mr_damper [OUT_DIR]`
+//! `cargo run --release -p gb-preisach --example preisach_mr_damper [OUT_DIR]`
 //! (with OUT_DIR, the force–displacement loops are written there as CSV).
 use gb_preisach::{GridPreisachRegressor, HysteresisRegressor, InitialState};
 use nalgebra::{DMatrix, DVector};
