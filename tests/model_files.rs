@@ -8,12 +8,12 @@
 //! was written by an older greybox and must be re-fitted — never
 //! "truncated or corrupt".
 //!
-//! - `.gbm` files (magic `GBM\x01`, format versions 1–3) are read with
-//!   `gb_diagnose::GreyBoxModel::load`;
-//! - `.gbs` files (magic `GBS\x01`, the gb-model state-space file that
-//!   `greybox fit --model state-space*` writes) are read with
-//!   `gb_model::SparseStateSpace::from_bytes`, which is what `greybox simulate`
-//!   does with them.
+//! Every file is read by the model registry (`gb_model::registry::load`),
+//! as `greybox simulate` does: `.gbm` files of formats 1–3 (magic
+//! `GBM\x01`; three format-3 layouts exist, because `wiener_hammerstein` and
+//! `ss_lmn` were added without a version bump) and `.gbs` files (magic
+//! `GBS\x01`, the gb-model state-space file that `greybox fit --model
+//! state-space*` wrote) are converted to today's fitted model.
 //!
 //! Each model `NAME.gbm|gbs` has the old binary's
 //! `greybox simulate NAME INPUT -o NAME.sim.csv` and
@@ -21,20 +21,12 @@
 //! input columns, the measured output (column `y`) and the simulation
 //! (`y_sim`), so it is both the input and the expected output here. The
 //! simulation is redone the way today's `greybox simulate` does it: with
-//! `--init-window 50` the initial state (network output history, LmnModel
-//! lags, state-space x₀) is estimated from the first 50 measured outputs
-//! where the model supports it; without, the network starts from zero output
-//! history and a state space from its stored x₀. The one exception is listed
-//! in [`OLD_SIMULATE_IGNORED_THE_WINDOW`].
-//!
-//! Early format-3 files (written between commit 2014bc2, which introduced
-//! format 3, and commit 5f9ec81, which added `GreyBoxModel::ss_lmn` without a
-//! version bump; 4b900b9 had added `wiener_hammerstein` the same way) do not
-//! load today: their tests are ignored until the format-4 loader reads or
-//! clearly refuses them ([`FIXED_BY_FORMAT_4`]).
+//! `--init-window 50` the initial state is estimated from the first 50
+//! measured outputs where the model supports it; without, the model starts
+//! from the state it stores (`Init::Stored`). The one exception is listed in
+//! [`OLD_SIMULATE_IGNORED_THE_WINDOW`].
 use gb_core::CsvTable;
-use gb_diagnose::GreyBoxModel;
-use gb_model::SparseStateSpace;
+use gb_core::{FittedModel, Init};
 use std::path::{Path, PathBuf};
 
 fn fixtures() -> PathBuf {
@@ -44,32 +36,6 @@ fn fixtures() -> PathBuf {
 /// Relative tolerance of a re-simulation, against the largest |y_sim|.
 const TOL: f64 = 1e-9;
 
-/// Fixtures today's loader cannot read: early format-3 `.gbm` files (format
-/// version 3 without the later `wiener_hammerstein` / `ss_lmn` fields).
-/// Today they fail with "truncated or corrupt model file"; their per-file
-/// tests are `#[ignore = "fixed by the format-4 loader"]` and
-/// [`every_model_file_in_the_folder`] skips them. Empty this list when the
-/// format-4 loader lands.
-const FIXED_BY_FORMAT_4: &[&str] = &[
-    "v3-early-diagnose-shock.gbm",
-    "v3-early-linear-preisach.gbm",
-    "v3-early-linear.gbm",
-    "v3-early-lmn-input-lags.gbm",
-    "v3-early-lmn-poly.gbm",
-    "v3-early-lmn-preisach-student-t.gbm",
-    "v3-early-lmn-tree-oblique.gbm",
-    "v3-early-lmn.gbm",
-    "v3-early-wh-diagnose-shock.gbm",
-    "v3-early-wh-linear-preisach.gbm",
-    "v3-early-wh-linear.gbm",
-    "v3-early-wh-lmn-input-lags.gbm",
-    "v3-early-wh-lmn-poly.gbm",
-    "v3-early-wh-lmn-preisach-student-t.gbm",
-    "v3-early-wh-lmn-tree-oblique.gbm",
-    "v3-early-wh-lmn.gbm",
-    "v3-early-wh-wiener-hammerstein.gbm",
-];
-
 /// `.gbs` fixtures whose old `greybox simulate --init-window N` did NOT use
 /// the window for the simulation (format-2-era binaries simulated gb-model
 /// files from the stored x₀ and used the window only to skip samples when
@@ -78,61 +44,27 @@ const FIXED_BY_FORMAT_4: &[&str] = &[
 const OLD_SIMULATE_IGNORED_THE_WINDOW: &[&str] =
     &["v2-state-space.gbs", "v2-state-space-preisach.gbs"];
 
-/// A model as today's `greybox simulate` reads it.
-enum Loaded {
-    Io(Box<GreyBoxModel>),
-    StateSpace(Box<SparseStateSpace>),
-}
-
-fn load(path: &Path) -> Result<Loaded, String> {
-    let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    if bytes.starts_with(gb_model::MAGIC) {
-        SparseStateSpace::from_bytes(&bytes)
-            .map(|m| Loaded::StateSpace(Box::new(m)))
-            .map_err(|e| format!("{}: {e}", path.display()))
-    } else {
-        GreyBoxModel::load(path)
-            .map(|m| Loaded::Io(Box::new(m)))
-            .map_err(|e| e.to_string())
-    }
-}
-
-/// The input column names of a loaded model.
-fn input_names(m: &Loaded) -> Vec<String> {
-    match m {
-        Loaded::Io(g) => g.input_names.clone(),
-        Loaded::StateSpace(s) if s.signal_names.is_empty() => {
-            (0..s.n_inputs).map(|j| format!("u{}", j + 1)).collect()
-        }
-        Loaded::StateSpace(s) => s.signal_names[..s.signal_names.len() - 1].to_vec(),
-    }
+/// A model file as today's `greybox simulate` reads it (the registry).
+fn load(path: &Path) -> Result<FittedModel, String> {
+    gb_model::registry::load(path).map_err(|e| e.to_string())
 }
 
 /// Today's `greybox simulate MODEL DATA --init-window W` (without the file
-/// output); `use_window = false` simulates a state space from its stored x₀
-/// whatever `window` is.
+/// output): the window estimates the initial state, no window starts from
+/// the state the model stores; `use_window = false` ignores the window.
 fn simulate_today(
-    m: &Loaded,
+    m: &FittedModel,
     inputs: &[Vec<f64>],
     y: &[f64],
     window: usize,
     use_window: bool,
 ) -> Result<Vec<f64>, String> {
-    match m {
-        Loaded::Io(g) => {
-            let init = &y[..window.min(g.max_lag())];
-            if window > g.max_lag() {
-                g.simulate_init_window(inputs, &y[..window])
-                    .map_err(|e| e.to_string())
-            } else {
-                gb_core::Simulate::simulate(g.as_ref(), inputs, init).map_err(|e| e.to_string())
-            }
-        }
-        Loaded::StateSpace(s) if window > 0 && use_window => s
-            .simulate_init_window(inputs, &y[..window])
-            .map_err(|e| e.to_string()),
-        Loaded::StateSpace(s) => s.simulate(inputs).map_err(|e| e.to_string()),
-    }
+    let init = if window > 0 && use_window {
+        Init::Window(&y[..window])
+    } else {
+        Init::Stored
+    };
+    m.simulate(inputs, init).map_err(|e| e.to_string())
 }
 
 /// The old binary's simulations of `model`: (sim file, init window).
@@ -207,7 +139,7 @@ fn check(file: &str, expect: Expect) -> String {
         "{file}: no recorded simulation ({}.sim.csv) beside it",
         file.rsplit_once('.').map_or(file, |(s, _)| s)
     );
-    let names = input_names(&m);
+    let names = m.input_names.clone();
     let mut worst = 0.0f64;
     for (sim, window) in &sims {
         let t = CsvTable::read(sim).unwrap_or_else(|e| panic!("{e}"));
@@ -254,8 +186,7 @@ fn check(file: &str, expect: Expect) -> String {
 }
 
 /// Every model file in the folder — new fixtures are covered without a new
-/// test — except the ones the format-4 loader will fix. Each must be listed
-/// in the README table.
+/// test. Each must be listed in the README table.
 #[test]
 fn every_model_file_in_the_folder() {
     let readme = std::fs::read_to_string(fixtures().join("README.md")).expect("README.md");
@@ -271,27 +202,7 @@ fn every_model_file_in_the_folder() {
             readme.contains(&format!("`{f}`")),
             "{f} is not in tests/fixtures/models/README.md"
         );
-        if FIXED_BY_FORMAT_4.contains(&f.as_str()) {
-            eprintln!("{f}: skipped (fixed by the format-4 loader; see its ignored test)");
-            continue;
-        }
-        eprintln!("{}", check(f, Expect::LoadsOrClearError));
-    }
-    for f in FIXED_BY_FORMAT_4 {
-        assert!(files.iter().any(|x| x == f), "{f} listed but missing");
-    }
-}
-
-/// Early format-3 files today: refused as "truncated or corrupt". This
-/// records today's (wrong) message so that the format-4 change shows up here;
-/// delete it with [`FIXED_BY_FORMAT_4`].
-#[test]
-fn early_format_3_files_fail_today() {
-    for f in FIXED_BY_FORMAT_4 {
-        match load(&fixtures().join(f)) {
-            Ok(_) => panic!("{f} loads now: empty FIXED_BY_FORMAT_4 and un-ignore its test"),
-            Err(e) => assert!(e.contains("truncated or corrupt"), "{f}: {e}"),
-        }
+        eprintln!("{}", check(f, Expect::Loads));
     }
 }
 
@@ -325,43 +236,26 @@ fixture_tests! {
     v2_state_space: "v2-state-space.gbs" => Loads;
     v2_state_space_preisach: "v2-state-space-preisach.gbs" => Loads;
     // early format 3, state_space only (commit 7a3c1d9)
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_linear: "v3-early-linear.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_lmn: "v3-early-lmn.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_linear_preisach: "v3-early-linear-preisach.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_lmn_preisach_student_t: "v3-early-lmn-preisach-student-t.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_lmn_tree_oblique: "v3-early-lmn-tree-oblique.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_lmn_poly: "v3-early-lmn-poly.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_lmn_input_lags: "v3-early-lmn-input-lags.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_diagnose_shock: "v3-early-diagnose-shock.gbm" => LoadsOrClearError;
     v3_early_state_space: "v3-early-state-space.gbs" => Loads;
     v3_early_state_space_preisach: "v3-early-state-space-preisach.gbs" => Loads;
     v3_early_state_space_hysteresis: "v3-early-state-space-hysteresis.gbs" => Loads;
     // early format 3 with wiener_hammerstein, before ss_lmn (commit ed355e8)
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_linear: "v3-early-wh-linear.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_lmn: "v3-early-wh-lmn.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_linear_preisach: "v3-early-wh-linear-preisach.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_lmn_preisach_student_t: "v3-early-wh-lmn-preisach-student-t.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_lmn_tree_oblique: "v3-early-wh-lmn-tree-oblique.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_lmn_poly: "v3-early-wh-lmn-poly.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_lmn_input_lags: "v3-early-wh-lmn-input-lags.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_wiener_hammerstein: "v3-early-wh-wiener-hammerstein.gbm" => LoadsOrClearError;
-    #[ignore = "fixed by the format-4 loader"]
     v3_early_wh_diagnose_shock: "v3-early-wh-diagnose-shock.gbm" => LoadsOrClearError;
     v3_early_wh_state_space: "v3-early-wh-state-space.gbs" => Loads;
     v3_early_wh_state_space_preisach: "v3-early-wh-state-space-preisach.gbs" => Loads;
