@@ -317,9 +317,15 @@ impl<'a> IntoIterator for &'a Records {
 /// with a one-line notice on stderr naming the folder, when it (or its
 /// `needs` sub-folder) is absent — how tests and examples skip without data.
 ///
+/// # Panics
+/// When the folder is absent and `GREYBOX_REQUIRE_DATA` is set (CI sets it,
+/// so that real-data tests cannot pass by skipping).
+///
 /// ```
-/// let d = gb_core::benchmark_data_dir(std::path::Path::new("/nonexistent"), "");
-/// assert!(d.is_none() || std::env::var_os("GREYBOX_DATA").is_some());
+/// if std::env::var_os("GREYBOX_REQUIRE_DATA").is_none() {
+///     let d = gb_core::benchmark_data_dir(std::path::Path::new("/nonexistent"), "");
+///     assert!(d.is_none() || std::env::var_os("GREYBOX_DATA").is_some());
+/// }
 /// ```
 pub fn benchmark_data_dir(default: &std::path::Path, needs: &str) -> Option<std::path::PathBuf> {
     let d = std::env::var_os("GREYBOX_DATA")
@@ -327,6 +333,11 @@ pub fn benchmark_data_dir(default: &std::path::Path, needs: &str) -> Option<std:
         .unwrap_or_else(|| default.to_path_buf());
     if d.join(needs).is_dir() {
         Some(d)
+    } else if std::env::var_os("GREYBOX_REQUIRE_DATA").is_some() {
+        panic!(
+            "GREYBOX_REQUIRE_DATA is set but {} is missing",
+            d.join(needs).display()
+        );
     } else {
         eprintln!(
             "notice: real-data run skipped: {} not found (set GREYBOX_DATA)",

@@ -46,7 +46,7 @@ impl DynamicModel for LocalModelNetwork {
         self.spec.max_lag()
     }
     fn describe(&self) -> String {
-        LocalModelNetwork::describe(self)
+        self.describe_structure()
     }
     fn n_parameters(&self) -> usize {
         LocalModelNetwork::n_parameters(self)

@@ -292,6 +292,15 @@ impl LocalModelNetwork {
 
     /// One-line description.
     pub fn describe(&self) -> String {
+        format!(
+            "{}, {} noise",
+            self.describe_structure(),
+            self.noise.describe()
+        )
+    }
+
+    /// The description without the noise model.
+    pub fn describe_structure(&self) -> String {
         let nb: Vec<String> = self.spec.nb.iter().map(|b| b.to_string()).collect();
         let core = if self.leaves.len() == 1 {
             format!(
@@ -320,7 +329,7 @@ impl LocalModelNetwork {
         } else {
             String::new()
         };
-        format!("{core}{hyst}, {} noise", self.noise.describe())
+        format!("{core}{hyst}")
     }
 }
 

@@ -282,6 +282,15 @@ impl SparseStateSpace {
 
     /// One-line description.
     pub fn describe(&self) -> String {
+        format!(
+            "{}, {} measurement noise",
+            self.describe_structure(),
+            self.measurement_noise.describe()
+        )
+    }
+
+    /// The description without the noise model.
+    pub fn describe_structure(&self) -> String {
         let mut s = format!(
             "sparse wavelet state space, {} states{}",
             self.n_states,
@@ -301,7 +310,7 @@ impl SparseStateSpace {
         if !self.hysteresis.is_empty() {
             s += &format!(", {} Preisach components", self.hysteresis.len());
         }
-        s + &format!(", {} measurement noise", self.measurement_noise.describe())
+        s
     }
 
     pub(crate) fn check_inputs(&self, inputs: &[Vec<f64>]) -> Result<usize> {
@@ -557,7 +566,7 @@ impl gb_core::DynamicModel for SparseStateSpace {
         self.n_states
     }
     fn describe(&self) -> String {
-        SparseStateSpace::describe(self)
+        self.describe_structure()
     }
     fn n_parameters(&self) -> usize {
         SparseStateSpace::n_parameters(self)

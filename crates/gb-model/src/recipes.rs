@@ -157,13 +157,12 @@ pub fn recipe(name: &str) -> Option<&'static Recipe> {
     RECIPES.iter().find(|r| r.name == name)
 }
 
-/// Fit `spec` on `data`: the recipe of its name, after checking its
-/// components.
-pub fn fit(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitted, CoreError> {
+/// The recipe of `spec`, after checking its name and components (before any
+/// data is read).
+pub fn check_spec(spec: &ModelSpec) -> Result<&'static Recipe, CoreError> {
     let r = recipe(&spec.name).ok_or_else(|| {
-        CoreError::InvalidArgument(format!(
-            "unknown model '{}' (known: {})",
-            spec.name,
+        CoreError::Unsupported(format!(
+            "unknown model spec '{spec}' (known models: {})",
             RECIPES
                 .iter()
                 .map(|r| r.name)
@@ -176,8 +175,8 @@ pub fn fit(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitte
         .iter()
         .find(|c| !r.components.contains(&c.as_str()))
     {
-        return Err(CoreError::InvalidArgument(format!(
-            "unknown component '{c}' of model '{}' (known: {})",
+        return Err(CoreError::Unsupported(format!(
+            "unknown model spec '{spec}': no component '{c}' for {} (known: {})",
             r.name,
             if r.components.is_empty() {
                 "none".to_string()
@@ -186,7 +185,13 @@ pub fn fit(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitte
             }
         )));
     }
-    (r.fit)(spec, data, obs)
+    Ok(r)
+}
+
+/// Fit `spec` on `data`: the recipe of its name, after checking its
+/// components.
+pub fn fit(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitted, CoreError> {
+    (check_spec(spec)?.fit)(spec, data, obs)
 }
 
 /// The recipes as help text.

@@ -792,6 +792,12 @@ pub fn run(o: &BenchOptions) -> Result<usize, String> {
             ));
         }
     }
+    if !o.data_dir.is_dir() && std::env::var_os("GREYBOX_REQUIRE_DATA").is_some() {
+        return Err(format!(
+            "GREYBOX_REQUIRE_DATA is set but the data folder {} is missing",
+            o.data_dir.display()
+        ));
+    }
     if !o.data_dir.is_dir() {
         println!(
             "greybox bench: data folder {} not found; nothing run (give --data-dir or set GREYBOX_DATA to the benchmark data, see README)",

@@ -46,6 +46,7 @@ fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
 /// Fit, save, and print the model, its notes and the training NRMSE.
 pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     let spec = spec_of(&a)?;
+    gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
     let first = load(&a.train, &a.signals)?;
     let mut records = vec![first];
     for f in &a.experiments {
@@ -56,8 +57,11 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     }
     let data = Records::new(records).map_err(|e| e.to_string())?;
     let bar = Bar::spinner(quiet, &format!("fitting {spec}"));
-    let fitted = gb_model::recipes::fit(&spec, &data, &bar)
-        .map_err(|e| format!("{}: {e}", a.train.display()))?;
+    let fitted = gb_model::recipes::fit(&spec, &data, &bar).map_err(|e| match e {
+        // a bad option is the spec's fault, not the file's
+        gb_core::CoreError::InvalidArgument(m) if m.starts_with("model spec") => m,
+        e => format!("{}: {e}", a.train.display()),
+    })?;
     bar.finish();
     let m = &fitted.model;
     let d = data.first();

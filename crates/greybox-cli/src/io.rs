@@ -14,8 +14,10 @@ pub fn load(path: &Path, s: &SignalArgs) -> Result<Record> {
     Ok(r)
 }
 
-/// The sample time of a uniform `t` column (relative spread of the steps
-/// below 1e-6), if there is one.
+/// The sample time of a uniform `t` column, if there is one: the mean step
+/// `dt`, when every time lies within `dt/2` of the uniform grid
+/// `t₀ + k·dt` (printed times are rounded, so single steps jitter; a
+/// missing sample or a jump moves the grid by a whole step).
 pub fn sample_time(t: &CsvTable) -> Option<f64> {
     let c = t.column("t").ok()?;
     let n = c.len();
@@ -24,8 +26,9 @@ pub fn sample_time(t: &CsvTable) -> Option<f64> {
     }
     let dt = (c[n - 1] - c[0]) / (n - 1) as f64;
     let uniform = c
-        .windows(2)
-        .all(|w| ((w[1] - w[0]) - dt).abs() <= 1e-6 * dt.abs().max(1e-300) + 1e-9 * dt.abs());
+        .iter()
+        .enumerate()
+        .all(|(k, t)| (t - c[0] - k as f64 * dt).abs() <= 0.5 * dt.abs());
     (dt > 0.0 && dt.is_finite() && uniform).then_some(dt)
 }
 

@@ -128,7 +128,7 @@ fn generate_fit_simulate_diagnose_round_trip() {
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(r["version"], 1);
+    assert_eq!(r["version"], 2);
     assert_eq!(r["data"]["inputs"][0], "u");
     assert_eq!(r["data"]["output"], "y");
     assert_eq!(r["causes"][0], "dynamics", "{r}");
@@ -379,7 +379,7 @@ fn bad_input_is_one_line_exit_2_no_output() {
     let out2 = d.join("out2.gbm");
     assert_bad(
         &["fit", g, "--order", "1000", "-o", out2.to_str().unwrap()],
-        "order must be in 1..=",
+        "order=1000: a whole number in 1..=",
         &out2,
     );
     let html = d.join("r.html");

@@ -168,13 +168,13 @@ fn fit_lmn_degree_dead_time_partition_criterion() {
     assert!(out.contains("Bic"), "criterion: {out}");
     std::fs::remove_file(&model).unwrap();
     for (flag, value, needle) in [
-        ("--degree", "4", "--degree must be 1, 2 or 3"),
-        ("--criterion", "magic", "--criterion must be aicc or bic"),
-        ("--partition", "z9", "--partition must be all or y1"),
+        ("--degree", "4", "degree=4: a whole number in 1..=3"),
+        ("--criterion", "magic", "criterion=magic: one of aicc, bic"),
+        ("--partition", "z9", "partition=z9: one of all, y1"),
         (
             "--dead-time",
             "100",
-            "--dead-time: '100' is not a whole number in 0..=64",
+            "dead_time=100: whole numbers in 0..=64",
         ),
     ] {
         let bad = args(&[flag, value]);

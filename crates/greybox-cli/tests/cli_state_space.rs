@@ -194,7 +194,7 @@ fn diagnose_chooses_the_hidden_state_model_and_it_reloads() {
         bad.to_str().unwrap(),
     ]);
     assert_eq!(o.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&o.stderr).contains("--order must be in 1..=8"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("order=99: a whole number in 1..=8"));
     assert!(!bad.exists());
 }
 
