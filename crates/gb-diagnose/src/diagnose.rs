@@ -331,6 +331,23 @@ fn iterate(
     Some(Iteration { rows, chosen })
 }
 
+/// What was tried, per cause: `nonlinearity (2 candidates, 1 accepted)`.
+fn tried_summary(steps: &[Step]) -> Vec<String> {
+    Cause::ALL
+        .iter()
+        .filter_map(|c| {
+            let n = steps.iter().filter(|s| s.cause == *c).count();
+            let acc = steps.iter().filter(|s| s.cause == *c && s.accepted).count();
+            (n > 0).then(|| {
+                format!(
+                    "{c} ({n} candidate{}, {acc} accepted)",
+                    if n == 1 { "" } else { "s" }
+                )
+            })
+        })
+        .collect()
+}
+
 /// Run the diagnosis on `d`, reporting progress to `obs`.
 pub fn diagnose(
     d: &DiagnoseData,
@@ -382,6 +399,13 @@ pub fn diagnose(
     obs.progress(total, total, "done");
     let last = chain.last().expect("the chain holds the baseline");
     let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &d.select_inputs(w));
+    let verdict = crate::verdict::verdict(
+        &last.select.e,
+        &last.select.yhat,
+        &d.select_inputs(w),
+        pol.verdict_level,
+        &tried_summary(&steps),
+    );
     let report = Report {
         version: REPORT_VERSION,
         data: DataSummary {
@@ -398,6 +422,7 @@ pub fn diagnose(
         final_model: ModelSummary::of(last),
         evidence: baseline_evidence,
         final_evidence,
+        verdict,
     };
     Ok(Diagnosis {
         report,

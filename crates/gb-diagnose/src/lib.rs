@@ -41,6 +41,7 @@ mod report;
 pub mod stats;
 pub mod sweep;
 pub mod systems;
+mod verdict;
 
 pub use cause::Cause;
 pub use data::DiagnoseData;
@@ -51,6 +52,7 @@ pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role,
 pub use html::render_html;
 pub use policy::DecisionPolicy;
 pub use report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
+pub use verdict::{Verdict, VerdictKind};
 
 /// Errors of the diagnosis crate.
 #[derive(Debug, thiserror::Error)]

@@ -24,6 +24,7 @@ use crate::DiagnoseError;
 /// | `min_block` | 100 | fewest samples of the select and report blocks |
 /// | `min_fit` | 60 | fewest samples of the fit block |
 /// | `max_order` | 8 | highest linear order the dynamics extension proposes |
+/// | `verdict_level` | 0.01 | overall level of the final residual tests (Bonferroni over the tests): "adequate" only when none rejects |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
     /// Smallest relative NRMSE gain on the select block that counts.
@@ -66,6 +67,8 @@ pub struct DecisionPolicy {
     pub min_fit: usize,
     /// Highest linear order proposed.
     pub max_order: usize,
+    /// Overall level of the final residual tests.
+    pub verdict_level: f64,
 }
 
 impl Default for DecisionPolicy {
@@ -91,6 +94,7 @@ impl Default for DecisionPolicy {
             min_block: 100,
             min_fit: 60,
             max_order: 8,
+            verdict_level: 0.01,
         }
     }
 }
@@ -119,7 +123,7 @@ impl DecisionPolicy {
             return bad("tolerances >= 1");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
-        if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) {
+        if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) || !p_ok(self.verdict_level) {
             return bad("p-value levels in (0,1)");
         }
         if self.tie_bootstrap < 10 || self.min_block < 10 || self.min_fit < 10 {
