@@ -17,6 +17,8 @@ use crate::lmn::{split_params, Criterion, Eval, FitSummary, Focus, LmnModel};
 use crate::regressors::{Layout, NormExp};
 use crate::tree::{Node, Partition, Split, WeightKind, TINY};
 use crate::{Experiment, LmnError, RegressorSpec, Scaling};
+use gb_core::solver::{LeastSquaresProblem, LmParams, LmWorkspace};
+use gb_core::Silent;
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
@@ -427,8 +429,94 @@ fn fit_children(
     Some((tl, tr))
 }
 
+/// The split parameters v = (w, w0) of HILOMOT as a least-squares problem
+/// on the local SSE of the leaf, the two children's local models fixed:
+/// residual e = base − w((1−ψ)L_l + ψ L_r), ∂e/∂a = −w ψ(1−ψ)(L_r − L_l),
+/// a = wᵀz + w0. Trial points are projected onto ‖w‖ ≤ cap (steepness cap).
+struct ObliqueProblem<'a> {
+    rows: &'a Rows,
+    st: &'a LeafSt,
+    base: &'a [f64],
+    tl: &'a [f64],
+    tr: &'a [f64],
+    ll: &'a [f64],
+    lr: &'a [f64],
+    cap: f64,
+    psi: Vec<f64>,
+    /// The last point evaluated and its SSE (the accepted point is
+    /// linearised next).
+    last: Option<(Vec<f64>, f64)>,
+}
+
+impl ObliqueProblem<'_> {
+    fn sse(&mut self, v: &[f64]) -> f64 {
+        let nz = self.rows.nz;
+        psi_of(self.rows, self.st, &v[..nz], v[nz], &mut self.psi);
+        let s = split_sse(self.rows, self.st, self.base, &self.psi, self.tl, self.tr);
+        self.last = Some((v.to_vec(), s));
+        s
+    }
+}
+
+impl LeastSquaresProblem for ObliqueProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.rows.nz + 1
+    }
+    fn cost(&mut self, v: &[f64]) -> Option<f64> {
+        Some(self.sse(v))
+    }
+    fn linearize(&mut self, v: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let nz = self.rows.nz;
+        let nv = nz + 1;
+        let cost = match &self.last {
+            Some((lv, s)) if lv.as_slice() == v => *s,
+            _ => self.sse(v),
+        };
+        gram.fill(0.0);
+        let mut jte = vec![0.0; nv];
+        let mut jrow = vec![0.0; nv];
+        for (i, &r) in self.st.idx.iter().enumerate() {
+            let zr = self.rows.zrow(r as usize);
+            let p = self.psi[i];
+            let (wi, ll, lr) = (self.st.w[i], self.ll[i], self.lr[i]);
+            let e = self.base[i] - wi * ((1.0 - p) * ll + p * lr);
+            let g = -wi * p * (1.0 - p) * (lr - ll);
+            if g == 0.0 {
+                continue;
+            }
+            jrow[..nz].iter_mut().zip(zr).for_each(|(j, z)| *j = g * z);
+            jrow[nz] = g;
+            for a in 0..nv {
+                jte[a] += jrow[a] * e;
+                for b in a..nv {
+                    gram[a * nv + b] += jrow[a] * jrow[b];
+                }
+            }
+        }
+        for a in 0..nv {
+            for b in 0..a {
+                gram[a * nv + b] = gram[b * nv + a];
+            }
+            // jrow is ∂e/∂v = −∂ŷ/∂v: the gradient Jᵀe is −jte
+            grad[a] = -jte[a];
+        }
+        Some(cost)
+    }
+    fn project(&mut self, v: &mut [f64]) {
+        let nz = self.rows.nz;
+        let norm = v[..nz].iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm > self.cap {
+            let s = self.cap / norm;
+            v.iter_mut().for_each(|x| *x *= s);
+        }
+    }
+}
+
 /// HILOMOT: optimise (w, w0) of a split by Levenberg–Marquardt on the local
-/// SSE, alternating with weighted least squares of the two children.
+/// SSE, alternating with weighted least squares of the two children. Each of
+/// at most 6 rounds runs at most 4 solver iterations (8 trials, λ ×4 / ÷3,
+/// floor 1e-9, damping λ·max(Gᵢᵢ, 1e-12) + 1e-12); λ carries over between
+/// rounds.
 #[allow(clippy::too_many_arguments)]
 fn optimise_oblique(
     rows: &Rows,
@@ -441,7 +529,6 @@ fn optimise_oblique(
     cap: f64,
 ) -> Option<Trial> {
     let nz = rows.nz;
-    let nv = nz + 1;
     let m = st.idx.len();
     let mut v: Vec<f64> = start.w.clone();
     v.push(start.w0);
@@ -449,76 +536,53 @@ fn optimise_oblique(
     let mut psi = vec![0.0; m];
     psi_of(rows, st, &v[..nz], v[nz], &mut psi);
     let mut best = split_sse(rows, st, base, &psi, &tl, &tr);
-    let mut lambda = 1e-2;
+    let lm = LmParams {
+        max_iter: 4,
+        tol: 0.0,
+        lambda_init: 1e-2,
+        lambda_up: 4.0,
+        lambda_up_singular: 10.0,
+        lambda_down: 1.0 / 3.0,
+        lambda_min: 1e-9,
+        lambda_max: 1e300,
+        max_trials: 8,
+        diag_floor: 0.0,
+        diag_floor_abs: 1e-12,
+        diag_add: 0.0,
+        jitter: 0.0,
+        jitter_abs: 1e-12,
+    }
+    .check()
+    .ok()?;
+    let mut lambda = lm.params().lambda_init;
     let mut ll = vec![0.0; m];
     let mut lr = vec![0.0; m];
+    let mut ws = LmWorkspace::new(nz + 1);
     for _outer in 0..6 {
         let before = best;
         for (i, &r) in st.idx.iter().enumerate() {
             ll[i] = rows.local(r as usize, &tl);
             lr[i] = rows.local(r as usize, &tr);
         }
-        for _ in 0..4 {
-            // residual e = base − w((1−ψ)L_l + ψ L_r); ∂e/∂a = −w ψ(1−ψ)(L_r − L_l)
-            let mut jtj = DMatrix::<f64>::zeros(nv, nv);
-            let mut jte = DVector::<f64>::zeros(nv);
-            let mut jrow = vec![0.0; nv];
-            for (i, &r) in st.idx.iter().enumerate() {
-                let zr = rows.zrow(r as usize);
-                let p = psi[i];
-                let e = base[i] - st.w[i] * ((1.0 - p) * ll[i] + p * lr[i]);
-                let g = -st.w[i] * p * (1.0 - p) * (lr[i] - ll[i]);
-                if g == 0.0 {
-                    continue;
-                }
-                jrow[..nz].iter_mut().zip(zr).for_each(|(j, z)| *j = g * z);
-                jrow[nz] = g;
-                for a in 0..nv {
-                    jte[a] += jrow[a] * e;
-                    for b in a..nv {
-                        jtj[(a, b)] += jrow[a] * jrow[b];
-                    }
-                }
-            }
-            for a in 0..nv {
-                for b in 0..a {
-                    jtj[(a, b)] = jtj[(b, a)];
-                }
-            }
-            let mut improved = false;
-            for _ in 0..8 {
-                let mut aa = jtj.clone();
-                for a in 0..nv {
-                    aa[(a, a)] += lambda * jtj[(a, a)].max(1e-12) + 1e-12;
-                }
-                let Some(ch) = aa.cholesky() else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let d = ch.solve(&(-&jte));
-                let mut vt: Vec<f64> = v.iter().zip(d.iter()).map(|(a, b)| a + b).collect();
-                let norm = vt[..nz].iter().map(|x| x * x).sum::<f64>().sqrt();
-                if norm > cap {
-                    let s = cap / norm;
-                    vt.iter_mut().for_each(|x| *x *= s);
-                }
-                let mut pt = vec![0.0; m];
-                psi_of(rows, st, &vt[..nz], vt[nz], &mut pt);
-                let s = split_sse(rows, st, base, &pt, &tl, &tr);
-                if s < best {
-                    best = s;
-                    v = vt;
-                    psi = pt;
-                    lambda = (lambda / 3.0).max(1e-9);
-                    improved = true;
-                    break;
-                }
-                lambda *= 4.0;
-            }
-            if !improved {
-                break;
-            }
-        }
+        let mut problem = ObliqueProblem {
+            rows,
+            st,
+            base,
+            tl: &tl,
+            tr: &tr,
+            ll: &ll,
+            lr: &lr,
+            cap,
+            psi: vec![0.0; m],
+            last: None,
+        };
+        let mut state = lm.init(&mut problem, &v).ok()?;
+        state.lambda = lambda;
+        lm.run(&mut problem, &mut state, &mut ws, &Silent);
+        lambda = state.lambda;
+        v = state.theta;
+        best = state.cost;
+        psi_of(rows, st, &v[..nz], v[nz], &mut psi);
         // re-estimate the two local models under the new split
         let (a, b) = fit_children(rows, st, &psi, ridge, min_eff)?;
         let s = split_sse(rows, st, base, &psi, &a, &b);
@@ -1155,6 +1219,7 @@ impl ValidLmnParams {
                     o.lm_iterations,
                     o.stability_guard,
                     o.optimise_splits,
+                    &Silent,
                 ) {
                     Ok(rep) => {
                         model.summary.lm_iterations = rep.0;

@@ -13,7 +13,8 @@
 //! radius ≥ 1) or the simulation diverge are rejected.
 use crate::network::{spectral_radius, EvalScratch, Leaf};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
-use gb_core::NoiseModel;
+use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
+use gb_core::{NoiseModel, Observer, Silent};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -273,6 +274,87 @@ impl OutputHysteresis {
     }
 }
 
+/// The initial output values (normalised) of a simulation fitted to an
+/// init window of measured outputs: residuals over the window, Jacobian by
+/// forward differences (step 1e-4).
+struct InitWindowProblem<'a> {
+    net: &'a LocalModelNetwork,
+    p: &'a Prepared,
+    yw: &'a [f64],
+    buf: Vec<f64>,
+}
+
+impl InitWindowProblem<'_> {
+    fn residuals(&mut self, init: &[f64]) -> Option<Vec<f64>> {
+        let w = self.yw.len();
+        if !self.net.simulate_norm(self.p, w, init, &mut self.buf) {
+            return None;
+        }
+        Some((0..w).map(|k| self.yw[k] - self.buf[k]).collect())
+    }
+}
+
+impl LeastSquaresProblem for InitWindowProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.net.spec.max_lag()
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        self.residuals(theta).map(|r| r.iter().map(|v| v * v).sum())
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let r0 = self.residuals(theta)?;
+        let (w, k0) = (self.yw.len(), theta.len());
+        // Jacobian of the window residuals w.r.t. the initial values
+        let h = 1e-4;
+        let mut jac = DMatrix::<f64>::zeros(w, k0);
+        let mut ok = true;
+        for i in 0..k0 {
+            let mut t = theta.to_vec();
+            t[i] += h;
+            match self.residuals(&t) {
+                Some(ri) => {
+                    for k in 0..w {
+                        jac[(k, i)] = (ri[k] - r0[k]) / h;
+                    }
+                }
+                None => ok = false,
+            }
+        }
+        if !ok {
+            return None;
+        }
+        let jtj = jac.transpose() * &jac;
+        let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+        for i in 0..k0 {
+            for j in 0..k0 {
+                gram[i * k0 + j] = jtj[(i, j)];
+            }
+            // residual r = y − ŷ has ∂r/∂θ = −J: the gradient Jᵀr is −jacᵀr
+            grad[i] = -jtr[i];
+        }
+        Some(r0.iter().map(|v| v * v).sum())
+    }
+}
+
+/// Gauss–Newton on the initial values: four steps, each kept only if it
+/// lowers the window cost (one trial, no damping beyond a 1e-9 jitter: λ is
+/// pinned at 1e-300, which vanishes next to the jitter).
+fn init_window_solver() -> LevenbergMarquardt {
+    LmParams {
+        max_iter: 4,
+        tol: 0.0,
+        lambda_init: 1e-300,
+        lambda_min: 1e-300,
+        max_trials: 1,
+        diag_floor: 0.0,
+        jitter: 0.0,
+        jitter_abs: 1e-9,
+        ..LmParams::default()
+    }
+    .check()
+    .expect("valid Gauss-Newton settings")
+}
+
 impl LocalModelNetwork {
     pub(crate) fn prepare(&self, inputs: &[Vec<f64>], y: &[f64]) -> Result<Prepared, LmnError> {
         if inputs.len() != self.input_scaling.len() {
@@ -455,48 +537,17 @@ impl LocalModelNetwork {
             .iter()
             .map(|&v| self.output_scaling.to_norm(v))
             .collect();
-        let mut init: Vec<f64> = yw[..k0].to_vec();
-        let mut buf = Vec::with_capacity(w);
-        let cost = |init: &[f64], buf: &mut Vec<f64>| -> Option<Vec<f64>> {
-            if !self.simulate_norm(&p_win, w, init, buf) {
-                return None;
-            }
-            Some((0..w).map(|k| yw[k] - buf[k]).collect())
+        let init: Vec<f64> = yw[..k0].to_vec();
+        let mut problem = InitWindowProblem {
+            net: self,
+            p: &p_win,
+            yw: &yw,
+            buf: Vec::with_capacity(w),
         };
-        for _ in 0..4 {
-            let Some(r0) = cost(&init, &mut buf) else {
-                break;
-            };
-            // Jacobian of the window residuals w.r.t. the initial values (finite differences)
-            let h = 1e-4;
-            let mut jac = DMatrix::<f64>::zeros(w, k0);
-            let mut ok = true;
-            for i in 0..k0 {
-                let mut t = init.clone();
-                t[i] += h;
-                match cost(&t, &mut buf) {
-                    Some(ri) => {
-                        for k in 0..w {
-                            jac[(k, i)] = (ri[k] - r0[k]) / h;
-                        }
-                    }
-                    None => ok = false,
-                }
-            }
-            if !ok {
-                break;
-            }
-            let jtj = jac.transpose() * &jac + DMatrix::<f64>::identity(k0, k0) * 1e-9;
-            let jtr = jac.transpose() * DVector::from_column_slice(&r0);
-            let Some(ch) = jtj.cholesky() else { break };
-            let delta = ch.solve(&jtr);
-            let trial: Vec<f64> = init.iter().zip(delta.iter()).map(|(a, d)| a - d).collect();
-            let c0: f64 = r0.iter().map(|v| v * v).sum();
-            match cost(&trial, &mut buf) {
-                Some(rt) if rt.iter().map(|v| v * v).sum::<f64>() < c0 => init = trial,
-                _ => break,
-            }
-        }
+        let init = match init_window_solver().minimize(&mut problem, &init, &Silent) {
+            Ok(state) => state.theta,
+            Err(_) => init,
+        };
         self.simulate_physical(&p_full, n, &init)
     }
 
@@ -678,6 +729,80 @@ impl LocalModelNetwork {
     }
 }
 
+/// The simulation error of a network with fixed structure as a
+/// least-squares problem: θ = [`LocalModelNetwork::parameters`], the Gram
+/// matrix and gradient accumulated by [`LocalModelNetwork::simulate_sens`]
+/// (sensitivity recursion, blocked GEMM), the damped system solved by the
+/// fused left-looking Cholesky [`spd_solve`]; trial points whose local models
+/// are not stable are inadmissible.
+struct OutputErrorProblem<'a> {
+    net: LocalModelNetwork,
+    p: &'a Prepared,
+    weights: Option<&'a [f64]>,
+    jtj: DMatrix<f64>,
+    jtr: DVector<f64>,
+    buf: Vec<f64>,
+}
+
+impl<'a> OutputErrorProblem<'a> {
+    fn new(net: &LocalModelNetwork, p: &'a Prepared, weights: Option<&'a [f64]>) -> Self {
+        let np = net.n_parameters();
+        Self {
+            net: net.clone(),
+            p,
+            weights,
+            jtj: DMatrix::zeros(np, np),
+            jtr: DVector::zeros(np),
+            buf: Vec::with_capacity(p.yn.len()),
+        }
+    }
+}
+
+impl LeastSquaresProblem for OutputErrorProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.net.n_parameters()
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        self.net.set_parameters(theta);
+        self.net.weighted_cost(self.p, self.weights, &mut self.buf)
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        self.net.set_parameters(theta);
+        let c = self
+            .net
+            .simulate_sens(self.p, self.weights, &mut self.jtj, &mut self.jtr)?;
+        // JᵀWJ is exactly symmetric (mirrored), so column-major = row-major
+        gram.copy_from_slice(self.jtj.as_slice());
+        grad.copy_from_slice(self.jtr.as_slice());
+        Some(c)
+    }
+    fn admissible(&mut self, theta: &[f64]) -> bool {
+        self.net.set_parameters(theta);
+        self.net.is_acceptably_stable()
+    }
+    fn solve_damped(&mut self, a: &mut [f64], g: &[f64], delta: &mut [f64]) -> bool {
+        match spd_solve(a, g.len(), g) {
+            Some(d) => {
+                delta.copy_from_slice(&d);
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// Levenberg–Marquardt settings of the output-error training: the
+/// workspace defaults (λ from 1e-3, ×4 / ÷3, floor 1e-12, Marquardt scaling
+/// with floor 1e-9·max Gᵢᵢ and jitter 1e-12·max Gᵢᵢ, 12 trials, give up
+/// above λ = 1e12) with `max_iter` iterations and tolerance `tol`.
+fn oe_solver(max_iter: usize, tol: f64) -> Result<LevenbergMarquardt, LmnError> {
+    LmParams::default()
+        .max_iter(max_iter)
+        .tol(tol)
+        .check()
+        .map_err(|e| LmnError::InvalidArgument(e.to_string()))
+}
+
 /// Levenberg–Marquardt on the simulation error, starting from `net`'s
 /// parameters (structure and partition fixed). With `opts.robust`, the
 /// residuals are weighted by a Student-t model re-estimated between rounds
@@ -688,6 +813,18 @@ pub fn refine_output_error(
     inputs: &[Vec<f64>],
     y: &[f64],
     opts: &FitOptions,
+) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
+    refine_output_error_with_observer(net, inputs, y, opts, &Silent)
+}
+
+/// [`refine_output_error`], reporting every Levenberg–Marquardt iteration to
+/// `observer`.
+pub fn refine_output_error_with_observer(
+    net: &LocalModelNetwork,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    observer: &dyn Observer,
 ) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
     opts.check()?;
     let p = net.prepare(inputs, y)?;
@@ -714,15 +851,12 @@ pub fn refine_output_error(
             ))
         }
     };
+    // robust: rounds of IRLS around the solver, the Student-t weights
+    // re-estimated from the current residuals before each round
     let rounds = if opts.robust { 4 } else { 1 };
-    let mut weights: Option<Vec<f64>> = None;
     let mut total_iter = 0;
-    let mut jtj = DMatrix::<f64>::zeros(np, np);
-    let mut a = DMatrix::<f64>::zeros(np, np);
-    let mut jtr = DVector::<f64>::zeros(np);
     for round in 0..rounds {
-        if opts.robust {
-            // residuals of the current model → Student-t weights
+        let weights: Option<Vec<f64>> = opts.robust.then(|| {
             cur.weighted_cost(&p, None, &mut buf);
             let res: Vec<f64> = (k0..n).map(|k| p.yn[k] - buf[k]).collect();
             let nf = NoiseModel::student_t(&res);
@@ -730,58 +864,22 @@ pub fn refine_output_error(
             for k in k0..n {
                 w[k] = nf.weight(p.yn[k] - buf[k]);
             }
-            weights = Some(w);
-        }
+            w
+        });
         let iters = if opts.robust && round + 1 < rounds {
             opts.max_iter / 2
         } else {
             opts.max_iter
         };
-        let mut lambda = 1e-3;
-        for _ in 0..iters {
-            total_iter += 1;
-            let cost = match cur.simulate_sens(&p, weights.as_deref(), &mut jtj, &mut jtr) {
-                Some(c) => c,
-                None => break,
-            };
-            let theta = cur.parameters();
-            let diag: Vec<f64> = (0..np).map(|i| jtj[(i, i)]).collect();
-            let dmax = diag.iter().cloned().fold(0.0, f64::max).max(1e-300);
-            let mut improved = false;
-            for _ in 0..12 {
-                a.copy_from(&jtj);
-                for i in 0..np {
-                    a[(i, i)] += lambda * diag[i].max(1e-9 * dmax) + 1e-12 * dmax;
-                }
-                let Some(delta) = spd_solve(a.as_mut_slice(), np, jtr.as_slice()) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let trial: Vec<f64> = theta.iter().zip(delta.iter()).map(|(t, d)| t + d).collect();
-                let mut cand = cur.clone();
-                cand.set_parameters(&trial);
-                if cand.is_acceptably_stable() {
-                    if let Some(c) = cand.weighted_cost(&p, weights.as_deref(), &mut buf) {
-                        if c < cost {
-                            let rel = (cost - c) / cost.max(1e-300);
-                            cur = cand;
-                            lambda = (lambda / 3.0).max(1e-12);
-                            improved = true;
-                            if rel < opts.tol {
-                                lambda = f64::INFINITY; // converged: leave the loop below
-                            }
-                            break;
-                        }
-                    }
-                }
-                lambda *= 4.0;
-                if lambda > 1e12 {
-                    break;
-                }
+        let lm = oe_solver(iters, opts.tol)?;
+        let mut problem = OutputErrorProblem::new(&cur, &p, weights.as_deref());
+        match lm.minimize(&mut problem, &cur.parameters(), observer) {
+            Ok(state) => {
+                total_iter += state.iterations;
+                cur.set_parameters(&state.theta);
             }
-            if !improved || !lambda.is_finite() || lambda > 1e12 {
-                break;
-            }
+            // the start diverges: the round's first iteration fails
+            Err(_) => total_iter += iters.min(1),
         }
     }
     let mse1 = cur

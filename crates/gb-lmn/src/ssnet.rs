@@ -32,6 +32,8 @@
 //! two-tank Torricelli model.
 
 use crate::LmnError;
+use gb_core::solver::{LeastSquaresProblem, LmParams};
+use gb_core::{Observer, Silent};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -430,7 +432,7 @@ impl SsLmnModel {
                 }
                 true
             };
-            if let Some((x0, c)) = lm_fd(&f, &start, window, 60) {
+            if let Some((x0, c)) = lm_fd(&f, &start, window, 60, &Silent) {
                 if best.as_ref().is_none_or(|b| c < b.0) {
                     best = Some((c, x0));
                 }
@@ -506,86 +508,117 @@ impl SsLmnModel {
     }
 }
 
+/// A residual function `f(p, r)` (false where the model is not simulable)
+/// as a least-squares problem with a forward-difference Jacobian (step
+/// 1e-6·max(|pⱼ|, 1), backward where the forward point is not simulable).
+struct FdProblem<'a> {
+    f: &'a dyn Fn(&[f64], &mut [f64]) -> bool,
+    np: usize,
+    /// The last point evaluated and its residuals (the accepted point is
+    /// linearised next).
+    p: Vec<f64>,
+    r: Vec<f64>,
+    valid: bool,
+    rq: Vec<f64>,
+    q: Vec<f64>,
+    jac: DMatrix<f64>,
+}
+
+impl FdProblem<'_> {
+    fn eval(&mut self, p: &[f64]) -> Option<f64> {
+        self.valid = (self.f)(p, &mut self.r);
+        self.p.copy_from_slice(p);
+        self.valid.then(|| self.r.iter().map(|v| v * v).sum())
+    }
+}
+
+impl LeastSquaresProblem for FdProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.np
+    }
+    fn cost(&mut self, p: &[f64]) -> Option<f64> {
+        self.eval(p)
+    }
+    fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        if !(self.valid && self.p.as_slice() == p) {
+            self.eval(p)?;
+        }
+        let (np, n_res) = (self.np, self.r.len());
+        for j in 0..np {
+            let h = 1e-6 * p[j].abs().max(1.0);
+            self.q.copy_from_slice(p);
+            self.q[j] += h;
+            if !(self.f)(&self.q, &mut self.rq) {
+                self.q[j] = p[j] - h;
+                if !(self.f)(&self.q, &mut self.rq) {
+                    self.rq.copy_from_slice(&self.r);
+                }
+                for i in 0..n_res {
+                    self.jac[(i, j)] = (self.r[i] - self.rq[i]) / h;
+                }
+                continue;
+            }
+            for i in 0..n_res {
+                self.jac[(i, j)] = (self.rq[i] - self.r[i]) / h;
+            }
+        }
+        let jt = self.jac.transpose();
+        let a = &jt * &self.jac;
+        let g = &jt * DVector::from_column_slice(&self.r);
+        for i in 0..np {
+            for j in 0..np {
+                gram[i * np + j] = a[(i, j)];
+            }
+            // r = ŷ − y: the gradient Jᵀ(y − ŷ) is −Jᵀr
+            grad[i] = -g[i];
+        }
+        Some(self.r.iter().map(|v| v * v).sum())
+    }
+}
+
 /// Levenberg–Marquardt with a forward-difference Jacobian on the residual
-/// function `f(p, r)` (returns false where the model is not simulable).
+/// function `f(p, r)` (returns false where the model is not simulable):
+/// λ from 1e-2, ×10 after a rejected step, ÷3 after an accepted one (floor
+/// 1e-9), damping λ·(Gᵢᵢ + 1e-9), 12 trials, relative tolerance 1e-8.
 /// Returns the parameters and the final cost Σ r².
 fn lm_fd(
     f: &dyn Fn(&[f64], &mut [f64]) -> bool,
     p0: &[f64],
     n_res: usize,
     iters: usize,
+    observer: &dyn Observer,
 ) -> Option<(Vec<f64>, f64)> {
     let np = p0.len();
-    let mut p = p0.to_vec();
-    let mut r = vec![0.0; n_res];
-    if !f(&p, &mut r) {
-        return None;
+    let lm = LmParams {
+        max_iter: iters,
+        tol: 1e-8,
+        lambda_init: 1e-2,
+        lambda_up: 10.0,
+        lambda_up_singular: 10.0,
+        lambda_down: 1.0 / 3.0,
+        lambda_min: 1e-9,
+        lambda_max: 1e300,
+        max_trials: 12,
+        diag_floor: 0.0,
+        diag_floor_abs: 0.0,
+        diag_add: 1e-9,
+        jitter: 0.0,
+        jitter_abs: 0.0,
     }
-    let mut cost: f64 = r.iter().map(|v| v * v).sum();
-    let mut lam = 1e-2;
-    let mut jac = DMatrix::<f64>::zeros(n_res, np);
-    let mut rq = vec![0.0; n_res];
-    let mut q = p.clone();
-    for _ in 0..iters {
-        for j in 0..np {
-            let h = 1e-6 * p[j].abs().max(1.0);
-            q.copy_from_slice(&p);
-            q[j] += h;
-            if !f(&q, &mut rq) {
-                q[j] = p[j] - h;
-                if !f(&q, &mut rq) {
-                    rq.copy_from_slice(&r);
-                }
-                for i in 0..n_res {
-                    jac[(i, j)] = (r[i] - rq[i]) / h;
-                }
-                continue;
-            }
-            for i in 0..n_res {
-                jac[(i, j)] = (rq[i] - r[i]) / h;
-            }
-        }
-        let jt = jac.transpose();
-        let a = &jt * &jac;
-        let g = &jt * DVector::from_column_slice(&r);
-        let mut improved = None;
-        for _ in 0..12 {
-            let mut m = a.clone();
-            for i in 0..np {
-                m[(i, i)] += lam * (a[(i, i)] + 1e-9);
-            }
-            let Some(ch) = m.cholesky() else {
-                lam *= 10.0;
-                continue;
-            };
-            let dp = ch.solve(&(-&g));
-            for i in 0..np {
-                q[i] = p[i] + dp[i];
-            }
-            if f(&q, &mut rq) {
-                let c2: f64 = rq.iter().map(|v| v * v).sum();
-                if c2.is_finite() && c2 < cost {
-                    improved = Some(c2);
-                    break;
-                }
-            }
-            lam *= 10.0;
-        }
-        match improved {
-            Some(c2) => {
-                let rel = (cost - c2) / cost.max(f64::MIN_POSITIVE);
-                p.copy_from_slice(&q);
-                r.copy_from_slice(&rq);
-                cost = c2;
-                lam = (lam / 3.0).max(1e-9);
-                if rel < 1e-8 {
-                    break;
-                }
-            }
-            None => break,
-        }
-    }
-    Some((p, cost))
+    .check()
+    .ok()?;
+    let mut problem = FdProblem {
+        f,
+        np,
+        p: vec![0.0; np],
+        r: vec![0.0; n_res],
+        valid: false,
+        rq: vec![0.0; n_res],
+        q: vec![0.0; np],
+        jac: DMatrix::zeros(n_res, np),
+    };
+    let state = lm.minimize(&mut problem, p0, observer).ok()?;
+    Some((state.theta, state.cost))
 }
 
 fn rmse(a: &[f64], b: &[f64]) -> f64 {
@@ -709,7 +742,7 @@ fn fit_structure(
             }
             true
         };
-        if let Some((q, c)) = lm_fd(&f, &th, len, p.max_iter) {
+        if let Some((q, c)) = lm_fd(&f, &th, len, p.max_iter, &Silent) {
             let rm = (c / len as f64).sqrt();
             if best.as_ref().is_none_or(|b| rm < b.1) {
                 let mut model = proto.clone();

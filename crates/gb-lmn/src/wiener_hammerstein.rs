@@ -28,6 +28,8 @@
 //!    kept inside |z| < 0.999); the one with the smallest error on a
 //!    held-out tail of the training data is kept and trained on all of it.
 use crate::LmnError;
+use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
+use gb_core::{Observer, Silent};
 use nalgebra::{Complex, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -573,7 +575,7 @@ impl WhFitter {
                     m.b1.push(0.0);
                     m.a1.push(0.0);
                 }
-                let (m, _, _) = self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter)?;
+                let (m, _, _) = self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter, &Silent)?;
                 let e = if n_fit < n {
                     let sim = m.simulate(u);
                     rms(&sim[n_fit..]
@@ -590,7 +592,7 @@ impl WhFitter {
         }
         refined.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (_, m) = refined.swap_remove(0);
-        let (m, rmse, iterations) = self.refine(m, u, y, p.max_iter.div_ceil(3))?;
+        let (m, rmse, iterations) = self.refine(m, u, y, p.max_iter.div_ceil(3), &Silent)?;
         m.check()?;
         Ok((
             m,
@@ -669,7 +671,7 @@ impl WhFitter {
         };
         let mut p0 = b.clone();
         p0.extend_from_slice(&a[1..]);
-        let (p, e) = lm_fd(&p0, &resid, 60)?;
+        let (p, e) = lm_fd(&p0, &resid, 60, &Silent)?;
         b = p[..nb].to_vec();
         a = vec![1.0];
         a.extend_from_slice(&p[nb..]);
@@ -724,157 +726,243 @@ impl WhFitter {
     }
 
     /// Joint LM over filter coefficients (finite differences) and network
-    /// coefficients (exact columns).
+    /// coefficients (exact columns); see [`JointProblem`] and [`wh_solver`].
     fn refine(
         &self,
-        mut m: WienerHammersteinNetwork,
+        m: WienerHammersteinNetwork,
         u: &[f64],
         y: &[f64],
         iters: usize,
+        observer: &dyn Observer,
     ) -> Result<(WienerHammersteinNetwork, f64, usize)> {
         let lay = Layout::of(&m);
         let skip = self.p.skip.min(u.len() / 4);
         let nf = lay.n_filter();
         let np = nf + lay.nc;
         let ns = u.len() - skip;
-        let stable = |m: &WienerHammersteinNetwork| {
-            max_root_modulus(&m.a1) < 0.999 && max_root_modulus(&m.a2) < 0.999
+        let p0 = lay.pack(&m);
+        let mut problem = JointProblem {
+            lay,
+            model: m,
+            u,
+            y,
+            skip,
+            p: vec![],
+            e: vec![],
+            jac: DMatrix::<f64>::zeros(ns, np),
         };
-        let resid = |m: &WienerHammersteinNetwork| -> Vec<f64> {
-            let s = m.simulate(u);
-            y[skip..]
-                .iter()
-                .zip(&s[skip..])
-                .map(|(y, s)| y - s)
-                .collect()
+        let Ok(state) = wh_solver(iters, 1e-7).minimize(&mut problem, &p0, observer) else {
+            // the start's simulation error is not finite: nothing to refine
+            let mut m = problem.model;
+            problem.lay.unpack(&p0, &mut m);
+            let c = problem.e.iter().map(|v| v * v).sum::<f64>();
+            return Ok((m, (c / ns as f64).sqrt(), 0));
         };
-        let mut p = lay.pack(&m);
-        let mut e = resid(&m);
-        let mut cost = e.iter().map(|v| v * v).sum::<f64>();
-        let mut lambda = 1e-3;
-        let mut it = 0;
-        let mut jac = DMatrix::<f64>::zeros(ns, np);
-        while it < iters {
-            it += 1;
-            // Jacobian of ŷ: filters by central-free forward differences
-            for j in 0..nf {
-                let h = 1e-6 * (1.0 + p[j].abs());
-                let mut pj = p.clone();
-                pj[j] += h;
-                let mut mj = m.clone();
-                lay.unpack(&pj, &mut mj);
-                let s = mj.simulate(u);
-                let s0: Vec<f64> = y[skip..].iter().zip(&e).map(|(y, e)| y - e).collect();
-                for t in 0..ns {
-                    jac[(t, j)] = (s[skip + t] - s0[t]) / h;
-                }
-            }
-            let cols = network_columns(&m, u);
-            for (k, c) in cols.iter().enumerate() {
-                for t in 0..ns {
-                    jac[(t, nf + k)] = c[skip + t];
-                }
-            }
-            let jtj = jac.tr_mul(&jac);
-            let jte = jac.tr_mul(&DVector::from_column_slice(&e));
-            let mut accepted = false;
-            for _ in 0..10 {
-                let mut a = jtj.clone();
-                for i in 0..np {
-                    a[(i, i)] += lambda * (jtj[(i, i)] + 1e-12);
-                }
-                let Some(ch) = a.cholesky() else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let dp = ch.solve(&jte);
-                let pn: Vec<f64> = p.iter().zip(dp.iter()).map(|(a, b)| a + b).collect();
-                let mut mn = m.clone();
-                lay.unpack(&pn, &mut mn);
-                if stable(&mn) {
-                    let en = resid(&mn);
-                    let cn = en.iter().map(|v| v * v).sum::<f64>();
-                    if cn.is_finite() && cn < cost {
-                        let rel = (cost - cn) / cost.max(1e-300);
-                        p = pn;
-                        m = mn;
-                        e = en;
-                        cost = cn;
-                        lambda = (lambda * 0.3).max(1e-10);
-                        accepted = rel > 1e-7;
-                        break;
-                    }
-                }
-                lambda *= 10.0;
-            }
-            if !accepted {
-                break;
-            }
-        }
-        Ok((m, (cost / ns as f64).sqrt(), it))
+        let mut m = problem.model;
+        problem.lay.unpack(&state.theta, &mut m);
+        Ok((m, (state.cost / ns as f64).sqrt(), state.iterations))
     }
 }
 
-/// Levenberg–Marquardt with a forward-difference Jacobian; `resid` returns
-/// `None` for an inadmissible (unstable) parameter vector.
+/// The joint refinement as a least-squares problem: θ = the packed filter
+/// and network coefficients ([`Layout`]); residuals y − ŷ after `skip`
+/// samples; Jacobian columns of the filter coefficients by forward
+/// differences (step 1e-6·(1 + |θⱼ|)), of the network coefficients exact
+/// (G₂ of the basis functions); trial points with a pole at |z| ≥ 0.999 are
+/// inadmissible.
+struct JointProblem<'a> {
+    lay: Layout,
+    /// Scratch model, its coefficients set to the point evaluated last.
+    model: WienerHammersteinNetwork,
+    u: &'a [f64],
+    y: &'a [f64],
+    skip: usize,
+    /// The last point evaluated and its residuals (the accepted point is
+    /// linearised next).
+    p: Vec<f64>,
+    e: Vec<f64>,
+    jac: DMatrix<f64>,
+}
+
+impl JointProblem<'_> {
+    fn residuals(&self, m: &WienerHammersteinNetwork) -> Vec<f64> {
+        let s = m.simulate(self.u);
+        self.y[self.skip..]
+            .iter()
+            .zip(&s[self.skip..])
+            .map(|(y, s)| y - s)
+            .collect()
+    }
+    fn eval(&mut self, p: &[f64]) -> f64 {
+        self.lay.unpack(p, &mut self.model);
+        self.e = self.residuals(&self.model);
+        self.p = p.to_vec();
+        self.e.iter().map(|v| v * v).sum::<f64>()
+    }
+}
+
+impl LeastSquaresProblem for JointProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.lay.n_filter() + self.lay.nc
+    }
+    fn cost(&mut self, p: &[f64]) -> Option<f64> {
+        Some(self.eval(p))
+    }
+    fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let cost = if self.p.as_slice() == p {
+            self.e.iter().map(|v| v * v).sum::<f64>()
+        } else {
+            self.eval(p)
+        };
+        let (nf, skip) = (self.lay.n_filter(), self.skip);
+        let ns = self.e.len();
+        // Jacobian of ŷ: filters by forward differences
+        for j in 0..nf {
+            let h = 1e-6 * (1.0 + p[j].abs());
+            let mut pj = p.to_vec();
+            pj[j] += h;
+            let mut mj = self.model.clone();
+            self.lay.unpack(&pj, &mut mj);
+            let s = mj.simulate(self.u);
+            let s0: Vec<f64> = self.y[skip..]
+                .iter()
+                .zip(&self.e)
+                .map(|(y, e)| y - e)
+                .collect();
+            for t in 0..ns {
+                self.jac[(t, j)] = (s[skip + t] - s0[t]) / h;
+            }
+        }
+        let cols = network_columns(&self.model, self.u);
+        for (k, c) in cols.iter().enumerate() {
+            for t in 0..ns {
+                self.jac[(t, nf + k)] = c[skip + t];
+            }
+        }
+        let jtj = self.jac.tr_mul(&self.jac);
+        let jte = self.jac.tr_mul(&DVector::from_column_slice(&self.e));
+        let n = jtj.nrows();
+        for i in 0..n {
+            for j in 0..n {
+                gram[i * n + j] = jtj[(i, j)];
+            }
+        }
+        grad.copy_from_slice(jte.as_slice());
+        Some(cost)
+    }
+    fn admissible(&mut self, p: &[f64]) -> bool {
+        let mut m = self.model.clone();
+        self.lay.unpack(p, &mut m);
+        max_root_modulus(&m.a1) < 0.999 && max_root_modulus(&m.a2) < 0.999
+    }
+}
+
+/// The Levenberg–Marquardt settings of the Wiener–Hammerstein fits: λ from
+/// 1e-3, ×10 after a rejected step, ×0.3 after an accepted one (floor
+/// 1e-10), damping λ·(Gᵢᵢ + 1e-12), 10 trials; an accepted step that lowers
+/// the cost by at most `tol` (relative) ends the run.
+fn wh_solver(iters: usize, tol: f64) -> LevenbergMarquardt {
+    LmParams {
+        max_iter: iters,
+        // the run ends when the decrease is ≤ tol: the solver stops below
+        // its tolerance, so take the next number above tol
+        tol: f64::from_bits(tol.to_bits() + 1),
+        lambda_init: 1e-3,
+        lambda_up: 10.0,
+        lambda_up_singular: 10.0,
+        lambda_down: 0.3,
+        lambda_min: 1e-10,
+        lambda_max: 1e300,
+        max_trials: 10,
+        diag_floor: 0.0,
+        diag_floor_abs: 0.0,
+        diag_add: 1e-12,
+        jitter: 0.0,
+        jitter_abs: 0.0,
+    }
+    .check()
+    .expect("valid Wiener-Hammerstein solver settings")
+}
+
+/// A residual function `e(p) = y − ŷ` (`None` for an inadmissible, unstable
+/// parameter vector) with a forward-difference Jacobian (step
+/// 1e-7·(1 + |pⱼ|)); a point whose differences cannot be evaluated ends the
+/// run.
+struct ResidualProblem<'a> {
+    resid: &'a dyn Fn(&[f64]) -> Option<Vec<f64>>,
+    np: usize,
+    /// The last point evaluated and its residuals.
+    p: Vec<f64>,
+    e: Option<Vec<f64>>,
+    /// Number of residuals (0 until one point was evaluated).
+    n_res: usize,
+    jac: DMatrix<f64>,
+}
+
+impl LeastSquaresProblem for ResidualProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.np
+    }
+    fn cost(&mut self, p: &[f64]) -> Option<f64> {
+        self.p = p.to_vec();
+        self.e = (self.resid)(p);
+        let e = self.e.as_ref()?;
+        self.n_res = e.len();
+        Some(e.iter().map(|v| v * v).sum::<f64>())
+    }
+    fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        if !(self.e.is_some() && self.p.as_slice() == p) {
+            self.cost(p)?;
+        }
+        let e = self.e.as_ref()?;
+        let n = e.len();
+        if self.jac.nrows() != n {
+            self.jac = DMatrix::zeros(n, self.np);
+        }
+        for j in 0..self.np {
+            let h = 1e-7 * (1.0 + p[j].abs());
+            let mut pj = p.to_vec();
+            pj[j] += h;
+            let ej = (self.resid)(&pj)?;
+            for t in 0..n {
+                // ŷ = y − e
+                self.jac[(t, j)] = (e[t] - ej[t]) / h;
+            }
+        }
+        let jtj = self.jac.tr_mul(&self.jac);
+        let jte = self.jac.tr_mul(&DVector::from_column_slice(e));
+        let np = self.np;
+        for i in 0..np {
+            for j in 0..np {
+                gram[i * np + j] = jtj[(i, j)];
+            }
+        }
+        grad.copy_from_slice(jte.as_slice());
+        Some(e.iter().map(|v| v * v).sum::<f64>())
+    }
+}
+
+/// Levenberg–Marquardt with a forward-difference Jacobian ([`wh_solver`],
+/// tolerance 1e-9); `resid` returns `None` for an inadmissible (unstable)
+/// parameter vector. Returns the parameters and the RMS residual.
 fn lm_fd(
     p0: &[f64],
     resid: &dyn Fn(&[f64]) -> Option<Vec<f64>>,
     iters: usize,
+    observer: &dyn Observer,
 ) -> Result<(Vec<f64>, f64)> {
-    let mut p = p0.to_vec();
-    let mut e = resid(&p).ok_or_else(|| LmnError::Unstable("unstable linear start".into()))?;
-    let mut cost = e.iter().map(|v| v * v).sum::<f64>();
-    let n = e.len();
-    let np = p.len();
-    let mut lambda = 1e-3;
-    let mut jac = DMatrix::<f64>::zeros(n, np);
-    for _ in 0..iters {
-        for j in 0..np {
-            let h = 1e-7 * (1.0 + p[j].abs());
-            let mut pj = p.clone();
-            pj[j] += h;
-            let Some(ej) = resid(&pj) else {
-                return Ok((p, (cost / n as f64).sqrt()));
-            };
-            for t in 0..n {
-                // ŷ = y − e
-                jac[(t, j)] = (e[t] - ej[t]) / h;
-            }
-        }
-        let jtj = jac.tr_mul(&jac);
-        let jte = jac.tr_mul(&DVector::from_column_slice(&e));
-        let mut accepted = false;
-        for _ in 0..10 {
-            let mut a = jtj.clone();
-            for i in 0..np {
-                a[(i, i)] += lambda * (jtj[(i, i)] + 1e-12);
-            }
-            let Some(ch) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let dp = ch.solve(&jte);
-            let pn: Vec<f64> = p.iter().zip(dp.iter()).map(|(a, b)| a + b).collect();
-            if let Some(en) = resid(&pn) {
-                let cn = en.iter().map(|v| v * v).sum::<f64>();
-                if cn.is_finite() && cn < cost {
-                    let rel = (cost - cn) / cost.max(1e-300);
-                    p = pn;
-                    e = en;
-                    cost = cn;
-                    lambda = (lambda * 0.3).max(1e-10);
-                    accepted = rel > 1e-9;
-                    break;
-                }
-            }
-            lambda *= 10.0;
-        }
-        if !accepted {
-            break;
-        }
-    }
-    Ok((p, (cost / n as f64).sqrt()))
+    let mut problem = ResidualProblem {
+        resid,
+        np: p0.len(),
+        p: vec![],
+        e: None,
+        n_res: 0,
+        jac: DMatrix::zeros(0, 0),
+    };
+    let state = wh_solver(iters, 1e-9)
+        .minimize(&mut problem, p0, observer)
+        .map_err(|_| LmnError::Unstable("unstable linear start".into()))?;
+    Ok((state.theta, (state.cost / problem.n_res as f64).sqrt()))
 }
 
 #[cfg(test)]
