@@ -54,7 +54,6 @@ mod network;
 pub mod noe;
 mod prune;
 mod regressors;
-mod relay;
 mod scaling;
 mod spec;
 pub mod ssnet;
@@ -72,7 +71,6 @@ pub use noe::{
     zero_linear_network, FitOptions, TrainReport,
 };
 pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
-pub use relay::RelayGrid;
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
 pub use ssnet::{fit_ss_lmn, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams};

@@ -231,7 +231,7 @@ pub(crate) struct Prepared {
 /// `hysteresis_lags` blocks that `fill_x` reads.
 struct OutputHysteresis {
     bank: Option<gb_preisach::PlayOperatorBank>,
-    grid: Option<crate::relay::RelayGrid>,
+    grid: Option<gb_preisach::RelayGrid>,
     play: Vec<f64>,
     relays: Vec<f64>,
     ring: Vec<f64>,
@@ -265,7 +265,7 @@ impl OutputHysteresis {
             bk.step(&mut self.play, y_prev, &mut self.moving);
         }
         if let Some(g) = &self.grid {
-            g.step(&mut self.relays, y_prev);
+            g.switch(&mut self.relays, y_prev);
         }
         let nop = self.play.len();
         let slot = (k % self.lags) * self.block;
@@ -428,7 +428,7 @@ impl LocalModelNetwork {
             .map_or_else(Vec::new, |b| b.initial_state(y0));
         let relays = self
             .relay_grid()
-            .map_or_else(Vec::new, |g| g.initial_state(y0));
+            .map_or_else(Vec::new, |g| g.relay_states(y0));
         let mut block = oplay.clone();
         block.extend_from_slice(&relays);
         let ring = block.repeat(self.spec.hysteresis_lags);
