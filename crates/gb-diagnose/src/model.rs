@@ -5,7 +5,7 @@
 use crate::DiagnoseError;
 use gb_core::{CoreError, DataSet};
 use gb_lmn::{
-    fit_linear_oe_warm, fit_lmn_oe, Experiment, FitOptions, LmnModel, LmnParams, LocalModelNetwork,
+    fit_linear_oe_warm, fit_lmn_oe, FitOptions, LmnModel, LmnParams, LocalModelNetwork,
     LolimotOptions, NetworkSpec, SsLmnModel, SsLmnParams, WhParams, WienerHammersteinNetwork,
 };
 use gb_model::{OeParams, SparseStateSpace};
@@ -467,12 +467,11 @@ impl GreyBoxModel {
         let data = records
             .first()
             .ok_or_else(|| DiagnoseError::InvalidArgument("at least one training record".into()))?;
-        let exps: Vec<Experiment> = records.iter().map(Experiment::from).collect();
-        let lmn = params.fit(&exps)?;
+        let lmn = params.fit(&gb_core::Records::new(records.to_vec())?)?;
         let mut res = vec![];
-        for (e, d) in exps.iter().zip(records) {
+        for d in records {
             let k0 = lmn.max_lag().min(d.len());
-            let sim = lmn.simulate(e, k0)?;
+            let sim = lmn.simulate(d, k0)?;
             res.extend(d.output[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b));
         }
         let network = noise_placeholder(structure.order, data, &res);
@@ -515,8 +514,7 @@ impl GreyBoxModel {
             return Ok(m.simulate_from(inputs, &vec![0.0; m.n_states()])?);
         }
         if let Some(l) = &self.lmn {
-            let e = Experiment::new(inputs.to_vec(), y_window.to_vec());
-            return Ok(l.simulate(&e, y_window.len())?);
+            return Ok(l.simulate_signals(inputs, y_window)?);
         }
         Ok(self.network.simulate_with_init_window(inputs, y_window)?)
     }
@@ -703,8 +701,7 @@ impl GreyBoxModel {
             return Ok(w.simulate(u));
         }
         if let Some(l) = &self.lmn {
-            let e = Experiment::new(inputs.to_vec(), init.to_vec());
-            return Ok(l.simulate(&e, init.len())?);
+            return Ok(l.simulate_signals(inputs, init)?);
         }
         Ok(self.network.simulate_signals(inputs, init)?)
     }

@@ -2,9 +2,8 @@
 //! ([`LocalModelNetwork`]: linear OE, LOLIMOT, play-operator hysteresis),
 //! the tree network ([`LmnModel`]), the Wiener–Hammerstein network and the
 //! state-space network ([`SsLmnModel`]).
-use crate::{
-    Experiment, LmnError, LmnModel, LocalModelNetwork, SsLmnModel, WienerHammersteinNetwork,
-};
+use crate::regressors::Experiment;
+use crate::{LmnError, LmnModel, LocalModelNetwork, SsLmnModel, WienerHammersteinNetwork};
 use gb_core::{check_inputs, CoreError, DynamicModel, Init, ModelView, Workspace};
 use std::any::Any;
 
@@ -84,8 +83,9 @@ impl DynamicModel for LmnModel {
     fn class(&self) -> &'static str {
         "lmn-tree"
     }
+    /// The inputs, then the user columns (the last input signals).
     fn n_inputs(&self) -> usize {
-        self.regressors.n_inputs()
+        self.regressors.n_signals()
     }
     fn n_states(&self) -> usize {
         self.max_lag()
@@ -107,17 +107,14 @@ impl DynamicModel for LmnModel {
         _ws: &mut Workspace,
     ) -> Result<(), CoreError> {
         check_inputs(self.n_inputs(), u)?;
-        if self.regressors.n_extra > 0 {
-            return Err(CoreError::Unsupported(
-                "a network with user regressor columns needs them to simulate".into(),
-            ));
-        }
         let n = u.first().map_or(0, Vec::len);
         let (history, used) = match init {
             Init::Window(h) | Init::History(h) | Init::State(h) => (padded(h, n), h.len().min(n)),
             _ => (vec![0.0; n], 0),
         };
-        let sim = self.simulate(&Experiment::new(u.to_vec(), history), used)?;
+        let r = &self.regressors;
+        let e = Experiment::split(u, history, r.n_inputs(), r.n_extra)?;
+        let sim = self.simulate_experiment(&e, used)?;
         copy_out(&sim, y)
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {

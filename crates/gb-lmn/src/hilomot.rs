@@ -14,11 +14,12 @@
 //! split is the start of a Levenberg–Marquardt search over (w, w0) of
 //! ψ = σ(wᵀz + w0), alternating with re-estimating the two local models.
 use crate::lmn::{split_params, Criterion, Eval, FitSummary, Focus, LmnModel};
+use crate::regressors::Experiment;
 use crate::regressors::{Layout, NormExp};
 use crate::tree::{Node, Partition, Split, WeightKind, TINY};
-use crate::{Experiment, LmnError, RegressorSpec, Scaling};
+use crate::{LmnError, RegressorSpec, Scaling};
 use gb_core::solver::{LeastSquaresProblem, LmParams, LmWorkspace};
-use gb_core::Silent;
+use gb_core::{Identify, Observer, Records, Silent, SubTask};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
@@ -198,8 +199,9 @@ impl LmnParams {
         Ok(ValidLmnParams(self.clone()))
     }
 
-    /// Check and fit on training experiments (criterion AICc or BIC).
-    pub fn fit(&self, train: &[Experiment]) -> Result<LmnModel, LmnError> {
+    /// Check and fit on training records, each a separate experiment
+    /// (criterion AICc or BIC).
+    pub fn fit(&self, train: &Records) -> Result<LmnModel, LmnError> {
         self.check()?.fit(train, None)
     }
 }
@@ -1021,14 +1023,41 @@ impl ValidLmnParams {
         &self.0
     }
 
-    /// Fit on training experiments; `val` (needed for
+    /// Fit on training records (each a separate experiment: no regressor
+    /// spans two records; the user columns are the last
+    /// [`RegressorSpec::n_extra`] input signals); `val` (needed for
     /// [`Criterion::Validation`]) chooses the number of leaves and the
     /// pruning by its simulation (focus Simulation) or one-step (Prediction)
     /// error.
-    pub fn fit(
+    pub fn fit(&self, train: &Records, val: Option<&Records>) -> Result<LmnModel, LmnError> {
+        self.fit_with_observer(train, val, &Silent)
+    }
+
+    /// [`fit`](Self::fit), reporting progress (the growth of the network,
+    /// then the global optimisation) and every Levenberg–Marquardt iteration
+    /// to `observer`.
+    pub fn fit_with_observer(
+        &self,
+        train: &Records,
+        val: Option<&Records>,
+        observer: &dyn Observer,
+    ) -> Result<LmnModel, LmnError> {
+        let r = &self.0.regressors;
+        let split = |rs: &Records| {
+            rs.iter()
+                .map(|d| Experiment::of_record(d, r))
+                .collect::<Result<Vec<_>, _>>()
+        };
+        let t = split(train)?;
+        let v = val.map(split).transpose()?;
+        self.fit_experiments(&t, v.as_deref(), observer)
+    }
+
+    fn fit_experiments(
         &self,
         train: &[Experiment],
         val: Option<&[Experiment]>,
+        observer: &dyn Observer,
     ) -> Result<LmnModel, LmnError> {
         let o = &self.0;
         let r = &o.regressors;
@@ -1107,12 +1136,18 @@ impl ValidLmnParams {
                 got: train.iter().map(Experiment::len).max().unwrap_or(0),
             });
         }
-        let first = self.build(&model, &rows, &nexps, &nval)?;
-        if !(o.noe_construction
+        let twice = o.noe_construction
             && o.focus == Focus::Simulation
             && r.max_output_lag() > 0
-            && o.lm_iterations > 0)
-        {
+            && o.lm_iterations > 0;
+        let part = |i: usize| SubTask {
+            outer: observer,
+            offset: i,
+            span: 1,
+            total: if twice { 2 } else { 1 },
+        };
+        let first = self.build(&model, &rows, &nexps, &nval, &part(0))?;
+        if !twice {
             return Ok(first);
         }
         // NOE construction: grow again with output lags from the first
@@ -1134,21 +1169,25 @@ impl ValidLmnParams {
                 Focus::Simulation,
             )
         };
-        match self.build(&model, &rows2, &nexps, &nval) {
+        match self.build(&model, &rows2, &nexps, &nval, &part(1)) {
             Ok(second) if judge(&second) < judge(&first) => Ok(second),
             _ => Ok(first),
         }
     }
 
-    /// Grow, choose, prune and train one network on `rows`.
+    /// Grow, choose, prune and train one network on `rows`; progress in
+    /// units of leaves grown (of `max_leaves`), then one for the global
+    /// optimisation.
     fn build(
         &self,
         template: &LmnModel,
         rows: &Rows,
         nexps: &[NormExp],
         nval: &[NormExp],
+        observer: &dyn Observer,
     ) -> Result<LmnModel, LmnError> {
         let o = &self.0;
+        let units = o.max_leaves + 1;
         let mut model = template.clone();
         // score of a partition: information criterion or validation error
         let score = |part: &Partition, sse: f64, neff: f64| -> f64 {
@@ -1165,6 +1204,7 @@ impl ValidLmnParams {
         let mut best = f64::INFINITY;
         let mut worse = 0;
         let mut keep = |part: &Partition, sse: f64, neff: f64| -> bool {
+            observer.progress(part.n_leaves(), units, "growing the local model network");
             let s = score(part, sse, neff);
             history.push((part.n_leaves(), s));
             if s < best {
@@ -1211,6 +1251,14 @@ impl ValidLmnParams {
             let mut order: Vec<usize> = (0..history.len()).collect();
             order.sort_by(|a, b| history[*a].1.total_cmp(&history[*b].1));
             let mut tries = order.into_iter().filter(|&i| i != bi).take(3);
+            observer.progress(
+                o.max_leaves,
+                units,
+                match o.focus {
+                    Focus::Simulation => "Levenberg-Marquardt on the simulation error",
+                    _ => "Levenberg-Marquardt on the one-step error",
+                },
+            );
             loop {
                 match crate::narx::optimise(
                     &mut model,
@@ -1219,7 +1267,7 @@ impl ValidLmnParams {
                     o.lm_iterations,
                     o.stability_guard,
                     o.optimise_splits,
-                    &Silent,
+                    observer,
                 ) {
                     Ok(rep) => {
                         model.summary.lm_iterations = rep.0;
@@ -1241,7 +1289,18 @@ impl ValidLmnParams {
                 }
             }
         }
+        observer.progress(units, units, "local model network fitted");
         Ok(model)
+    }
+}
+
+impl Identify for ValidLmnParams {
+    type Model = LmnModel;
+    type Error = LmnError;
+    /// Every record a separate experiment; [`Criterion::Validation`] needs
+    /// validation records ([`ValidLmnParams::fit`]) and is an error here.
+    fn identify(&self, data: &Records, observer: &dyn Observer) -> Result<LmnModel, LmnError> {
+        self.fit_with_observer(data, None, observer)
     }
 }
 

@@ -23,7 +23,8 @@
 //! ([`WeightKind`]), axis or oblique (HILOMOT) splits ([`SplitKind`]),
 //! termination by AICc/BIC/validation ([`Criterion`]), pruning, and global
 //! Levenberg–Marquardt for one-step or simulation error ([`Focus`]); several
-//! experiments per fit ([`Experiment`]). See docs/lmn.md.
+//! experiments per fit (every [`gb_core::Record`] of a [`gb_core::Records`]
+//! is one). See docs/lmn.md.
 //!
 //! [`ssnet`] is the state-space counterpart with hidden states, a √ basis and
 //! state saturation, x⁺ = min(Σᵢ Φᵢ(z)[Aᵢx + Gᵢ√x₊ + Bᵢu + cᵢ], x̄),
@@ -70,7 +71,7 @@ pub use noe::{
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
     zero_linear_network, FitOptions, TrainReport,
 };
-pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
+pub use regressors::{RegressorSpec, Signal, Tap};
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
 pub use ssnet::{fit_ss_lmn, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams};

@@ -5,9 +5,11 @@
 //!
 //! All signals are normalised (mean 0, standard deviation 1 over the training
 //! experiments); parameters live in those units.
+use crate::regressors::Experiment;
 use crate::regressors::{Layout, NormExp};
 use crate::tree::{Partition, WScratch, WeightKind};
-use crate::{Experiment, LmnError, RegressorSpec, Scaling};
+use crate::{LmnError, RegressorSpec, Scaling};
+use gb_core::Record;
 use serde::{Deserialize, Serialize};
 
 /// Bound on |ŷ| (normalised units) beyond which a simulation counts as diverged.
@@ -59,13 +61,15 @@ pub struct FitSummary {
 /// A fitted local model network.
 ///
 /// ```
-/// use gb_lmn::{Experiment, LmnParams, RegressorSpec};
+/// use gb_core::{Record, Records};
+/// use gb_lmn::{LmnParams, RegressorSpec};
 /// // static function of one input: y = |u|
 /// let u: Vec<f64> = (0..400).map(|k| -1.0 + 2.0 * k as f64 / 399.0).collect();
 /// let y: Vec<f64> = u.iter().map(|v| v.abs()).collect();
+/// let data = Record::new(vec!["u".into()], "y".into(), vec![u], y.clone()).unwrap();
 /// let reg = RegressorSpec::arx(0, &[1], &[0]);
-/// let m = LmnParams::new(reg).max_leaves(4).fit(&[Experiment::new(vec![u.clone()], y.clone())]).unwrap();
-/// let p = m.predict(&Experiment::new(vec![u], y.clone())).unwrap();
+/// let m = LmnParams::new(reg).max_leaves(4).fit(&Records::single(data.clone())).unwrap();
+/// let p = m.predict(&data).unwrap();
 /// assert!(gb_core::metrics::rmse(&y, &p).unwrap() < 0.02);
 /// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -579,10 +583,33 @@ impl LmnModel {
         true
     }
 
-    /// Free-run simulation (physical units). The first `init_window` samples
-    /// of `e.output` initialise the output lags (at least `max_lag` samples
-    /// are taken from the record; inputs and user columns drive the rest).
-    pub fn simulate(&self, e: &Experiment, init_window: usize) -> Result<Vec<f64>, LmnError> {
+    /// Free-run simulation (physical units) of a record. The first
+    /// `init_window` samples of its output initialise the output lags (at
+    /// least `max_lag` samples are taken from the record; the inputs and
+    /// user columns drive the rest).
+    pub fn simulate(&self, data: &Record, init_window: usize) -> Result<Vec<f64>, LmnError> {
+        self.simulate_experiment(&Experiment::of_record(data, &self.regressors)?, init_window)
+    }
+
+    /// Free-run simulation (physical units) of input signals (the inputs,
+    /// then any user columns). The output lags start from the measured
+    /// outputs `y_init` — the first `max(y_init.len(), max_lag)` samples;
+    /// samples missing from `y_init` start at the training mean.
+    pub fn simulate_signals(
+        &self,
+        inputs: &[Vec<f64>],
+        y_init: &[f64],
+    ) -> Result<Vec<f64>, LmnError> {
+        let r = &self.regressors;
+        let e = Experiment::split(inputs, y_init.to_vec(), r.n_inputs(), r.n_extra)?;
+        self.simulate_experiment(&e, y_init.len())
+    }
+
+    pub(crate) fn simulate_experiment(
+        &self,
+        e: &Experiment,
+        init_window: usize,
+    ) -> Result<Vec<f64>, LmnError> {
         let ne = self.normalise(e)?;
         let n = ne.u.first().map_or(e.output.len(), Vec::len);
         let k0 = init_window.max(self.max_lag()).min(n);
@@ -602,8 +629,9 @@ impl LmnModel {
 
     /// One-step-ahead prediction (NARX, measured output lags), physical
     /// units; the first `max_lag` samples are copied from the measurement.
-    pub fn predict(&self, e: &Experiment) -> Result<Vec<f64>, LmnError> {
-        let ne = self.normalise_full(e)?;
+    pub fn predict(&self, data: &Record) -> Result<Vec<f64>, LmnError> {
+        let e = Experiment::of_record(data, &self.regressors)?;
+        let ne = self.normalise_full(&e)?;
         let n = ne.y.len();
         let k0 = self.max_lag().min(n);
         let mut ev = self.eval_scratch();

@@ -13,9 +13,11 @@
 //! simulation stays bounded and (stability guard, affine local models) every
 //! local model's autoregressive part has spectral radius < 0.9995.
 use crate::lmn::{Eval, Focus, LmnModel, DIVERGED};
+use crate::regressors::Experiment;
 use crate::regressors::{NormExp, Signal};
-use crate::{Experiment, LmnError};
+use crate::LmnError;
 use gb_core::solver::{LeastSquaresProblem, LmParams};
+use gb_core::Records;
 use gb_core::{Observer, Silent};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
@@ -285,16 +287,24 @@ impl LmnModel {
     /// or simulation (`Focus::Simulation`, NOE) error of the experiments.
     pub fn refine(
         &mut self,
-        train: &[Experiment],
+        train: &Records,
         focus: Focus,
         max_iter: usize,
     ) -> Result<RefineReport, LmnError> {
-        let nexps = train
-            .iter()
-            .map(|e| self.normalise_full(e))
-            .collect::<Result<Vec<_>, _>>()?;
+        self.refine_with_observer(train, focus, max_iter, &Silent)
+    }
+
+    /// [`refine`](Self::refine), reporting every iteration to `observer`.
+    pub fn refine_with_observer(
+        &mut self,
+        train: &Records,
+        focus: Focus,
+        max_iter: usize,
+        observer: &dyn Observer,
+    ) -> Result<RefineReport, LmnError> {
+        let nexps = self.normalise_records(train)?;
         let (iterations, rms_before, rms_after) =
-            optimise(self, &nexps, focus, max_iter, true, true, &Silent)?;
+            optimise(self, &nexps, focus, max_iter, true, true, observer)?;
         self.summary.focus = focus;
         self.summary.lm_iterations += iterations;
         self.summary.rms_after_lm = rms_after;
@@ -310,16 +320,23 @@ impl LmnModel {
     /// differences.
     pub fn cost_gradient(
         &self,
-        train: &[Experiment],
+        train: &Records,
         focus: Focus,
     ) -> Result<(f64, Vec<f64>), LmnError> {
-        let nexps = train
-            .iter()
-            .map(|e| self.normalise_full(e))
-            .collect::<Result<Vec<_>, _>>()?;
+        let nexps = self.normalise_records(train)?;
         let np = self.parameters().len();
         let (c, _, g, _) = total(self, &nexps, focus, np, true)
             .ok_or_else(|| LmnError::Unstable("the simulation diverged".into()))?;
         Ok((c, g.iter().map(|v| -2.0 * v).collect()))
+    }
+}
+
+impl LmnModel {
+    /// Every record split for the regressors and normalised (the output as
+    /// long as the inputs).
+    pub(crate) fn normalise_records(&self, data: &Records) -> Result<Vec<NormExp>, LmnError> {
+        data.iter()
+            .map(|d| self.normalise_full(&Experiment::of_record(d, &self.regressors)?))
+            .collect()
     }
 }

@@ -417,7 +417,7 @@ fn fit_class(
                 .max_leaves(leaves)
                 .focus(gb_lmn::Focus::Simulation)
                 .lm_iterations(lm)
-                .fit(&[gb_lmn::Experiment::new(d.inputs.clone(), d.output.clone())])
+                .fit(&gb_core::Records::single(d.clone()))
                 .map_err(|e| e.to_string())?;
             let text = format!(
                 "LmnModel NOE: {} leaf(s), local polynomials of degree {degree} in y(k-1..{na}), u(k-{nk}..k-{}), {} parameters",
@@ -556,7 +556,13 @@ fn score_class(f: &Fitted, test: &DataSet, init: Init) -> Result<f64, String> {
     let n = test.len();
     let (y, sim): (&[f64], Vec<f64>) = match f {
         Fitted::Lmn(m) => {
-            let e = |inputs: Vec<Vec<f64>>, out: Vec<f64>| gb_lmn::Experiment::new(inputs, out);
+            let e = |inputs: Vec<Vec<f64>>, output: Vec<f64>| gb_core::Record {
+                input_names: test.input_names.clone(),
+                output_name: test.output_name.clone(),
+                inputs,
+                output,
+                sample_time: None,
+            };
             match init {
                 Init::Window(w) => {
                     let w = w.min(n / 2);
