@@ -436,7 +436,7 @@ impl GreyBoxModel {
             format_version: MODEL_FORMAT_VERSION,
             input_names: data.input_names.clone(),
             output_name: data.output_name.clone(),
-            structure: Structure::linear(params.n_states),
+            structure: Structure::linear(fit.model.n_states()),
             network,
             lmn: None,
             state_space: None,

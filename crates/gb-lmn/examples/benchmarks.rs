@@ -443,7 +443,7 @@ fn tanks_ss(dir: &std::path::Path, over: &HashMap<String, String>) -> Result<(),
             .collect()
     };
     let p = SsLmnParams {
-        n_states: get("nx", "2").parse().map_err(|e| format!("nx: {e}"))?,
+        n_states: vec![get("nx", "2").parse().map_err(|e| format!("nx: {e}"))?],
         leaves: list("leaves", "1,2")?.iter().map(|&v| v as usize).collect(),
         scheduling: match get("sched", "x0").as_str() {
             "x1" => Scheduling::State(1),

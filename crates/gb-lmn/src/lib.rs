@@ -69,12 +69,15 @@ pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
-    zero_linear_network, FitOptions, TrainReport,
+    refine_output_error_with_observer, zero_linear_network, FitOptions, TrainReport,
 };
 pub use regressors::{RegressorSpec, Signal, Tap};
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
-pub use ssnet::{fit_ss_lmn, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams};
+pub use ssnet::{
+    fit_ss_lmn, fit_ss_lmn_with_observer, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams,
+    ValidSsLmnParams,
+};
 pub use tree::{Partition, WeightKind};
 pub use wiener_hammerstein::{
     StaticNetwork, WhFitter, WhParams, WhReport, WienerHammersteinNetwork,

@@ -33,7 +33,7 @@
 
 use crate::LmnError;
 use gb_core::solver::{LeastSquaresProblem, LmParams};
-use gb_core::{Observer, Silent};
+use gb_core::{Identify, Observer, Records, Silent, SubTask};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -46,13 +46,31 @@ pub enum Scheduling {
     Input(usize),
 }
 
-/// Options of [`fit_ss_lmn`].
+/// Options of [`fit_ss_lmn`]. The defaults are generic: 1, 2 or 3 hidden
+/// states and 1 or 2 leaves, chosen by the simulation error on the last
+/// 20 % of the training record; the √ basis and the learned state bounds of
+/// the class; no output limit. Benchmark set-ups (the cascaded tanks: two
+/// states, a 10 V sensor limit) belong to the code that runs them.
+///
+/// | field | default |
+/// |---|---|
+/// | `n_states` | `[1, 2, 3]` (chosen on the validation tail) |
+/// | `leaves` | `[1, 2]` (chosen on the validation tail) |
+/// | `scheduling` | `State(0)` |
+/// | `sqrt_basis`, `state_saturation` | true |
+/// | `output_upper` | none |
+/// | `nonnegative_states` | false |
+/// | `init_rates` | `[0.1, 0.2, 0.4]` |
+/// | `max_iter` | 200 |
+/// | `validation_fraction` | 0.2 |
+/// | `init_window` | 50 |
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SsLmnParams {
-    /// Number of hidden states n (≥ 1).
-    pub n_states: usize,
-    /// Candidate numbers of leaves (each ≥ 1); the one with the smallest
-    /// validation simulation error is refitted on all data.
+    /// Candidate numbers of hidden states n (each in 1..=8).
+    pub n_states: Vec<usize>,
+    /// Candidate numbers of leaves (each in 1..=8). With several
+    /// (states, leaves) pairs, the one with the smallest validation
+    /// simulation error is refitted on all data.
     pub leaves: Vec<usize>,
     /// Scheduling variable of the splits (ignored for one leaf).
     pub scheduling: Scheduling,
@@ -80,7 +98,7 @@ pub struct SsLmnParams {
 impl Default for SsLmnParams {
     fn default() -> Self {
         Self {
-            n_states: 2,
+            n_states: vec![1, 2, 3],
             leaves: vec![1, 2],
             scheduling: Scheduling::State(0),
             sqrt_basis: true,
@@ -96,12 +114,24 @@ impl Default for SsLmnParams {
 }
 
 impl SsLmnParams {
-    /// Validate the options against `n_inputs` inputs.
-    pub fn check(&self, n_inputs: usize) -> Result<(), LmnError> {
+    /// The (states, leaves) candidates in the order they are tried.
+    pub fn candidates(&self) -> Vec<(usize, usize)> {
+        self.n_states
+            .iter()
+            .flat_map(|&n| self.leaves.iter().map(move |&l| (n, l)))
+            .collect()
+    }
+
+    /// Validate the options against `n_inputs` inputs; the result fits.
+    pub fn check(&self, n_inputs: usize) -> Result<ValidSsLmnParams, LmnError> {
         let bad = |m: &str| Err(LmnError::InvalidArgument(m.to_string()));
-        if self.n_states == 0 || self.n_states > 8 {
-            return bad("n_states must be in 1..=8");
+        if self.n_states.is_empty() || self.n_states.iter().any(|&n| n == 0 || n > 8) {
+            return bad("n_states: candidates in 1..=8 are needed");
         }
+        let (min_n, max_n) = (
+            self.n_states.iter().copied().min().unwrap_or(1),
+            self.n_states.iter().copied().max().unwrap_or(1),
+        );
         if n_inputs == 0 {
             return bad("at least one input is needed");
         }
@@ -109,8 +139,8 @@ impl SsLmnParams {
             return bad("leaves: candidates in 1..=8 are needed");
         }
         match self.scheduling {
-            Scheduling::State(j) if j >= self.n_states => {
-                return bad("scheduling state out of range")
+            Scheduling::State(j) if j >= min_n => {
+                return bad("scheduling state out of range (for the smallest n_states)")
             }
             Scheduling::Input(j) if j >= n_inputs => return bad("scheduling input out of range"),
             _ => {}
@@ -126,7 +156,7 @@ impl SsLmnParams {
         if !(self.validation_fraction > 0.0 && self.validation_fraction < 0.5) {
             return bad("validation_fraction must be in (0, 0.5)");
         }
-        if self.init_window < self.n_states {
+        if self.init_window < max_n {
             return bad("init_window must be ≥ n_states");
         }
         if let Some(v) = self.output_upper {
@@ -134,7 +164,60 @@ impl SsLmnParams {
                 return bad("output_upper must be finite");
             }
         }
-        Ok(())
+        Ok(ValidSsLmnParams {
+            p: self.clone(),
+            n_inputs,
+        })
+    }
+}
+
+/// [`SsLmnParams`] validated for a number of inputs; fits with
+/// [`fit`](Self::fit) or [`Identify`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ValidSsLmnParams {
+    p: SsLmnParams,
+    n_inputs: usize,
+}
+
+impl ValidSsLmnParams {
+    /// The options.
+    pub fn params(&self) -> &SsLmnParams {
+        &self.p
+    }
+
+    /// Fit to one experiment (inputs `u[j]`, output `y`), reporting progress
+    /// (one unit per structure fitted) and every Levenberg–Marquardt
+    /// iteration to `observer`.
+    pub fn fit(
+        &self,
+        u: &[Vec<f64>],
+        y: &[f64],
+        observer: &dyn Observer,
+    ) -> Result<SsLmnFit, LmnError> {
+        if u.len() != self.n_inputs {
+            return Err(LmnError::Dimension(format!(
+                "the parameters were checked for {} inputs, the data has {}",
+                self.n_inputs,
+                u.len()
+            )));
+        }
+        fit_checked(&self.p, u, y, observer)
+    }
+}
+
+impl Identify for ValidSsLmnParams {
+    type Model = SsLmnModel;
+    type Error = LmnError;
+    /// One record (the training state x(0) is a parameter of one record).
+    fn identify(&self, data: &Records, observer: &dyn Observer) -> Result<SsLmnModel, LmnError> {
+        if data.len() != 1 {
+            return Err(LmnError::InvalidArgument(format!(
+                "a state-space network is fitted on one record, got {}",
+                data.len()
+            )));
+        }
+        let r = data.first();
+        self.fit(&r.inputs, &r.output, observer).map(|f| f.model)
     }
 }
 
@@ -158,9 +241,9 @@ pub struct SsLmnModel {
 pub struct SsLmnFit {
     /// The model refitted on the whole training record.
     pub model: SsLmnModel,
-    /// Validation simulation RMSE per candidate number of leaves (empty when
-    /// only one candidate was given).
-    pub validation: Vec<(usize, f64)>,
+    /// Validation simulation RMSE per candidate (states, leaves, RMSE);
+    /// empty when only one candidate was given.
+    pub validation: Vec<(usize, usize, f64)>,
     /// Training simulation RMSE of the final model.
     pub train_rmse: f64,
 }
@@ -630,11 +713,11 @@ fn rmse(a: &[f64], b: &[f64]) -> f64 {
 /// init rate; returns the best model and its training RMSE.
 fn fit_structure(
     p: &SsLmnParams,
-    n_leaves: usize,
+    (n, n_leaves): (usize, usize),
     u: &[Vec<f64>],
     y: &[f64],
+    observer: &dyn Observer,
 ) -> Result<(SsLmnModel, f64), LmnError> {
-    let n = p.n_states;
     let m = u.len();
     let len = y.len();
     let proto = SsLmnModel {
@@ -664,7 +747,12 @@ fn fit_structure(
     };
     let zr = (zhi - zlo).max(1e-9);
     let mut best: Option<(SsLmnModel, f64)> = None;
-    for &rate in &p.init_rates {
+    for (i, &rate) in p.init_rates.iter().enumerate() {
+        observer.progress(
+            i,
+            p.init_rates.len(),
+            &format!("state-space network, {n} states, {n_leaves} leaves"),
+        );
         let mut th = Vec::with_capacity(proto.n_model_params() + n);
         // chain of leaky tanks at steady state x ≈ ȳ: b ū = r √ȳ
         let lvl = ybar.abs().max(1e-3);
@@ -742,7 +830,7 @@ fn fit_structure(
             }
             true
         };
-        if let Some((q, c)) = lm_fd(&f, &th, len, p.max_iter, &Silent) {
+        if let Some((q, c)) = lm_fd(&f, &th, len, p.max_iter, observer) {
             let rm = (c / len as f64).sqrt();
             if best.as_ref().is_none_or(|b| rm < b.1) {
                 let mut model = proto.clone();
@@ -755,10 +843,30 @@ fn fit_structure(
 }
 
 /// Fit a local-model state-space network to one experiment (inputs `u[j]`,
-/// output `y`), choosing the number of leaves among `params.leaves` by the
-/// free-run simulation RMSE on the last `validation_fraction` of the record.
+/// output `y`), choosing the number of states and leaves among
+/// [`SsLmnParams::candidates`] by the free-run simulation RMSE on the last
+/// `validation_fraction` of the record.
 pub fn fit_ss_lmn(params: &SsLmnParams, u: &[Vec<f64>], y: &[f64]) -> Result<SsLmnFit, LmnError> {
-    params.check(u.len())?;
+    fit_ss_lmn_with_observer(params, u, y, &Silent)
+}
+
+/// [`fit_ss_lmn`], reporting progress (one unit per structure fitted) and
+/// every Levenberg–Marquardt iteration to `observer`.
+pub fn fit_ss_lmn_with_observer(
+    params: &SsLmnParams,
+    u: &[Vec<f64>],
+    y: &[f64],
+    observer: &dyn Observer,
+) -> Result<SsLmnFit, LmnError> {
+    params.check(u.len())?.fit(u, y, observer)
+}
+
+fn fit_checked(
+    params: &SsLmnParams,
+    u: &[Vec<f64>],
+    y: &[f64],
+    observer: &dyn Observer,
+) -> Result<SsLmnFit, LmnError> {
     let len = y.len();
     let needed = 4 * params.init_window.max(10);
     if len < needed {
@@ -772,9 +880,17 @@ pub fn fit_ss_lmn(params: &SsLmnParams, u: &[Vec<f64>], y: &[f64]) -> Result<SsL
     if y.iter().chain(u.iter().flatten()).any(|v| !v.is_finite()) {
         return Err(LmnError::InvalidArgument("non-finite sample".into()));
     }
+    let cands = params.candidates();
+    let total = if cands.len() == 1 { 1 } else { cands.len() + 1 };
+    let sub = |i: usize| SubTask {
+        outer: observer,
+        offset: i,
+        span: 1,
+        total,
+    };
     let mut validation = Vec::new();
-    let leaves = if params.leaves.len() == 1 {
-        params.leaves[0]
+    let chosen = if cands.len() == 1 {
+        cands[0]
     } else {
         let n_val = ((len as f64) * params.validation_fraction) as usize;
         let n_tr = len - n_val;
@@ -786,20 +902,21 @@ pub fn fit_ss_lmn(params: &SsLmnParams, u: &[Vec<f64>], y: &[f64]) -> Result<SsL
         let v0 = n_tr - params.init_window;
         let uv: Vec<Vec<f64>> = u.iter().map(|c| c[v0..].to_vec()).collect();
         let yv = &y[v0..];
-        let mut best = (params.leaves[0], f64::INFINITY);
-        for &l in &params.leaves {
-            let score = fit_structure(params, l, &ut, &y[..n_tr])
+        let mut best = (cands[0], f64::INFINITY);
+        for (i, &c) in cands.iter().enumerate() {
+            let score = fit_structure(params, c, &ut, &y[..n_tr], &sub(i))
                 .and_then(|(m, _)| m.simulate_with_init_window(&uv, yv, params.init_window))
                 .map(|s| rmse(&s[params.init_window..], &yv[params.init_window..]))
                 .unwrap_or(f64::INFINITY);
-            validation.push((l, score));
+            validation.push((c.0, c.1, score));
             if score < best.1 {
-                best = (l, score);
+                best = (c, score);
             }
         }
         best.0
     };
-    let (model, train_rmse) = fit_structure(params, leaves, u, y)?;
+    let (model, train_rmse) = fit_structure(params, chosen, u, y, &sub(total - 1))?;
+    observer.progress(total, total, "state-space network fitted");
     Ok(SsLmnFit {
         model,
         validation,
@@ -839,7 +956,9 @@ mod tests {
     #[test]
     fn recovers_two_tanks_in_free_run() {
         let (u, y) = tanks(800, 7);
+        // the two tanks' order, given
         let p = SsLmnParams {
+            n_states: vec![2],
             leaves: vec![1],
             init_window: 30,
             ..Default::default()
@@ -872,6 +991,11 @@ mod tests {
         };
         assert!(p.check(1).is_err());
         let p = SsLmnParams {
+            n_states: vec![],
+            ..Default::default()
+        };
+        assert!(p.check(1).is_err());
+        let p = SsLmnParams {
             validation_fraction: 0.7,
             ..Default::default()
         };
@@ -897,6 +1021,7 @@ mod tests {
     fn model_round_trips_through_postcard() {
         let (u, y) = tanks(300, 3);
         let p = SsLmnParams {
+            n_states: vec![2],
             leaves: vec![2],
             max_iter: 5,
             init_window: 20,
@@ -912,5 +1037,41 @@ mod tests {
             .unwrap();
         let b = back.simulate_from(&[u], &[4.0, 4.0]).unwrap();
         assert_eq!(a, b);
+    }
+
+    #[test]
+    fn generic_defaults_choose_the_structure_on_the_hold_out() {
+        let (u, y) = tanks(800, 7);
+        let p = SsLmnParams {
+            max_iter: 40,
+            init_window: 30,
+            ..Default::default()
+        };
+        let rec =
+            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y.clone()).unwrap();
+        let v = p.check(1).unwrap();
+        let m = v
+            .identify(&Records::single(rec.clone()), &gb_core::Silent)
+            .unwrap();
+        let fit = v
+            .fit(std::slice::from_ref(&u), &y, &gb_core::Silent)
+            .unwrap();
+        assert_eq!(m, fit.model);
+        // every (states, leaves) pair was scored; the best one was refitted
+        assert_eq!(fit.validation.len(), 6);
+        let best = fit
+            .validation
+            .iter()
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .unwrap();
+        assert_eq!((m.n_states(), m.n_leaves()), (best.0, best.1));
+        eprintln!(
+            "ss-LMN generic defaults: {:?} -> {}",
+            fit.validation,
+            m.describe()
+        );
+        // one record only
+        let two = Records::new(vec![rec.clone(), rec]).unwrap();
+        assert!(v.identify(&two, &gb_core::Silent).is_err());
     }
 }

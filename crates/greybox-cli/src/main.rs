@@ -901,7 +901,13 @@ fn run_fit_wiener_hammerstein(a: FitArgs, quiet: bool) -> Result<()> {
     if !(1..=61).contains(&leaves) {
         return Err(format!("--max-leaves must be in 1..=61, got {leaves}"));
     }
-    let params = gb_lmn::WhParams::new().knots(leaves - 1);
+    // the former defaults (the WH2009 set-up): a 6/6 BLA, a 200-sample
+    // transient, a scan on the first 30 000 samples
+    let params = gb_lmn::WhParams::new()
+        .bla(6, 6)
+        .skip(200)
+        .scan_samples(30_000)
+        .knots(leaves - 1);
     data.check_identifiable(&a.train.display().to_string(), 1000)
         .map_err(|e| e.to_string())?;
     let pb = spinner(
@@ -941,7 +947,7 @@ fn run_fit_ss_lmn(a: FitArgs, quiet: bool) -> Result<()> {
         }
     }
     let params = gb_lmn::SsLmnParams {
-        n_states: a.order,
+        n_states: vec![a.order],
         leaves: (1..=leaves).collect(),
         output_upper: a.output_max,
         ..gb_lmn::SsLmnParams::default()
