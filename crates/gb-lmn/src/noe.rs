@@ -274,6 +274,146 @@ impl OutputHysteresis {
     }
 }
 
+/// A [`LocalModelNetwork`] running one sample at a time: the same
+/// arithmetic as [`LocalModelNetwork::simulate_signals`] (the same
+/// regressor filling and evaluation on a sliding history), so stepping
+/// through a record gives bit-identical outputs.
+pub(crate) struct NetworkStepper<'a> {
+    net: &'a LocalModelNetwork,
+    /// Normalised initial outputs (the first samples; missing ones at the
+    /// training mean, 0).
+    init: Vec<f64>,
+    /// Sliding history: normalised inputs, input play columns, outputs;
+    /// `base` samples have been dropped from their front.
+    p: Prepared,
+    out: Vec<f64>,
+    base: usize,
+    k: usize,
+    banks: Vec<Option<gb_preisach::PlayOperatorBank>>,
+    bank_state: Vec<Vec<f64>>,
+    moving: Vec<bool>,
+    oh: Option<OutputHysteresis>,
+    x: Vec<f64>,
+    s: EvalScratch,
+    failed: bool,
+}
+
+impl<'a> NetworkStepper<'a> {
+    /// Start from the measured outputs `init` (physical; see
+    /// [`LocalModelNetwork::simulate_signals`]).
+    pub fn new(net: &'a LocalModelNetwork, init: &[f64]) -> Result<Self, LmnError> {
+        let k0 = net.spec.max_lag().min(init.len());
+        let banks = net.input_banks()?;
+        let ni = net.input_scaling.len();
+        Ok(Self {
+            net,
+            init: init[..k0]
+                .iter()
+                .map(|&v| net.output_scaling.to_norm(v))
+                .collect(),
+            p: Prepared {
+                un: vec![vec![]; ni],
+                yn: vec![],
+                ucols: banks
+                    .iter()
+                    .map(|b| b.as_ref().map_or_else(Vec::new, |b| vec![vec![]; b.len()]))
+                    .collect(),
+            },
+            out: vec![],
+            base: 0,
+            k: 0,
+            bank_state: vec![vec![]; ni],
+            moving: vec![],
+            banks,
+            oh: None,
+            x: vec![0.0; net.spec.n_dynamic() + net.spec.n_hysteresis()],
+            s: net.scratch(),
+            failed: false,
+        })
+    }
+
+    /// Drop history no regressor reads any more (a multiple of the
+    /// hysteresis lags, so the ring slots `k mod lags` stay put).
+    fn trim(&mut self) {
+        let keep = self.net.spec.max_lag() + 1;
+        let lags = self.net.spec.hysteresis_lags.max(1);
+        let len = self.out.len();
+        if len < 4 * keep + 64 {
+            return;
+        }
+        let d = (len - keep) / lags * lags;
+        if d == 0 {
+            return;
+        }
+        self.out.drain(..d);
+        for u in &mut self.p.un {
+            u.drain(..d);
+        }
+        for cols in &mut self.p.ucols {
+            for c in cols {
+                c.drain(..d);
+            }
+        }
+        self.base += d;
+    }
+
+    /// Advance one sample with the physical inputs `u`; the physical output.
+    pub fn step(&mut self, u: &[f64]) -> Result<f64, LmnError> {
+        let net = self.net;
+        if u.len() != net.input_scaling.len() {
+            return Err(LmnError::Dimension(format!(
+                "the network has {} inputs, {} values were given",
+                net.input_scaling.len(),
+                u.len()
+            )));
+        }
+        if self.failed {
+            return Err(LmnError::Unstable("the simulation diverged".into()));
+        }
+        for (j, (&v, sc)) in u.iter().zip(&net.input_scaling).enumerate() {
+            let un = sc.to_norm(v);
+            self.p.un[j].push(un);
+            if let Some(b) = &self.banks[j] {
+                if self.k == 0 {
+                    self.bank_state[j] = b.initial_state(un);
+                }
+                self.moving.resize(b.len(), false);
+                b.step(&mut self.bank_state[j], un, &mut self.moving);
+                for (c, v) in self.p.ucols[j].iter_mut().zip(&self.bank_state[j]) {
+                    c.push(*v);
+                }
+            }
+        }
+        let k0 = net.spec.max_lag();
+        let k = self.k;
+        let v = if k < k0 {
+            self.init.get(k).copied().unwrap_or(0.0)
+        } else {
+            let kl = k - self.base;
+            let oh = self.oh.get_or_insert_with(|| {
+                let y0 = if k0 > 0 {
+                    self.out[k0 - 1 - self.base]
+                } else {
+                    0.0
+                };
+                OutputHysteresis::new(net, y0)
+            });
+            oh.advance(kl, self.out[kl - 1]);
+            net.fill_x(kl, &self.out, &self.p, &oh.ring, &mut self.x);
+            let v = net.eval(&self.x, &mut self.s, None, None);
+            if !v.is_finite() || v.abs() > DIVERGED {
+                self.failed = true;
+                return Err(LmnError::Unstable("the simulation diverged".into()));
+            }
+            v
+        };
+        self.out.push(v);
+        self.k += 1;
+        self.trim();
+        Ok(net.output_scaling.from_norm(v))
+    }
+}
+
 /// The initial output values (normalised) of a simulation fitted to an
 /// init window of measured outputs: residuals over the window, Jacobian by
 /// forward differences (step 1e-4).

@@ -236,6 +236,38 @@ pub struct SsLmnModel {
     theta: Vec<f64>,
 }
 
+/// A [`SsLmnModel`] running one sample at a time.
+pub(crate) struct SsStepper<'a> {
+    m: &'a SsLmnModel,
+    x: [f64; 8],
+    failed: bool,
+}
+
+impl SsStepper<'_> {
+    /// Advance one sample with the inputs `u`; the output.
+    pub fn step(&mut self, u: &[f64]) -> Result<f64, LmnError> {
+        if u.len() != self.m.n_inputs {
+            return Err(LmnError::Dimension(format!(
+                "{} inputs expected, got {}",
+                self.m.n_inputs,
+                u.len()
+            )));
+        }
+        if self.failed || u.iter().any(|v| !v.is_finite()) {
+            return Err(LmnError::InvalidArgument(
+                "non-finite input or a diverged state".into(),
+            ));
+        }
+        match self.m.step_state(&self.m.theta, &mut self.x, |j| u[j]) {
+            Some(y) => Ok(y),
+            None => {
+                self.failed = true;
+                Err(LmnError::Unstable("simulation diverged".into()))
+            }
+        }
+    }
+}
+
 /// Result of [`fit_ss_lmn`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SsLmnFit {
@@ -360,6 +392,25 @@ impl SsLmnModel {
         out: &mut [f64],
     ) -> Option<Vec<f64>> {
         let n = self.n_states;
+        let mut x = [0.0f64; 8];
+        x[..n].copy_from_slice(x0);
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self.step_state(theta, &mut x, |j| u[j][k])?;
+        }
+        Some(x[..n].to_vec())
+    }
+
+    /// One sample: the output ŷ(k) from the state x(k), then x(k+1) in
+    /// place; `uk(j)` is input j at sample k. `None` when the output or the
+    /// state leaves the finite range.
+    #[inline(always)]
+    fn step_state(
+        &self,
+        theta: &[f64],
+        x: &mut [f64; 8],
+        uk: impl Fn(usize) -> f64,
+    ) -> Option<f64> {
+        let n = self.n_states;
         let m = self.n_inputs;
         let ll = self.leaf_len();
         let l = self.n_leaves;
@@ -368,86 +419,100 @@ impl SsLmnModel {
         let d = theta[o_c + n];
         let o_up = o_c + n + 1;
         let o_split = o_up + if self.state_saturation { n } else { 0 };
-        let mut x = [0.0f64; 8];
         let mut s = [0.0f64; 8];
         let mut xn = [0.0f64; 8];
         let mut w = [0.0f64; 8];
-        x[..n].copy_from_slice(x0);
-        for k in 0..out.len() {
-            let mut yk = d;
-            for i in 0..n {
-                yk += cvec[i] * x[i];
+        let mut yk = d;
+        for i in 0..n {
+            yk += cvec[i] * x[i];
+        }
+        if let Some(v) = self.output_upper {
+            yk = yk.min(v);
+        }
+        if !yk.is_finite() {
+            return None;
+        }
+        // weights
+        if l == 1 {
+            w[0] = 1.0;
+        } else {
+            let z = match self.scheduling {
+                Scheduling::State(j) => x[j],
+                Scheduling::Input(j) => uk(j),
+            };
+            let mut rem = 1.0;
+            for j in 0..l - 1 {
+                let t = theta[o_split + j];
+                let st = theta[o_split + l - 1 + j].clamp(-30.0, 30.0).exp();
+                let a = (st * (z - t)).clamp(-50.0, 50.0);
+                let sig = 1.0 / (1.0 + (-a).exp());
+                w[j] = rem * (1.0 - sig);
+                rem *= sig;
             }
-            if let Some(v) = self.output_upper {
-                yk = yk.min(v);
-            }
-            if !yk.is_finite() {
-                return None;
-            }
-            out[k] = yk;
-            // weights
-            if l == 1 {
-                w[0] = 1.0;
+            w[l - 1] = rem;
+        }
+        for i in 0..n {
+            s[i] = x[i].max(0.0).sqrt();
+            xn[i] = 0.0;
+        }
+        for leaf in 0..l {
+            let p = &theta[leaf * ll..(leaf + 1) * ll];
+            let (a, rest) = p.split_at(n * n);
+            let (g, rest) = if self.sqrt_basis {
+                rest.split_at(n * n)
             } else {
-                let z = match self.scheduling {
-                    Scheduling::State(j) => x[j],
-                    Scheduling::Input(j) => u[j][k],
-                };
-                let mut rem = 1.0;
-                for j in 0..l - 1 {
-                    let t = theta[o_split + j];
-                    let st = theta[o_split + l - 1 + j].clamp(-30.0, 30.0).exp();
-                    let a = (st * (z - t)).clamp(-50.0, 50.0);
-                    let sig = 1.0 / (1.0 + (-a).exp());
-                    w[j] = rem * (1.0 - sig);
-                    rem *= sig;
-                }
-                w[l - 1] = rem;
-            }
+                rest.split_at(0)
+            };
+            let (b, c) = rest.split_at(n * m);
             for i in 0..n {
-                s[i] = x[i].max(0.0).sqrt();
-                xn[i] = 0.0;
-            }
-            for leaf in 0..l {
-                let p = &theta[leaf * ll..(leaf + 1) * ll];
-                let (a, rest) = p.split_at(n * n);
-                let (g, rest) = if self.sqrt_basis {
-                    rest.split_at(n * n)
-                } else {
-                    rest.split_at(0)
-                };
-                let (b, c) = rest.split_at(n * m);
-                for i in 0..n {
-                    let mut v = c[i];
+                let mut v = c[i];
+                for j in 0..n {
+                    v += a[i * n + j] * x[j];
+                }
+                if self.sqrt_basis {
                     for j in 0..n {
-                        v += a[i * n + j] * x[j];
+                        v += g[i * n + j] * s[j];
                     }
-                    if self.sqrt_basis {
-                        for j in 0..n {
-                            v += g[i * n + j] * s[j];
-                        }
-                    }
-                    for j in 0..m {
-                        v += b[i * m + j] * u[j][k];
-                    }
-                    xn[i] += w[leaf] * v;
                 }
-            }
-            for i in 0..n {
-                let mut v = xn[i];
-                if self.state_saturation {
-                    v = v.min(theta[o_up + i]);
+                for j in 0..m {
+                    v += b[i * m + j] * uk(j);
                 }
-                if self.nonnegative_states {
-                    v = v.max(0.0);
-                }
-                if !v.is_finite() || v.abs() > 1e6 {
-                    return None;
-                }
-                x[i] = v;
+                xn[i] += w[leaf] * v;
             }
         }
-        Some(x[..n].to_vec())
+        for i in 0..n {
+            let mut v = xn[i];
+            if self.state_saturation {
+                v = v.min(theta[o_up + i]);
+            }
+            if self.nonnegative_states {
+                v = v.max(0.0);
+            }
+            if !v.is_finite() || v.abs() > 1e6 {
+                return None;
+            }
+            x[i] = v;
+        }
+        Some(yk)
+    }
+
+    /// One sample at a time from the state `x0` (see
+    /// [`gb_core::DynamicModel::stepper`]): the same arithmetic as
+    /// [`simulate_from`](Self::simulate_from).
+    pub(crate) fn step_from(&self, x0: &[f64]) -> Result<SsStepper<'_>, LmnError> {
+        if x0.len() != self.n_states {
+            return Err(LmnError::Dimension(format!(
+                "x0 needs {} states",
+                self.n_states
+            )));
+        }
+        let mut x = [0.0; 8];
+        x[..self.n_states].copy_from_slice(x0);
+        Ok(SsStepper {
+            m: self,
+            x,
+            failed: false,
+        })
     }
 
     fn check_inputs(&self, u: &[Vec<f64>], len: usize) -> Result<(), LmnError> {

@@ -281,6 +281,77 @@ impl WienerHammersteinNetwork {
     }
 }
 
+/// One filter `b/a` in direct form run one sample at a time from the zero
+/// state, with the arithmetic of [`filter`] (terms in the same order, none
+/// before the first sample).
+#[derive(Debug, Clone)]
+struct FilterStep<'a> {
+    b: &'a [f64],
+    a: &'a [f64],
+    /// Past inputs and outputs, most recent first.
+    x: Vec<f64>,
+    y: Vec<f64>,
+    k: usize,
+}
+
+impl<'a> FilterStep<'a> {
+    fn new(b: &'a [f64], a: &'a [f64]) -> Self {
+        Self {
+            b,
+            a,
+            x: vec![0.0; b.len()],
+            y: vec![0.0; a.len()],
+            k: 0,
+        }
+    }
+
+    fn step(&mut self, xk: f64) -> f64 {
+        if !self.x.is_empty() {
+            self.x.rotate_right(1);
+            self.x[0] = xk;
+        }
+        let k = self.k;
+        let mut acc = 0.0;
+        for (j, bj) in self.b.iter().enumerate().take(k + 1) {
+            acc += bj * self.x[j];
+        }
+        for (i, ai) in self.a.iter().enumerate().skip(1).take(k) {
+            acc -= ai * self.y[i - 1];
+        }
+        if !self.y.is_empty() {
+            self.y.rotate_right(1);
+            self.y[0] = acc;
+        }
+        self.k += 1;
+        acc
+    }
+}
+
+/// A [`WienerHammersteinNetwork`] running one sample at a time from the
+/// zero state: bit-identical to [`WienerHammersteinNetwork::simulate`].
+#[derive(Debug, Clone)]
+pub(crate) struct WhStepper<'a> {
+    m: &'a WienerHammersteinNetwork,
+    g1: FilterStep<'a>,
+    g2: FilterStep<'a>,
+}
+
+impl<'a> WhStepper<'a> {
+    pub fn new(m: &'a WienerHammersteinNetwork) -> Self {
+        Self {
+            m,
+            g1: FilterStep::new(&m.b1, &m.a1),
+            g2: FilterStep::new(&m.b2, &m.a2),
+        }
+    }
+
+    /// Advance one sample with the input `u`; the output.
+    pub fn step(&mut self, u: f64) -> f64 {
+        let v = self.g1.step(u);
+        self.g2.step(self.m.nonlinearity.eval(v))
+    }
+}
+
 /// Options of the Wiener–Hammerstein identification (validated by
 /// [`WhParams::check`]). The defaults are generic — what depends on the data
 /// is derived from it: the order of the best linear approximation is chosen
