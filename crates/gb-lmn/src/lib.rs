@@ -14,7 +14,10 @@
 //! A single leaf gives the linear output-error model (OE / ARX structure with
 //! offset). Training: least squares initialisation, then Levenberg–Marquardt on
 //! the simulation error with analytic sensitivities propagated through time
-//! ([`noe`]), rejecting unstable parameter sets.
+//! ([`noe`]), rejecting unstable parameter sets. Every Levenberg–Marquardt
+//! fit of the crate is a [`gb_core::solver::LeastSquaresProblem`] driven by
+//! the workspace's one solver, [`gb_core::solver::LevenbergMarquardt`];
+//! long fits report to a [`gb_core::Observer`].
 //!
 //! The full network of issue 3 is [`LmnModel`], built by [`LmnParams`]:
 //! separate local-model space x and partition space z from per-signal tapped
@@ -28,7 +31,16 @@
 //!
 //! [`ssnet`] is the state-space counterpart with hidden states, a √ basis and
 //! state saturation, x⁺ = min(Σᵢ Φᵢ(z)[Aᵢx + Gᵢ√x₊ + Bᵢu + cᵢ], x̄),
-//! ŷ = min(Cᵀx + d, ȳ) ([`fit_ss_lmn`], [`SsLmnParams`], [`SsLmnModel`]).
+//! ŷ = min(Cᵀx + d, ȳ) ([`fit_ss_lmn`], [`SsLmnParams`], [`SsLmnModel`]);
+//! [`WienerHammersteinNetwork`] puts a one-dimensional network between two
+//! linear filters ([`WhParams`]).
+//!
+//! Every model class implements [`gb_core::DynamicModel`] (simulation from
+//! an [`gb_core::Init`], stepping one sample at a time, encoding); the
+//! validated parameters of the tree network ([`ValidLmnParams`]), the
+//! input–output network ([`ValidIoNetworkParams`]), the Wiener–Hammerstein
+//! network ([`WhFitter`]) and the state-space network ([`ValidSsLmnParams`])
+//! implement [`gb_core::Identify`] on [`gb_core::Records`].
 //!
 //! ```
 //! use gb_lmn::{NetworkSpec, fit_linear_oe, FitOptions};
