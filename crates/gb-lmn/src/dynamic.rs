@@ -578,4 +578,55 @@ mod tests {
             }
         }
     }
+
+    /// Counts the observer calls.
+    #[derive(Default)]
+    struct Count {
+        progress: std::sync::atomic::AtomicUsize,
+        iterations: std::sync::atomic::AtomicUsize,
+    }
+    impl gb_core::Observer for Count {
+        fn progress(&self, _: usize, _: usize, _: &str) {
+            self.progress
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        fn iteration(&self, _: &gb_core::IterationInfo) {
+            self.iterations
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+
+    #[test]
+    fn identify_reports_to_the_observer() {
+        use crate::{LmnParams, RegressorSpec};
+        use gb_core::Identify;
+        use std::sync::atomic::Ordering::Relaxed;
+        let (u, y) = hysteretic(1500, 4);
+        let recs = gb_core::Records::single(
+            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap(),
+        );
+        let c = Count::default();
+        let m = IoNetworkParams::linear(2)
+            .check()
+            .unwrap()
+            .identify(&recs, &c)
+            .unwrap();
+        assert!(c.iterations.load(Relaxed) > 0);
+        // the same model as without an observer
+        let quiet = IoNetworkParams::linear(2)
+            .check()
+            .unwrap()
+            .identify(&recs, &gb_core::Silent)
+            .unwrap();
+        assert_eq!(m, quiet);
+        let c = Count::default();
+        LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+            .max_leaves(3)
+            .lm_iterations(5)
+            .check()
+            .unwrap()
+            .identify(&recs, &c)
+            .unwrap();
+        assert!(c.progress.load(Relaxed) > 0 && c.iterations.load(Relaxed) > 0);
+    }
 }

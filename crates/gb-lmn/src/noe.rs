@@ -1261,7 +1261,18 @@ pub fn fit_linear_oe(
     y: &[f64],
     opts: &FitOptions,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe_cold(spec, inputs, y, opts);
+    fit_linear_oe_obs(spec, inputs, y, opts, &Silent)
+}
+
+/// [`fit_linear_oe`] reporting the solver iterations to `observer`.
+pub(crate) fn fit_linear_oe_obs(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    observer: &dyn Observer,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_cold(spec, inputs, y, opts, observer);
     if spec.na < 2 || spec.n_hysteresis() > 0 {
         return cold;
     }
@@ -1273,10 +1284,10 @@ pub fn fit_linear_oe(
         *b = b.saturating_sub(1).max(1);
     }
     lower.hysteresis_lags = lower.hysteresis_lags.saturating_sub(1).max(1);
-    let staged = fit_linear_oe(&lower, inputs, y, opts)
+    let staged = fit_linear_oe_obs(&lower, inputs, y, opts, observer)
         .ok()
         .and_then(|w| embed_linear(&w, spec))
-        .and_then(|start| refine_output_error(&start, inputs, y, opts).ok())
+        .and_then(|start| refine_output_error_with_observer(&start, inputs, y, opts, observer).ok())
         .map(|(m, _)| m);
     match (cold, staged) {
         (Ok(c), Some(s)) => {
@@ -1299,6 +1310,7 @@ fn fit_linear_oe_cold(
     inputs: &[Vec<f64>],
     y: &[f64],
     opts: &FitOptions,
+    observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
     spec.check(inputs.len())?;
     opts.check()?;
@@ -1343,7 +1355,7 @@ fn fit_linear_oe_cold(
         // fall back to a heavily damped start
         best.stabilise(0.5);
     }
-    refine_output_error(&best, inputs, y, opts).map(|(m, _)| m)
+    refine_output_error_with_observer(&best, inputs, y, opts, observer).map(|(m, _)| m)
 }
 
 /// [`fit_linear_oe`], and also Levenberg–Marquardt started from `warm`
@@ -1357,11 +1369,24 @@ pub fn fit_linear_oe_warm(
     opts: &FitOptions,
     warm: Option<&LocalModelNetwork>,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe(spec, inputs, y, opts);
+    fit_linear_oe_warm_obs(spec, inputs, y, opts, warm, &Silent)
+}
+
+/// [`fit_linear_oe_warm`] reporting the solver iterations to `observer`.
+pub(crate) fn fit_linear_oe_warm_obs(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    warm: Option<&LocalModelNetwork>,
+    observer: &dyn Observer,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_obs(spec, inputs, y, opts, observer);
     let Some(start) = warm.and_then(|w| embed_linear(w, spec)) else {
         return cold;
     };
-    let warm_fit = refine_output_error(&start, inputs, y, opts).map(|(m, _)| m);
+    let warm_fit =
+        refine_output_error_with_observer(&start, inputs, y, opts, observer).map(|(m, _)| m);
     match (cold, warm_fit) {
         (Ok(c), Ok(w)) => {
             let ec = gb_core::metrics::rms(&c.simulation_residuals(inputs, y)?);
