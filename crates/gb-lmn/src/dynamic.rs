@@ -184,7 +184,7 @@ impl DynamicModel for LmnModel {
             _ => (vec![0.0; n], 0),
         };
         let r = &self.regressors;
-        let e = Experiment::split(u, history, r.n_inputs(), r.n_extra)?;
+        let e = Experiment::split(u, &history, r.n_inputs(), r.n_extra)?;
         let sim = self.simulate_experiment(&e, used)?;
         copy_out(&sim, y)
     }

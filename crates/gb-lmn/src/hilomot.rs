@@ -1043,13 +1043,11 @@ impl ValidLmnParams {
         observer: &dyn Observer,
     ) -> Result<LmnModel, LmnError> {
         let r = &self.0.regressors;
-        let split = |rs: &Records| {
-            rs.iter()
-                .map(|d| Experiment::of_record(d, r))
-                .collect::<Result<Vec<_>, _>>()
-        };
-        let t = split(train)?;
-        let v = val.map(split).transpose()?;
+        fn split<'a>(rs: &'a Records, r: &RegressorSpec) -> Result<Vec<Experiment<'a>>, LmnError> {
+            rs.iter().map(|d| Experiment::of_record(d, r)).collect()
+        }
+        let t = split(train, r)?;
+        let v = val.map(|v| split(v, r)).transpose()?;
         self.fit_experiments(&t, v.as_deref(), observer)
     }
 
@@ -1070,14 +1068,15 @@ impl ValidLmnParams {
             ));
         }
         // scalings over all training experiments
-        let cat = |f: &dyn Fn(&Experiment) -> Option<&Vec<f64>>| -> Vec<f64> {
+        let cat = |f: &dyn for<'e> Fn(&Experiment<'e>) -> Option<&'e [f64]>| -> Vec<f64> {
             train.iter().filter_map(f).flatten().copied().collect()
         };
         for e in train.iter().chain(val.unwrap_or(&[])) {
             if e.inputs
                 .iter()
-                .chain(&e.extra)
-                .chain(std::iter::once(&e.output))
+                .chain(e.extra)
+                .map(Vec::as_slice)
+                .chain(std::iter::once(e.output))
                 .flatten()
                 .any(|v| !v.is_finite())
             {
@@ -1098,11 +1097,11 @@ impl ValidLmnParams {
         let model = LmnModel {
             regressors: r.clone(),
             input_scaling: (0..r.n_inputs())
-                .map(|j| Scaling::of(&cat(&|e| e.inputs.get(j))))
+                .map(|j| Scaling::of(&cat(&|e| e.inputs.get(j).map(Vec::as_slice))))
                 .collect(),
-            output_scaling: Scaling::of(&cat(&|e| Some(&e.output))),
+            output_scaling: Scaling::of(&cat(&|e| Some(e.output))),
             extra_scaling: (0..r.n_extra)
-                .map(|j| Scaling::of(&cat(&|e| e.extra.get(j))))
+                .map(|j| Scaling::of(&cat(&|e| e.extra.get(j).map(Vec::as_slice))))
                 .collect(),
             partition: Partition::root(o.weights, vec![], vec![], r.n_local()),
             summary: FitSummary {

@@ -246,7 +246,7 @@ impl LmnModel {
             )));
         }
         let n = e.inputs.first().map_or(e.output.len(), Vec::len);
-        if e.inputs.iter().chain(&e.extra).any(|u| u.len() != n) {
+        if e.inputs.iter().chain(e.extra).any(|u| u.len() != n) {
             return Err(LmnError::Dimension("signals of different lengths".into()));
         }
         Ok(NormExp {
@@ -604,7 +604,7 @@ impl LmnModel {
         y_init: &[f64],
     ) -> Result<Vec<f64>, LmnError> {
         let r = &self.regressors;
-        let e = Experiment::split(inputs, y_init.to_vec(), r.n_inputs(), r.n_extra)?;
+        let e = Experiment::split(inputs, y_init, r.n_inputs(), r.n_extra)?;
         self.simulate_experiment(&e, y_init.len())
     }
 
@@ -638,7 +638,7 @@ impl LmnModel {
         let n = ne.y.len();
         let k0 = self.max_lag().min(n);
         let mut ev = self.eval_scratch();
-        let mut out = e.output.clone();
+        let mut out = e.output.to_vec();
         for k in k0..n {
             ev.lay.fill(k, &ne.y, &ne.u, &mut ev.x, &mut ev.z);
             ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);

@@ -20,22 +20,22 @@ use serde::{Deserialize, Serialize};
 /// One record split for the regressors: the dynamic inputs, the output and
 /// the user columns (the last `n_extra` input signals of a record). Internal:
 /// the public API takes [`gb_core::Record`] / [`gb_core::Records`].
-#[derive(Debug, Clone, PartialEq)]
-pub(crate) struct Experiment {
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Experiment<'a> {
     /// `inputs[j][k]`: input j at sample k.
-    pub inputs: Vec<Vec<f64>>,
+    pub inputs: &'a [Vec<f64>],
     /// Measured output (for simulation, possibly only an init window).
-    pub output: Vec<f64>,
+    pub output: &'a [f64],
     /// User-supplied columns (at time k) entering the local models linearly.
-    pub extra: Vec<Vec<f64>>,
+    pub extra: &'a [Vec<f64>],
 }
 
-impl Experiment {
+impl<'a> Experiment<'a> {
     /// Split `signals` into `n_inputs` dynamic inputs and the user columns
-    /// after them.
+    /// after them (borrowed, no copy).
     pub fn split(
-        signals: &[Vec<f64>],
-        output: Vec<f64>,
+        signals: &'a [Vec<f64>],
+        output: &'a [f64],
         n_inputs: usize,
         n_extra: usize,
     ) -> Result<Self, LmnError> {
@@ -46,15 +46,15 @@ impl Experiment {
             )));
         }
         Ok(Self {
-            inputs: signals[..n_inputs].to_vec(),
+            inputs: &signals[..n_inputs],
             output,
-            extra: signals[n_inputs..].to_vec(),
+            extra: &signals[n_inputs..],
         })
     }
 
     /// A record split for `spec`.
-    pub fn of_record(r: &gb_core::Record, spec: &RegressorSpec) -> Result<Self, LmnError> {
-        Self::split(&r.inputs, r.output.clone(), spec.n_inputs(), spec.n_extra)
+    pub fn of_record(r: &'a gb_core::Record, spec: &RegressorSpec) -> Result<Self, LmnError> {
+        Self::split(&r.inputs, &r.output, spec.n_inputs(), spec.n_extra)
     }
 
     /// Number of samples.
