@@ -11,13 +11,17 @@
 //! One iteration solves
 //!
 //! ```text
-//! (G + D_λ) δ = g,   D_λ,ii = λ·(max(Gᵢᵢ, ρ·maxⱼ Gⱼⱼ) + a) + ε·maxⱼ Gⱼⱼ
+//! (G + D_λ) δ = g,   D_λ,ii = λ·(max(Gᵢᵢ, ρ·maxⱼ Gⱼⱼ, ρ₀) + a) + ε·maxⱼ Gⱼⱼ + ε₀
 //! ```
 //!
-//! (Marquardt's scaling with a floor ρ, an additive term a and a jitter ε),
-//! and accepts θ + δ when it is admissible and lowers the cost; then
-//! `λ ← max(λ·down, λ_min)`. A rejected step raises `λ ← λ·up` (by `up_singular`
-//! when `G + D_λ` is not positive definite) and tries again, up to
+//! (Marquardt's scaling with a relative floor ρ, an absolute floor ρ₀, an
+//! additive term a and a relative / absolute jitter ε / ε₀), maps θ + δ
+//! through [`LeastSquaresProblem::project`] and accepts it when it is
+//! admissible and lowers the cost; then `λ ← max(λ·down, λ_min)` (for
+//! `down = 1/m` with an integer m this is computed as λ/m, one rounding).
+//! A rejected step raises `λ ← λ·up` (by `up_singular` when `G + D_λ` is
+//! not positive definite, see [`LeastSquaresProblem::solve_damped`]) and
+//! tries again, up to
 //! `max_trials` times. It stops when the relative decrease of an accepted
 //! step falls below `tol`, when no trial lowers the cost, when `λ > λ_max`,
 //! or after `max_iter` iterations.
@@ -53,7 +57,7 @@
 //! ```
 use crate::observe::{IterationInfo, Observer};
 use crate::CoreError;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 /// A nonlinear least-squares problem in normal-equation form.
 pub trait LeastSquaresProblem {
@@ -74,6 +78,33 @@ pub trait LeastSquaresProblem {
         let _ = theta;
         true
     }
+
+    /// Map a trial point onto the feasible set before it is checked and
+    /// evaluated (e.g. cap a norm); the accepted point is the projected one.
+    /// Default: unchanged.
+    fn project(&mut self, theta: &mut [f64]) {
+        let _ = theta;
+    }
+
+    /// Solve the damped normal equations `A δ = g` into `delta`; `a` is the
+    /// symmetric positive definite n×n matrix `G + D_λ`, column-major, and
+    /// may be overwritten. `false` where `A` is not positive definite. The
+    /// default is [`cholesky_solve`]; a problem may supply a faster or
+    /// structured factorisation.
+    fn solve_damped(&mut self, a: &mut [f64], g: &[f64], delta: &mut [f64]) -> bool {
+        cholesky_solve(a, g, delta)
+    }
+}
+
+/// Solve `A δ = g` for a symmetric positive definite `A` (n×n, column-major)
+/// by a Cholesky factorisation; `false` where `A` is not positive definite.
+pub fn cholesky_solve(a: &[f64], g: &[f64], delta: &mut [f64]) -> bool {
+    let n = g.len();
+    let Some(chol) = DMatrix::from_column_slice(n, n, a).cholesky() else {
+        return false;
+    };
+    delta.copy_from_slice(chol.solve(&DVector::from_column_slice(g)).as_slice());
+    true
 }
 
 /// Why the solver stopped.
@@ -106,8 +137,10 @@ pub enum Termination {
 /// | `lambda_max` | 1e12 | λ above which the solver gives up |
 /// | `max_trials` | 12 | trial steps per iteration |
 /// | `diag_floor` | 1e-9 | ρ: floor of the scaling, relative to `max Gⱼⱼ` |
+/// | `diag_floor_abs` | 0 | ρ₀: absolute floor of the scaling |
 /// | `diag_add` | 0 | a: added to the scaling (absolute) |
 /// | `jitter` | 1e-12 | ε: added to the diagonal, relative to `max Gⱼⱼ` |
+/// | `jitter_abs` | 0 | ε₀: added to the diagonal (absolute) |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmParams {
     /// Most iterations.
@@ -130,10 +163,14 @@ pub struct LmParams {
     pub max_trials: usize,
     /// Floor ρ of the Marquardt scaling, relative to the largest diagonal.
     pub diag_floor: f64,
+    /// Absolute floor ρ₀ of the Marquardt scaling.
+    pub diag_floor_abs: f64,
     /// Absolute term a added to the Marquardt scaling.
     pub diag_add: f64,
     /// Jitter ε added to the diagonal, relative to the largest diagonal.
     pub jitter: f64,
+    /// Absolute jitter ε₀ added to the diagonal.
+    pub jitter_abs: f64,
 }
 
 impl Default for LmParams {
@@ -149,8 +186,10 @@ impl Default for LmParams {
             lambda_max: 1e12,
             max_trials: 12,
             diag_floor: 1e-9,
+            diag_floor_abs: 0.0,
             diag_add: 0.0,
             jitter: 1e-12,
+            jitter_abs: 0.0,
         }
     }
 }
@@ -201,13 +240,32 @@ impl LmParams {
                 "Levenberg-Marquardt: lambda_min <= lambda_max and max_trials >= 1".into(),
             ));
         }
-        let nonneg = [self.tol, self.diag_floor, self.diag_add, self.jitter];
+        let nonneg = [
+            self.tol,
+            self.diag_floor,
+            self.diag_floor_abs,
+            self.diag_add,
+            self.jitter,
+            self.jitter_abs,
+        ];
         if nonneg.iter().any(|v| !(*v >= 0.0 && v.is_finite())) {
             return Err(CoreError::InvalidArgument(
-                "Levenberg-Marquardt: tol, diag_floor, diag_add and jitter must be >= 0".into(),
+                "Levenberg-Marquardt: tol, diag_floor(_abs), diag_add and jitter(_abs) must be >= 0"
+                    .into(),
             ));
         }
         Ok(LevenbergMarquardt { p: self })
+    }
+}
+
+/// `λ·down`, computed as `λ/m` when `down = 1/m` for an integer m (one
+/// rounding instead of two: a down factor of 1/3 divides by 3 exactly).
+fn shrink(lambda: f64, down: f64) -> f64 {
+    let m = 1.0 / down;
+    if m == m.round() {
+        lambda / m
+    } else {
+        lambda * down
     }
 }
 
@@ -242,6 +300,7 @@ pub struct LmWorkspace {
     gram: Vec<f64>,
     grad: Vec<f64>,
     trial: Vec<f64>,
+    delta: Vec<f64>,
     a: DMatrix<f64>,
 }
 
@@ -252,6 +311,7 @@ impl LmWorkspace {
             gram: vec![0.0; n * n],
             grad: vec![0.0; n],
             trial: vec![0.0; n],
+            delta: vec![0.0; n],
             a: DMatrix::zeros(n, n),
         }
     }
@@ -335,10 +395,12 @@ impl LevenbergMarquardt {
                     ws.a[(i, j)] = ws.gram[i * n + j];
                 }
                 let g = ws.gram[i * n + i];
-                ws.a[(i, i)] +=
-                    lambda * (g.max(p.diag_floor * dmax) + p.diag_add) + p.jitter * dmax;
+                ws.a[(i, i)] += lambda
+                    * (g.max(p.diag_floor * dmax).max(p.diag_floor_abs) + p.diag_add)
+                    + p.jitter * dmax
+                    + p.jitter_abs;
             }
-            let Some(chol) = ws.a.clone().cholesky() else {
+            if !problem.solve_damped(ws.a.as_mut_slice(), &ws.grad, &mut ws.delta) {
                 state.lambda *= p.lambda_up_singular;
                 if state.lambda > p.lambda_max {
                     state.termination = Some(Termination::DampingOverflow);
@@ -346,10 +408,10 @@ impl LevenbergMarquardt {
                 }
                 continue;
             };
-            let delta = chol.solve(&nalgebra::DVector::from_column_slice(&ws.grad));
             for i in 0..n {
-                ws.trial[i] = state.theta[i] + delta[i];
+                ws.trial[i] = state.theta[i] + ws.delta[i];
             }
+            problem.project(&mut ws.trial);
             if problem.admissible(&ws.trial) {
                 state.evaluations += 1;
                 if let Some(c) = problem.cost(&ws.trial).filter(|c| c.is_finite()) {
@@ -357,7 +419,7 @@ impl LevenbergMarquardt {
                         let rel = (cost - c) / cost.max(1e-300);
                         state.theta.copy_from_slice(&ws.trial);
                         state.cost = c;
-                        state.lambda = (state.lambda * p.lambda_down).max(p.lambda_min);
+                        state.lambda = shrink(state.lambda, p.lambda_down).max(p.lambda_min);
                         if rel < p.tol {
                             state.termination = Some(Termination::Converged);
                         }
@@ -478,6 +540,63 @@ mod tests {
         assert!(s.theta[0] <= 0.5);
         // the constrained optimum lies on the bound θ₀ = 0.5
         assert!(s.theta[0] > 0.3, "{:?}", s.theta);
+    }
+
+    /// Counts the damped solves and caps θ₀ by projection.
+    struct Capped {
+        inner: Rosenbrock,
+        cap: f64,
+        solves: usize,
+    }
+    impl LeastSquaresProblem for Capped {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            self.inner.cost(t)
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            self.inner.linearize(t, g, grad)
+        }
+        fn project(&mut self, t: &mut [f64]) {
+            t[0] = t[0].min(self.cap);
+        }
+        fn solve_damped(&mut self, a: &mut [f64], g: &[f64], d: &mut [f64]) -> bool {
+            self.solves += 1;
+            cholesky_solve(a, g, d)
+        }
+    }
+
+    #[test]
+    fn projection_and_custom_solve_are_used() {
+        let lm = LmParams {
+            diag_floor_abs: 1e-12,
+            jitter_abs: 1e-12,
+            ..LmParams::default()
+        }
+        .check()
+        .unwrap();
+        let mut p = Capped {
+            inner: Rosenbrock {
+                admissible_calls: 0,
+                bound: f64::INFINITY,
+            },
+            cap: 0.5,
+            solves: 0,
+        };
+        let s = lm.minimize(&mut p, &[-1.2, 1.0], &crate::Silent).unwrap();
+        // every accepted point is a projected one; the optimum lies on the cap
+        assert!(s.theta[0] <= 0.5 && s.theta[0] > 0.3, "{:?}", s.theta);
+        assert!(p.solves >= s.iterations);
+    }
+
+    #[test]
+    fn a_reciprocal_integer_down_factor_divides() {
+        for l in [1e-3, 7.1e-5, 0.37, 123.456] {
+            assert_eq!(shrink(l, 1.0 / 3.0), l / 3.0);
+            assert_eq!(shrink(l, 0.3), l * 0.3);
+            assert_eq!(shrink(l, 0.5), l / 2.0);
+        }
     }
 
     #[test]

@@ -306,12 +306,11 @@ fn fit_lmn(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitte
         };
         r.check_identifiable(&format!("record {}", i + 1), min)?;
     }
-    let exps: Vec<gb_lmn::Experiment> = data.iter().map(gb_lmn::Experiment::from).collect();
-    let lmn = p.fit(&exps)?;
+    let lmn = p.check()?.fit_with_observer(data, None, obs)?;
     let mut res = vec![];
-    for (e, d) in exps.iter().zip(data.iter()) {
+    for d in data.iter() {
         let k0 = lmn.max_lag().min(d.len());
-        let sim = lmn.simulate(e, k0)?;
+        let sim = lmn.simulate(d, k0)?;
         res.extend(d.output[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b));
     }
     let notes = vec![format!(
@@ -416,7 +415,7 @@ fn fit_ss_lmn(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<F
     let output_upper = o.f64_opt("output_max", f64::MIN, f64::MAX)?;
     o.finish(&["order", "max_leaves", "output_max"])?;
     let params = gb_lmn::SsLmnParams {
-        n_states,
+        n_states: vec![n_states],
         leaves: (1..=leaves).collect(),
         output_upper,
         ..gb_lmn::SsLmnParams::default()

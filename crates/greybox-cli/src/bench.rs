@@ -430,7 +430,7 @@ fn fit_class(
                 .max_leaves(leaves)
                 .focus(gb_lmn::Focus::Simulation)
                 .lm_iterations(lm)
-                .fit(&[gb_lmn::Experiment::new(d.inputs.clone(), d.output.clone())])
+                .fit(&gb_core::Records::single(d.clone()))
                 .map_err(|e| e.to_string())?;
             let text = format!(
                 "LmnModel NOE: {} leaf(s), local polynomials of degree {degree} in y(k-1..{na}), u(k-{nk}..k-{}), {} parameters",
@@ -489,7 +489,14 @@ fn fit_class(
                 pb.set_message("Wiener-Hammerstein network: BLA, pole/zero splits, LM");
                 pb
             };
-            let mut p = gb_lmn::WhParams::new().knots(knots).max_iter(iterations);
+            // the WH2009 set-up: a 6/6 BLA, a 200-sample transient, a scan
+            // on the first 30 000 samples
+            let mut p = gb_lmn::WhParams::new()
+                .bla(6, 6)
+                .skip(200)
+                .scan_samples(30_000)
+                .knots(knots)
+                .max_iter(iterations);
             if train_rows < 10_000 {
                 // --quick: a small scan and one candidate
                 p = p.candidates(1).bla(4, 4);
@@ -510,7 +517,7 @@ fn fit_class(
             output_upper,
         } => {
             let p = gb_lmn::SsLmnParams {
-                n_states,
+                n_states: vec![n_states],
                 leaves: (1..=max_leaves).collect(),
                 output_upper: Some(output_upper),
                 max_iter: lm,

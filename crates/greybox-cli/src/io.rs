@@ -18,7 +18,9 @@ pub fn load(path: &Path, s: &SignalArgs) -> Result<Record> {
         path.display(),
         r.input_names.join(","),
         r.output_name,
-        ts.map_or(String::new(), |(c, dt)| format!("; sample time {dt:.6e} s (column {c})"))
+        ts.map_or(String::new(), |(c, dt)| format!(
+            "; sample time {dt:.6e} s (column {c})"
+        ))
     );
     Ok(r)
 }
