@@ -14,11 +14,14 @@
 //! (G + D_λ) δ = g,   D_λ,ii = λ·(max(Gᵢᵢ, ρ·maxⱼ Gⱼⱼ) + a) + ε·maxⱼ Gⱼⱼ
 //! ```
 //!
-//! (Marquardt's scaling with a floor ρ, an additive term a and a jitter ε),
-//! and accepts θ + δ when it is admissible and lowers the cost; then
-//! `λ ← max(λ·down, λ_min)`. A rejected step raises `λ ← λ·up` (by `up_singular`
-//! when `G + D_λ` is not positive definite) and tries again, up to
-//! `max_trials` times. It stops when the relative decrease of an accepted
+//! (Marquardt's scaling with a floor ρ, an additive term a and a jitter ε;
+//! with a Tikhonov penalty `Σ rᵢθᵢ²` ([`LeastSquaresProblem::tikhonov`]) the
+//! system is `(G + D_λ + diag r) δ = g − r∘θ`), and accepts θ + δ when it is
+//! admissible and lowers the cost; then `λ ← max(λ·down, λ_min)` (computed
+//! as `λ / k` when `down = 1/k` for an integer k, so that `1/3` divides
+//! exactly). A rejected step raises `λ ← λ·up` (by `up_singular` when
+//! `G + D_λ` is not positive definite or the step is not finite) and tries
+//! again, up to `max_trials` times. It stops when the relative decrease of an accepted
 //! step falls below `tol`, when no trial lowers the cost, when `λ > λ_max`,
 //! or after `max_iter` iterations.
 //!
@@ -74,6 +77,17 @@ pub trait LeastSquaresProblem {
         let _ = theta;
         true
     }
+
+    /// Weights `ρᵢ ≥ 0` (one per parameter) of a Tikhonov penalty
+    /// `Σᵢ ρᵢ θᵢ²` that [`cost`](Self::cost) includes but
+    /// [`linearize`](Self::linearize) leaves out of the Gram matrix and the
+    /// gradient (they describe the data term alone). The solver adds `ρᵢ` to
+    /// the diagonal of the damped system and `−ρᵢ θᵢ` to the gradient, outside
+    /// the Marquardt scaling, so the damping scales with the data term only.
+    /// `None` (the default): no penalty.
+    fn tikhonov(&self) -> Option<&[f64]> {
+        None
+    }
 }
 
 /// Why the solver stopped.
@@ -101,7 +115,7 @@ pub enum Termination {
 /// | `lambda_init` | 1e-3 | initial damping λ |
 /// | `lambda_up` | 4 | factor on λ after a rejected step |
 /// | `lambda_up_singular` | 10 | factor on λ when `G + D_λ` is singular |
-/// | `lambda_down` | 1/3 | factor on λ after an accepted step |
+/// | `lambda_down` | 1/3 | factor on λ after an accepted step (`1/k`: divides by k) |
 /// | `lambda_min` | 1e-12 | smallest λ |
 /// | `lambda_max` | 1e12 | λ above which the solver gives up |
 /// | `max_trials` | 12 | trial steps per iteration |
@@ -217,6 +231,16 @@ pub struct LevenbergMarquardt {
     p: LmParams,
 }
 
+/// `λ·down`, as an exact division `λ / k` when `down = 1/k` for an integer k.
+fn decrease(lambda: f64, down: f64) -> f64 {
+    let k = 1.0 / down;
+    if k.fract() == 0.0 {
+        lambda / k
+    } else {
+        lambda * down
+    }
+}
+
 /// The solver's state between iterations.
 #[derive(Debug, Clone, PartialEq)]
 pub struct LmState {
@@ -241,6 +265,8 @@ pub struct LmState {
 pub struct LmWorkspace {
     gram: Vec<f64>,
     grad: Vec<f64>,
+    rhs: Vec<f64>,
+    ridge: Vec<f64>,
     trial: Vec<f64>,
     a: DMatrix<f64>,
 }
@@ -251,6 +277,8 @@ impl LmWorkspace {
         Self {
             gram: vec![0.0; n * n],
             grad: vec![0.0; n],
+            rhs: vec![0.0; n],
+            ridge: Vec::with_capacity(n),
             trial: vec![0.0; n],
             a: DMatrix::zeros(n, n),
         }
@@ -328,6 +356,20 @@ impl LevenbergMarquardt {
             .fold(0.0, f64::max)
             .max(1e-300);
         let p = &self.p;
+        let ridge = match problem.tikhonov() {
+            Some(r) if r.len() == n => {
+                ws.ridge.clear();
+                ws.ridge.extend_from_slice(r);
+                true
+            }
+            _ => false,
+        };
+        ws.rhs.copy_from_slice(&ws.grad);
+        if ridge {
+            for i in 0..n {
+                ws.rhs[i] -= ws.ridge[i] * state.theta[i];
+            }
+        }
         for _ in 0..p.max_trials {
             let lambda = state.lambda;
             for i in 0..n {
@@ -337,8 +379,16 @@ impl LevenbergMarquardt {
                 let g = ws.gram[i * n + i];
                 ws.a[(i, i)] +=
                     lambda * (g.max(p.diag_floor * dmax) + p.diag_add) + p.jitter * dmax;
+                if ridge {
+                    ws.a[(i, i)] += ws.ridge[i];
+                }
             }
-            let Some(chol) = ws.a.clone().cholesky() else {
+            let step =
+                ws.a.clone()
+                    .cholesky()
+                    .map(|chol| chol.solve(&nalgebra::DVector::from_column_slice(&ws.rhs)))
+                    .filter(|d| d.iter().all(|v| v.is_finite()));
+            let Some(delta) = step else {
                 state.lambda *= p.lambda_up_singular;
                 if state.lambda > p.lambda_max {
                     state.termination = Some(Termination::DampingOverflow);
@@ -346,7 +396,6 @@ impl LevenbergMarquardt {
                 }
                 continue;
             };
-            let delta = chol.solve(&nalgebra::DVector::from_column_slice(&ws.grad));
             for i in 0..n {
                 ws.trial[i] = state.theta[i] + delta[i];
             }
@@ -357,7 +406,7 @@ impl LevenbergMarquardt {
                         let rel = (cost - c) / cost.max(1e-300);
                         state.theta.copy_from_slice(&ws.trial);
                         state.cost = c;
-                        state.lambda = (state.lambda * p.lambda_down).max(p.lambda_min);
+                        state.lambda = decrease(state.lambda, p.lambda_down).max(p.lambda_min);
                         if rel < p.tol {
                             state.termination = Some(Termination::Converged);
                         }
@@ -478,6 +527,86 @@ mod tests {
         assert!(s.theta[0] <= 0.5);
         // the constrained optimum lies on the bound θ₀ = 0.5
         assert!(s.theta[0] > 0.3, "{:?}", s.theta);
+    }
+
+    /// Linear least squares `y ≈ Xθ` with a Tikhonov penalty `Σ rᵢθᵢ²`
+    /// (the Gram matrix and gradient of the data term only).
+    struct Ridge {
+        x: Vec<[f64; 2]>,
+        y: Vec<f64>,
+        r: [f64; 2],
+    }
+    impl LeastSquaresProblem for Ridge {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            let sse: f64 = self
+                .x
+                .iter()
+                .zip(&self.y)
+                .map(|(x, y)| (y - x[0] * t[0] - x[1] * t[1]).powi(2))
+                .sum();
+            Some(sse + self.r[0] * t[0] * t[0] + self.r[1] * t[1] * t[1])
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            g.fill(0.0);
+            grad.fill(0.0);
+            for (x, y) in self.x.iter().zip(&self.y) {
+                let e = y - x[0] * t[0] - x[1] * t[1];
+                for a in 0..2 {
+                    grad[a] += x[a] * e;
+                    for b in 0..2 {
+                        g[a * 2 + b] += x[a] * x[b];
+                    }
+                }
+            }
+            self.cost(t)
+        }
+        fn tikhonov(&self) -> Option<&[f64]> {
+            Some(&self.r)
+        }
+    }
+
+    #[test]
+    fn tikhonov_penalty_gives_the_ridge_solution() {
+        let x: Vec<[f64; 2]> = (0..30).map(|k| [1.0, (k as f64 * 0.7).sin()]).collect();
+        let y: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(k, x)| 0.5 + 2.0 * x[1] + 0.1 * (k as f64 * 1.3).cos())
+            .collect();
+        let r = [0.0, 5.0];
+        // closed form: (XᵀX + diag r) θ = Xᵀy
+        let mut a = nalgebra::Matrix2::<f64>::zeros();
+        let mut b = nalgebra::Vector2::<f64>::zeros();
+        for (xi, yi) in x.iter().zip(&y) {
+            for i in 0..2 {
+                b[i] += xi[i] * yi;
+                for j in 0..2 {
+                    a[(i, j)] += xi[i] * xi[j];
+                }
+            }
+        }
+        a[(1, 1)] += r[1];
+        let exact = a.lu().solve(&b).unwrap();
+        let lm = LmParams::default().tol(1e-15).check().unwrap();
+        let s = lm
+            .minimize(&mut Ridge { x, y, r }, &[0.0, 0.0], &crate::Silent)
+            .unwrap();
+        assert!((s.theta[0] - exact[0]).abs() < 1e-9, "{:?}", s.theta);
+        assert!((s.theta[1] - exact[1]).abs() < 1e-9, "{:?}", s.theta);
+        // the penalty shrinks the slope below the unpenalised 2
+        assert!(s.theta[1] < 1.9);
+    }
+
+    #[test]
+    fn an_integer_reciprocal_decrease_divides_exactly() {
+        let l = 5.0f64;
+        assert_eq!(decrease(l, 1.0 / 3.0), l / 3.0);
+        assert_ne!(l / 3.0, l * (1.0 / 3.0));
+        assert_eq!(decrease(l, 0.3), l * 0.3);
+        assert_eq!(decrease(l, 0.5), l / 2.0);
     }
 
     #[test]
