@@ -300,7 +300,7 @@ impl GreyBoxModel {
             .chain(std::iter::once(&data.output_name))
             .cloned()
             .collect();
-        let mut silent = gb_model::Silent;
+        let silent = gb_model::Silent;
         let mech = if structure.hysteresis && data.n_inputs() == 1 {
             let (u, y) = (&data.inputs[0], &data.output);
             let err = |m: &SparseStateSpace| -> f64 {
@@ -329,7 +329,7 @@ impl GreyBoxModel {
                     .max_level(2)
                     .max_new(24)
                     .check()
-                    .and_then(|p| p.fit(s0, &data.inputs, y, &mut silent))
+                    .and_then(|p| p.fit(s0, &data.inputs, y, &silent))
                 else {
                     break;
                 };
@@ -354,7 +354,7 @@ impl GreyBoxModel {
                 structure.order,
                 structure.hysteresis,
                 names,
-                &mut silent,
+                &silent,
             )?,
         };
         let sim = ss.simulate(&data.inputs)?;

@@ -20,8 +20,9 @@
 //! also by z and by `f_q`.
 use crate::basis::SparseExpansion;
 use crate::error::{ModelError, Result};
-use crate::identify::{Observer, OeParams, OeReport, OutputError};
+use crate::identify::{OeParams, OeReport, OutputError};
 use crate::model::{NoiseModel, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
+use gb_core::Observer;
 
 /// Options of the [MR damper structure](self); `Default` is the structure
 /// of `examples/mr_damper.rs`.
@@ -260,7 +261,7 @@ impl MrDamperStructure {
         oe: &OutputError,
         inputs: &[Vec<f64>],
         y: &[f64],
-        obs: &mut dyn Observer,
+        obs: &dyn Observer,
     ) -> Result<(SparseStateSpace, OeReport)> {
         oe.fit(self.start(inputs, y)?, inputs, y, obs)
     }
@@ -274,7 +275,7 @@ impl MrDamperStructure {
     /// ```no_run
     /// # let (u, f): (Vec<Vec<f64>>, Vec<f64>) = (vec![], vec![]);
     /// let fit = gb_model::MrDamperStructure::default().fit_validated(
-    ///     &gb_model::OeParams::new(), &[0.0, 1e3], &u, &f, &mut gb_model::Silent)?;
+    ///     &gb_model::OeParams::new(), &[0.0, 1e3], &u, &f, &gb_model::Silent)?;
     /// println!("ridge {} chosen: {:?}", fit.ridge, fit.scores);
     /// # Ok::<(), gb_model::ModelError>(())
     /// ```
@@ -284,7 +285,7 @@ impl MrDamperStructure {
         ridges: &[f64],
         inputs: &[Vec<f64>],
         y: &[f64],
-        obs: &mut dyn Observer,
+        obs: &dyn Observer,
     ) -> Result<ValidatedFit> {
         Self::select(std::slice::from_ref(self), oe, ridges, inputs, y, obs)
     }
@@ -298,7 +299,7 @@ impl MrDamperStructure {
         ridges: &[f64],
         inputs: &[Vec<f64>],
         y: &[f64],
-        obs: &mut dyn Observer,
+        obs: &dyn Observer,
     ) -> Result<ValidatedFit> {
         let n = y.len();
         let n_val = n * 8 / 10;
@@ -321,7 +322,7 @@ impl MrDamperStructure {
                         .clone()
                         .ridge(r)
                         .check()
-                        .and_then(|f| st.fit(&f, &head, &y[..n_val], &mut crate::Silent))
+                        .and_then(|f| st.fit(&f, &head, &y[..n_val], &crate::Silent))
                         .and_then(|(m, _)| m.simulate(inputs))
                         .ok()
                         .and_then(|s| gb_core::metrics::nrmse(&y[n_val..], &s[n_val..]).ok())
@@ -373,10 +374,9 @@ mod tests {
             ..MrDamperStructure::default()
         };
         assert!(bad.start(&u, &y).is_err(), "resonance above Nyquist");
-        let fit = s.fit_validated(&OeParams::new(), &[], &u, &y, &mut crate::Silent);
+        let fit = s.fit_validated(&OeParams::new(), &[], &u, &y, &crate::Silent);
         assert!(fit.is_err(), "no ridge candidate");
-        let sel =
-            MrDamperStructure::select(&[], &OeParams::new(), &[0.0], &u, &y, &mut crate::Silent);
+        let sel = MrDamperStructure::select(&[], &OeParams::new(), &[0.0], &u, &y, &crate::Silent);
         assert!(sel.is_err(), "no structure");
     }
 

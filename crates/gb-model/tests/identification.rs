@@ -101,7 +101,7 @@ fn output_error_identifies_a_hidden_state_nonlinearity() {
         .check()
         .unwrap();
     let (lin, _) = fit
-        .fit(mechanical(-H * 2.0, 1.0 - H, 0.5 * H), &uf, yf, &mut Silent)
+        .fit(mechanical(-H * 2.0, 1.0 - H, 0.5 * H), &uf, yf, &Silent)
         .unwrap();
     let mut start = mechanical(-H * 2.0, 1.0 - H, 0.5 * H);
     let pmax = y0.iter().fold(0.0f64, |a, v| a.max(v.abs())) * 1.1;
@@ -110,7 +110,7 @@ fn output_error_identifies_a_hidden_state_nonlinearity() {
         args: vec![Signal::State(0)],
         expansion: SparseExpansion::new("bior2.2", vec![-pmax], vec![pmax]).unwrap(),
     });
-    let (m, report) = fit.fit(start, &uf, yf, &mut Silent).unwrap();
+    let (m, report) = fit.fit(start, &uf, yf, &Silent).unwrap();
     let e_lin = metrics::nrmse(
         &y0[2000..],
         &lin.simulate(std::slice::from_ref(&u)).unwrap()[2000..],
@@ -165,7 +165,7 @@ fn ridge_shrinks_the_wavelet_coefficients() {
             .ridge(ridge)
             .check()
             .unwrap()
-            .fit(start.clone(), &u, &y, &mut Silent)
+            .fit(start.clone(), &u, &y, &Silent)
             .unwrap();
         let norm: f64 = m.terms[0]
             .expansion
@@ -216,7 +216,7 @@ fn output_error_identifies_a_preisach_component() {
         .max_level(2)
         .check()
         .unwrap();
-    let (m, _) = fit.fit(start, &uf, yf, &mut Silent).unwrap();
+    let (m, _) = fit.fit(start, &uf, yf, &Silent).unwrap();
     let sim = m.simulate(std::slice::from_ref(&u)).unwrap();
     let e = metrics::nrmse(&y0[1800..], &sim[1800..]).unwrap();
     assert!(e < 0.05, "validation NRMSE {e}");
@@ -262,8 +262,8 @@ fn options_and_data_are_validated() {
     let u = vec![vec![0.0; 100]];
     let mut y = vec![0.0; 100];
     y[3] = f64::NAN;
-    assert!(fit.fit(m.clone(), &u, &y, &mut Silent).is_err());
-    assert!(fit.fit(m.clone(), &u, &y[..50], &mut Silent).is_err());
+    assert!(fit.fit(m.clone(), &u, &y, &Silent).is_err());
+    assert!(fit.fit(m.clone(), &u, &y[..50], &Silent).is_err());
     assert!(m.simulate(&[vec![0.0; 5], vec![0.0; 5]]).is_err());
     // unstable models report divergence instead of NaN
     let bad = SparseStateSpace::linear(vec![3.0], vec![1.0], vec![1.0], vec![0.0]).unwrap();
@@ -297,7 +297,7 @@ fn smc_path_reports_path_and_likelihood() {
             mechanical(-H * 3.0, 1.0 - H, H),
             std::slice::from_ref(&u),
             &y,
-            &mut Silent,
+            &Silent,
         )
         .unwrap();
     let smc = SmcParams::new()
@@ -311,9 +311,7 @@ fn smc_path_reports_path_and_likelihood() {
         .seed(3)
         .check()
         .unwrap();
-    let (m, rep) = smc
-        .fit(&oe, std::slice::from_ref(&u), &y, &mut Silent)
-        .unwrap();
+    let (m, rep) = smc.fit(&oe, std::slice::from_ref(&u), &y, &Silent).unwrap();
     assert!(rep.log_likelihood.is_finite() && rep.log_likelihood_oe.is_finite());
     assert!(rep.log_likelihood >= rep.log_likelihood_oe);
     assert!(matches!(

@@ -441,11 +441,7 @@ fn fit_class(
             let (start, _) =
                 gb_model::hysteretic_mechanical_start(u, &d.output, a..b, ts, substeps)
                     .map_err(|e| e.to_string())?;
-            let mut bar: Box<dyn gb_model::Observer> = if quiet {
-                Box::new(gb_model::Silent)
-            } else {
-                Box::new(gb_model::ProgressBar::new())
-            };
+            let bar = crate::FitBar::new(quiet);
             let (m, _) = OeParams::new()
                 .max_iter(40)
                 .coarse_level(1)
@@ -453,7 +449,7 @@ fn fit_class(
                 .max_new(40)
                 .check()
                 .map_err(|e| e.to_string())?
-                .fit(start, std::slice::from_ref(u), &d.output, bar.as_mut())
+                .fit(start, std::slice::from_ref(u), &d.output, &bar)
                 .map_err(|e| e.to_string())?;
             let text = format!(
                 "gb-model state space: position, velocity, hidden hysteretic force z; sparse bior2.2 term f(v, z), {} parameters, {substeps} sub-steps",
@@ -516,11 +512,7 @@ fn fit_class(
             train_rows,
         } => {
             let d = train.slice(0..train_rows.min(train.len()));
-            let mut bar: Box<dyn gb_model::Observer> = if quiet {
-                Box::new(gb_model::Silent)
-            } else {
-                Box::new(gb_model::ProgressBar::new())
-            };
+            let bar = crate::FitBar::new(quiet);
             // the resonance set and the ridge weight on the last 20 % of the
             // training rows
             let structures: Vec<gb_model::MrDamperStructure> = [vec![150.0], vec![150.0, 120.0]]
@@ -536,7 +528,7 @@ fn fit_class(
                 &[0.0, 1e3],
                 &d.inputs,
                 &d.output,
-                bar.as_mut(),
+                &bar,
             )
             .map_err(|e| e.to_string())?;
             let (m, ridge, structure) = (fit.model, fit.ridge, fit.structure);

@@ -461,6 +461,39 @@ impl gb_diagnose::Observer for BarObserver {
     }
 }
 
+/// A `gb_core::Observer` drawing an indicatif bar on stderr for a fit of
+/// the numerical crates (stage and training RMSE); hidden with `--quiet` or
+/// when stderr is not a terminal, cleared when the work is done.
+pub(crate) struct FitBar(ProgressBar);
+
+impl FitBar {
+    pub(crate) fn new(quiet: bool) -> Self {
+        let bar = if quiet || !std::io::stderr().is_terminal() {
+            ProgressBar::hidden()
+        } else {
+            let b = ProgressBar::new(1);
+            if let Ok(style) =
+                ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}")
+            {
+                b.set_style(style);
+            }
+            b
+        };
+        Self(bar)
+    }
+}
+
+impl gb_core::Observer for FitBar {
+    fn progress(&self, done: usize, total: usize, message: &str) {
+        self.0.set_length(total as u64);
+        self.0.set_position(done as u64);
+        self.0.set_message(message.to_string());
+        if done >= total {
+            self.0.finish_and_clear();
+        }
+    }
+}
+
 fn parse_order(s: &str) -> Result<OrderChoice> {
     if s == "auto" {
         return Ok(OrderChoice::Auto);
@@ -729,20 +762,10 @@ fn run_fit_state_space(a: StateSpaceFit, quiet: bool) -> Result<()> {
         .map_err(|e| e.to_string())?;
     let mut names = data.input_names.clone();
     names.push(data.output_name.clone());
-    let mut bar: Box<dyn gb_model::Observer> = if quiet {
-        Box::new(gb_model::Silent)
-    } else {
-        Box::new(gb_model::ProgressBar::new())
-    };
-    let (m, report) = gb_model::fit_state_space(
-        &data.inputs,
-        &data.output,
-        a.order,
-        preisach,
-        names,
-        bar.as_mut(),
-    )
-    .map_err(|e| e.to_string())?;
+    let bar = FitBar::new(quiet);
+    let (m, report) =
+        gb_model::fit_state_space(&data.inputs, &data.output, a.order, preisach, names, &bar)
+            .map_err(|e| e.to_string())?;
     save_state_space(&m, &report, &data, &a.out)
 }
 
@@ -832,18 +855,14 @@ fn run_fit_damper(a: StateSpaceFit, quiet: bool) -> Result<()> {
         Some(r) => return Err(format!("--ridge must be finite and >= 0, got {r}")),
         None => vec![0.0, 1e3],
     };
-    let mut bar: Box<dyn gb_model::Observer> = if quiet {
-        Box::new(gb_model::Silent)
-    } else {
-        Box::new(gb_model::ProgressBar::new())
-    };
+    let bar = FitBar::new(quiet);
     let fit = structure
         .fit_validated(
             &gb_model::OeParams::new(),
             &ridges,
             &data.inputs,
             &data.output,
-            bar.as_mut(),
+            &bar,
         )
         .map_err(|e| format!("--model state-space+damper: {e}"))?;
     for (_, r, e) in &fit.scores {
