@@ -46,7 +46,7 @@ mod smc;
 mod structures;
 
 pub use basis::{Coefficient, EvalScratch, SparseExpansion, MAX_DIMS, TABLE_RESOLUTION};
-pub use damper::{MrDamperStructure, ValidatedFit};
+pub use damper::{band_edge, spectral_peaks, MrDamperStructure, ValidatedFit};
 pub use error::{ModelError, Result};
 pub use everett::WaveletEverett;
 pub use gb_core::{Observer, Silent};

@@ -90,7 +90,8 @@ fn mr_damper_short_record_beats_linear() {
     let lin = linear_from_oe(&head[..3], &f[..n_fit], 2).unwrap();
     let e_lin = metrics::nrmse(&f[n_fit..], &lin.simulate(&inputs[..3]).unwrap()[n_fit..]).unwrap();
     let oe = OeParams::new().max_level(2).check().unwrap();
-    let (m, _) = gb_model::MrDamperStructure::default()
+    // the Dyke rig: 3004.8 Hz, resonances started at 150 and 120 Hz
+    let (m, _) = gb_model::MrDamperStructure::new(3004.8, vec![150.0, 120.0])
         .fit(&oe, &head, &f[..n_fit], &Silent)
         .unwrap();
     let e = metrics::nrmse(&f[n_fit..], &m.simulate(&inputs).unwrap()[n_fit..]).unwrap();

@@ -515,12 +515,11 @@ fn fit_class(
             let bar = crate::FitBar::new(quiet);
             // the resonance set and the ridge weight on the last 20 % of the
             // training rows
+            // the Dyke rig: sampled at 3004.8 Hz (the `t` column's mean step
+            // gives 3004.795 Hz), resonances started at 150 Hz or 150 and 120 Hz
             let structures: Vec<gb_model::MrDamperStructure> = [vec![150.0], vec![150.0, 120.0]]
                 .into_iter()
-                .map(|r| gb_model::MrDamperStructure {
-                    resonances_hz: r,
-                    ..gb_model::MrDamperStructure::default()
-                })
+                .map(|r| gb_model::MrDamperStructure::new(3004.8, r))
                 .collect();
             let fit = gb_model::MrDamperStructure::select(
                 &structures,

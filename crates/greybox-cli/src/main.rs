@@ -844,11 +844,7 @@ fn run_fit_damper(a: StateSpaceFit, quiet: bool) -> Result<()> {
             1.0 / dt
         }
     };
-    let structure = gb_model::MrDamperStructure {
-        sample_rate,
-        resonances_hz,
-        ..gb_model::MrDamperStructure::default()
-    };
+    let structure = gb_model::MrDamperStructure::new(sample_rate, resonances_hz);
     // without --ridge: 0 or 10³, chosen on the last 20 % of the record
     let ridges = match a.ridge {
         Some(r) if r >= 0.0 && r.is_finite() => vec![r],
