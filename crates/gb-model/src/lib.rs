@@ -54,8 +54,8 @@ pub use gb_wavelet::AtomKind;
 pub use identify::{IdentificationPath, OeParams, OeReport, OutputError, StageReport};
 pub use linear::{linear_from_network, linear_from_oe};
 pub use model::{
-    HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, Structure, Target,
-    FORMAT_VERSION, MAGIC,
+    HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, StateSpaceStepper,
+    Structure, Target, FORMAT_VERSION, MAGIC,
 };
 pub use smc::{Smc, SmcParams, SmcReport};
 pub use structures::{
