@@ -17,7 +17,9 @@
 //! (Marquardt's scaling with a relative floor ρ, an absolute floor ρ₀, an
 //! additive term a and a relative / absolute jitter ε / ε₀), maps θ + δ
 //! through [`LeastSquaresProblem::project`] and accepts it when it is
-//! admissible and lowers the cost; then `λ ← max(λ·down, λ_min)` (for
+//! admissible and lowers the cost (with a Tikhonov penalty `Σ rᵢθᵢ²`,
+//! [`LeastSquaresProblem::tikhonov`], the system is
+//! `(G + D_λ + diag r) δ = g − r∘θ`); then `λ ← max(λ·down, λ_min)` (for
 //! `down = 1/m` with an integer m this is computed as λ/m, one rounding).
 //! A rejected step raises `λ ← λ·up` (by `up_singular` when `G + D_λ` is
 //! not positive definite, see [`LeastSquaresProblem::solve_damped`]) and
@@ -93,6 +95,17 @@ pub trait LeastSquaresProblem {
     /// structured factorisation.
     fn solve_damped(&mut self, a: &mut [f64], g: &[f64], delta: &mut [f64]) -> bool {
         cholesky_solve(a, g, delta)
+    }
+
+    /// Weights `ρᵢ ≥ 0` (one per parameter) of a Tikhonov penalty
+    /// `Σᵢ ρᵢ θᵢ²` that [`cost`](Self::cost) includes but
+    /// [`linearize`](Self::linearize) leaves out of the Gram matrix and the
+    /// gradient (they describe the data term alone). The solver adds `ρᵢ` to
+    /// the diagonal of the damped system and `−ρᵢ θᵢ` to the gradient, outside
+    /// the Marquardt scaling, so the damping scales with the data term only.
+    /// `None` (the default): no penalty.
+    fn tikhonov(&self) -> Option<&[f64]> {
+        None
     }
 }
 
@@ -299,6 +312,8 @@ pub struct LmState {
 pub struct LmWorkspace {
     gram: Vec<f64>,
     grad: Vec<f64>,
+    rhs: Vec<f64>,
+    ridge: Vec<f64>,
     trial: Vec<f64>,
     delta: Vec<f64>,
     a: DMatrix<f64>,
@@ -310,6 +325,8 @@ impl LmWorkspace {
         Self {
             gram: vec![0.0; n * n],
             grad: vec![0.0; n],
+            rhs: vec![0.0; n],
+            ridge: Vec::with_capacity(n),
             trial: vec![0.0; n],
             delta: vec![0.0; n],
             a: DMatrix::zeros(n, n),
@@ -388,6 +405,20 @@ impl LevenbergMarquardt {
             .fold(0.0, f64::max)
             .max(1e-300);
         let p = &self.p;
+        let ridge = match problem.tikhonov() {
+            Some(r) if r.len() == n => {
+                ws.ridge.clear();
+                ws.ridge.extend_from_slice(r);
+                true
+            }
+            _ => false,
+        };
+        ws.rhs.copy_from_slice(&ws.grad);
+        if ridge {
+            for i in 0..n {
+                ws.rhs[i] -= ws.ridge[i] * state.theta[i];
+            }
+        }
         for _ in 0..p.max_trials {
             let lambda = state.lambda;
             for i in 0..n {
@@ -399,8 +430,12 @@ impl LevenbergMarquardt {
                     * (g.max(p.diag_floor * dmax).max(p.diag_floor_abs) + p.diag_add)
                     + p.jitter * dmax
                     + p.jitter_abs;
+                if ridge {
+                    ws.a[(i, i)] += ws.ridge[i];
+                }
             }
-            if !problem.solve_damped(ws.a.as_mut_slice(), &ws.grad, &mut ws.delta) {
+            let solved = problem.solve_damped(ws.a.as_mut_slice(), &ws.rhs, &mut ws.delta);
+            if !solved || !ws.delta.iter().all(|d| d.is_finite()) {
                 state.lambda *= p.lambda_up_singular;
                 if state.lambda > p.lambda_max {
                     state.termination = Some(Termination::DampingOverflow);
@@ -540,6 +575,77 @@ mod tests {
         assert!(s.theta[0] <= 0.5);
         // the constrained optimum lies on the bound θ₀ = 0.5
         assert!(s.theta[0] > 0.3, "{:?}", s.theta);
+    }
+
+    /// Linear least squares `y ≈ Xθ` with a Tikhonov penalty `Σ rᵢθᵢ²`
+    /// (the Gram matrix and gradient of the data term only).
+    struct Ridge {
+        x: Vec<[f64; 2]>,
+        y: Vec<f64>,
+        r: [f64; 2],
+    }
+    impl LeastSquaresProblem for Ridge {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            let sse: f64 = self
+                .x
+                .iter()
+                .zip(&self.y)
+                .map(|(x, y)| (y - x[0] * t[0] - x[1] * t[1]).powi(2))
+                .sum();
+            Some(sse + self.r[0] * t[0] * t[0] + self.r[1] * t[1] * t[1])
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            g.fill(0.0);
+            grad.fill(0.0);
+            for (x, y) in self.x.iter().zip(&self.y) {
+                let e = y - x[0] * t[0] - x[1] * t[1];
+                for a in 0..2 {
+                    grad[a] += x[a] * e;
+                    for b in 0..2 {
+                        g[a * 2 + b] += x[a] * x[b];
+                    }
+                }
+            }
+            self.cost(t)
+        }
+        fn tikhonov(&self) -> Option<&[f64]> {
+            Some(&self.r)
+        }
+    }
+
+    #[test]
+    fn tikhonov_penalty_gives_the_ridge_solution() {
+        let x: Vec<[f64; 2]> = (0..30).map(|k| [1.0, (k as f64 * 0.7).sin()]).collect();
+        let y: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(k, x)| 0.5 + 2.0 * x[1] + 0.1 * (k as f64 * 1.3).cos())
+            .collect();
+        let r = [0.0, 5.0];
+        // closed form: (XᵀX + diag r) θ = Xᵀy
+        let mut a = nalgebra::Matrix2::<f64>::zeros();
+        let mut b = nalgebra::Vector2::<f64>::zeros();
+        for (xi, yi) in x.iter().zip(&y) {
+            for i in 0..2 {
+                b[i] += xi[i] * yi;
+                for j in 0..2 {
+                    a[(i, j)] += xi[i] * xi[j];
+                }
+            }
+        }
+        a[(1, 1)] += r[1];
+        let exact = a.lu().solve(&b).unwrap();
+        let lm = LmParams::default().tol(1e-15).check().unwrap();
+        let s = lm
+            .minimize(&mut Ridge { x, y, r }, &[0.0, 0.0], &crate::Silent)
+            .unwrap();
+        assert!((s.theta[0] - exact[0]).abs() < 1e-9, "{:?}", s.theta);
+        assert!((s.theta[1] - exact[1]).abs() < 1e-9, "{:?}", s.theta);
+        // the penalty shrinks the slope below the unpenalised 2
+        assert!(s.theta[1] < 1.9);
     }
 
     /// Counts the damped solves and caps θ₀ by projection.

@@ -26,19 +26,19 @@ pub fn fit_hidden_state(
     hysteresis: bool,
     names: Vec<String>,
 ) -> ModelResult<SparseStateSpace> {
-    let mut silent = crate::Silent;
+    let silent = crate::Silent;
     if hysteresis && inputs.len() == 1 {
         if let Some(m) = mechanical(inputs, y, &names) {
             return Ok(m);
         }
     }
-    Ok(crate::fit_state_space(inputs, y, order, hysteresis, names, &mut silent)?.0)
+    Ok(crate::fit_state_space(inputs, y, order, hysteresis, names, &silent)?.0)
 }
 
 /// The mechanical hysteretic structure with the sub-step retry; `None` when
 /// it cannot be built or fitted.
 fn mechanical(inputs: &[Vec<f64>], y: &[f64], names: &[String]) -> Option<SparseStateSpace> {
-    let mut silent = crate::Silent;
+    let silent = crate::Silent;
     let u = &inputs[0];
     let err = |m: &SparseStateSpace| -> f64 {
         m.simulate(inputs)
@@ -61,7 +61,7 @@ fn mechanical(inputs: &[Vec<f64>], y: &[f64], names: &[String]) -> Option<Sparse
             .max_level(2)
             .max_new(24)
             .check()
-            .and_then(|p| p.fit(s0, inputs, y, &mut silent))
+            .and_then(|p| p.fit(s0, inputs, y, &silent))
         else {
             break;
         };
@@ -462,14 +462,14 @@ fn fit_sparse_state_space(
             vec![],
         )
     } else {
-        let mut silent = crate::Silent;
+        let silent = crate::Silent;
         let (m, rep) = crate::fit_state_space(
             &d.inputs,
             &d.output,
             order,
             spec.has("preisach"),
             names,
-            &mut silent,
+            &silent,
         )?;
         let note = format!(
             "path {:?}, log-likelihood {:.1}",
@@ -507,11 +507,7 @@ fn fit_damper(spec: &ModelSpec, d: &Record) -> Result<Fitted, CoreError> {
             ))
         }
     };
-    let structure = crate::MrDamperStructure {
-        sample_rate,
-        resonances_hz,
-        ..crate::MrDamperStructure::default()
-    };
+    let structure = crate::MrDamperStructure::new(sample_rate, resonances_hz);
     // without a ridge: 0 or 10³, chosen on the last 20 % of the record
     let ridges = ridge.map_or(vec![0.0, 1e3], |r| vec![r]);
     let fit = structure.fit_validated(
@@ -519,7 +515,7 @@ fn fit_damper(spec: &ModelSpec, d: &Record) -> Result<Fitted, CoreError> {
         &ridges,
         &d.inputs,
         &d.output,
-        &mut crate::Silent,
+        &crate::Silent,
     )?;
     let notes = fit
         .scores

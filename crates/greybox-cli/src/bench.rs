@@ -454,11 +454,10 @@ fn fit_class(
             let (start, _) =
                 gb_model::hysteretic_mechanical_start(u, &d.output, a..b, ts, substeps)
                     .map_err(|e| e.to_string())?;
-            let mut bar: Box<dyn gb_model::Observer> = if quiet {
-                Box::new(gb_model::Silent)
-            } else {
-                Box::new(gb_model::ProgressBar::new())
-            };
+            let bar = crate::progress::Bar::spinner(
+                quiet || !std::io::IsTerminal::is_terminal(&std::io::stderr()),
+                "fit",
+            );
             let (m, _) = OeParams::new()
                 .max_iter(40)
                 .coarse_level(1)
@@ -466,7 +465,7 @@ fn fit_class(
                 .max_new(40)
                 .check()
                 .map_err(|e| e.to_string())?
-                .fit(start, std::slice::from_ref(u), &d.output, bar.as_mut())
+                .fit(start, std::slice::from_ref(u), &d.output, &bar)
                 .map_err(|e| e.to_string())?;
             let text = format!(
                 "gb-model state space: position, velocity, hidden hysteretic force z; sparse bior2.2 term f(v, z), {} parameters, {substeps} sub-steps",
@@ -537,19 +536,17 @@ fn fit_class(
             train_rows,
         } => {
             let d = train.slice(0..train_rows.min(train.len()));
-            let mut bar: Box<dyn gb_model::Observer> = if quiet {
-                Box::new(gb_model::Silent)
-            } else {
-                Box::new(gb_model::ProgressBar::new())
-            };
+            let bar = crate::progress::Bar::spinner(
+                quiet || !std::io::IsTerminal::is_terminal(&std::io::stderr()),
+                "fit",
+            );
             // the resonance set and the ridge weight on the last 20 % of the
             // training rows
+            // the Dyke rig: sampled at 3004.8 Hz (the `t` column's mean step
+            // gives 3004.795 Hz), resonances started at 150 Hz or 150 and 120 Hz
             let structures: Vec<gb_model::MrDamperStructure> = [vec![150.0], vec![150.0, 120.0]]
                 .into_iter()
-                .map(|r| gb_model::MrDamperStructure {
-                    resonances_hz: r,
-                    ..gb_model::MrDamperStructure::default()
-                })
+                .map(|r| gb_model::MrDamperStructure::new(3004.8, r))
                 .collect();
             let fit = gb_model::MrDamperStructure::select(
                 &structures,
@@ -557,7 +554,7 @@ fn fit_class(
                 &[0.0, 1e3],
                 &d.inputs,
                 &d.output,
-                bar.as_mut(),
+                &bar,
             )
             .map_err(|e| e.to_string())?;
             let (m, ridge, structure) = (fit.model, fit.ridge, fit.structure);

@@ -481,10 +481,11 @@ fn help_teaches_the_workflow() {
 fn bench_without_data_is_a_notice_and_exit_0() {
     let d = tmp("bench-none");
     let res = d.join("results.md");
+    let absent = d.join("absent");
     let args = [
         "bench",
         "--data-dir",
-        d.join("absent").to_str().unwrap(),
+        absent.to_str().unwrap(),
         "--results",
         res.to_str().unwrap(),
     ];
