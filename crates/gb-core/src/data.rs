@@ -35,9 +35,6 @@ pub struct Record {
     pub sample_time: Option<f64>,
 }
 
-/// The former name of [`Record`].
-pub type DataSet = Record;
-
 /// Three contiguous blocks of a record: fit, select (model choice) and report.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct BlockSplit {
@@ -231,8 +228,8 @@ impl Record {
     /// select (the rest is the report block).
     ///
     /// ```
-    /// # use gb_core::DataSet;
-    /// let ds = DataSet::new(vec!["u".into()], "y".into(), vec![vec![0.0; 100]], vec![0.0; 100]).unwrap();
+    /// # use gb_core::Record;
+    /// let ds = Record::new(vec!["u".into()], "y".into(), vec![vec![0.0; 100]], vec![0.0; 100]).unwrap();
     /// let s = ds.split_blocks(0.5, 0.25);
     /// assert_eq!((s.fit_end, s.select_end, s.len), (50, 75, 100));
     /// ```
@@ -395,7 +392,7 @@ mod tests {
     #[test]
     fn defaults_skip_time_and_take_last_as_output() {
         let t = table("t,u1,u2,y\n0,1,2,3\n1,2,3,4\n");
-        let d = DataSet::from_table(&t, &[], None).unwrap();
+        let d = Record::from_table(&t, &[], None).unwrap();
         assert_eq!(d.input_names, ["u1", "u2"]);
         assert_eq!(d.output_name, "y");
         assert_eq!(d.output, [3.0, 4.0]);
@@ -434,7 +431,7 @@ mod tests {
     #[test]
     fn constant_input_is_refused() {
         let t = table("u,y\n1,1\n1,2\n1,3\n");
-        let d = DataSet::from_table(&t, &[], None).unwrap();
+        let d = Record::from_table(&t, &[], None).unwrap();
         let e = d.check_identifiable("d.csv", 2).unwrap_err().to_string();
         assert!(e.contains("'u' is constant"), "{e}");
         let e = d.check_identifiable("d.csv", 10).unwrap_err().to_string();
@@ -444,9 +441,9 @@ mod tests {
     #[test]
     fn explicit_columns_and_missing() {
         let t = table("a,b,c\n0,1,2\n1,2,4\n");
-        let d = DataSet::from_table(&t, &["c".into()], Some("a")).unwrap();
+        let d = Record::from_table(&t, &["c".into()], Some("a")).unwrap();
         assert_eq!(d.inputs, vec![vec![2.0, 4.0]]);
-        assert!(DataSet::from_table(&t, &["zz".into()], Some("a")).is_err());
-        assert!(DataSet::from_table(&t, &["a".into()], Some("a")).is_err());
+        assert!(Record::from_table(&t, &["zz".into()], Some("a")).is_err());
+        assert!(Record::from_table(&t, &["a".into()], Some("a")).is_err());
     }
 }

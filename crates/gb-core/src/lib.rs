@@ -35,8 +35,7 @@ pub mod special;
 
 pub use csv_io::{write_atomic, write_csv_atomic, CsvTable};
 pub use data::{
-    benchmark_data_dir, index_like, output_like, BlockSplit, DataSet, Record, Records,
-    INDEX_COLUMNS,
+    benchmark_data_dir, index_like, output_like, BlockSplit, Record, Records, INDEX_COLUMNS,
 };
 pub use error::CoreError;
 pub use fitted::{
