@@ -34,6 +34,7 @@ mod error;
 mod everett;
 mod identify;
 mod init;
+mod integrating;
 mod legacy;
 mod linear;
 mod model;
@@ -51,6 +52,7 @@ pub use gb_wavelet::AtomKind;
 pub use identify::{
     IdentificationPath, Observer, OeParams, OeReport, OutputError, ProgressBar, Silent, StageReport,
 };
+pub use integrating::{output_increments, IntegratingModel, INTEGRATING_CLASS};
 pub use linear::{linear_from_network, linear_from_oe};
 pub use model::{
     HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, Structure, Target,
