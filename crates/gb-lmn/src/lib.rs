@@ -69,6 +69,7 @@ pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion}
 pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
+    fixed_pole_start,
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
     zero_linear_network, FitOptions, TrainReport,
 };
