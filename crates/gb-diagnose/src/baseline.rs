@@ -191,10 +191,6 @@ fn oe_delay_scan(
                     Some((d, bic(&net, &rec), net))
                 })
                 .collect();
-            if std::env::var("GB_DEBUG").is_ok() {
-                let v: Vec<(usize, i64)> = fits.iter().map(|f| (f.0, f.1 as i64)).collect();
-                eprintln!("pass {pass}: {v:?}");
-            }
             for (d, b, net) in fits {
                 if b.is_finite() && found.as_ref().is_none_or(|f| b < f.1) {
                     found = Some((d, b, net));
