@@ -307,6 +307,23 @@ fn iterate(
     Some(Iteration { rows, chosen })
 }
 
+/// What was tried, per cause: `nonlinearity (2 candidates, 1 accepted)`.
+fn tried_summary(steps: &[Step]) -> Vec<String> {
+    Cause::ALL
+        .iter()
+        .filter_map(|c| {
+            let n = steps.iter().filter(|s| s.cause == *c).count();
+            let acc = steps.iter().filter(|s| s.cause == *c && s.accepted).count();
+            (n > 0).then(|| {
+                format!(
+                    "{c} ({n} candidate{}, {acc} accepted)",
+                    if n == 1 { "" } else { "s" }
+                )
+            })
+        })
+        .collect()
+}
+
 /// Run the diagnosis on `d`, reporting progress to `obs`.
 ///
 /// Training records of the policy's `long_record` samples or more are
@@ -377,7 +394,7 @@ pub(crate) fn search(
         }
     }
     obs.progress(total, total, "done");
-    Ok(assemble(d, &plan, chain, steps, causes, choice))
+    Ok(assemble(d, &plan, chain, steps, causes, choice, &opts.policy))
 }
 
 /// The diagnosis from its chain of models and its rows.
@@ -388,10 +405,19 @@ pub(crate) fn assemble(
     steps: Vec<Step>,
     causes: Vec<Cause>,
     structure: StructureChoice,
+    pol: &DecisionPolicy,
 ) -> Diagnosis {
     let inputs = plan.decision_inputs(d);
     let base = &chain[0];
     let last = chain.last().expect("the chain holds the baseline");
+    let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &inputs);
+    let verdict = crate::verdict::verdict(
+        &last.select.e,
+        &last.select.yhat,
+        &inputs,
+        pol.verdict_level,
+        &tried_summary(&steps),
+    );
     let report = Report {
         version: REPORT_VERSION,
         data: DataSummary {
@@ -410,7 +436,8 @@ pub(crate) fn assemble(
         causes,
         final_model: ModelSummary::of(last),
         evidence: Evidence::compute(&base.select.e, &base.select.yhat, &inputs),
-        final_evidence: Evidence::compute(&last.select.e, &last.select.yhat, &inputs),
+        final_evidence,
+        verdict,
     };
     Diagnosis {
         report,

@@ -399,12 +399,13 @@ fn summary_section(body: &mut String, r: &Report, title: &str) {
     let _ = write!(
         body,
         "<h1>{}</h1>\n<p class=\"lead\">Causes: <b>{}</b>. Validation NRMSE (free-run simulation) \
-         {:.4} &rarr; {:.4}.</p>\n<p>Data: inputs {} &rarr; output {}; {} fit / {} select / {} \
+         {:.4} &rarr; {:.4}.</p>\n<p class=\"verdict\">Verdict: {}.</p>\n<p>Data: inputs {} &rarr; output {}; {} fit / {} select / {} \
          report samples; {}.</p>\n",
         esc(title),
         esc(&causes),
         r.baseline.nrmse,
         r.final_model.nrmse,
+        esc(&r.verdict.text),
         esc(&r.data.inputs.join(", ")),
         esc(&r.data.output),
         r.data.samples_fit,

@@ -45,6 +45,7 @@ pub mod stats;
 mod structure;
 pub mod sweep;
 pub mod systems;
+mod verdict;
 
 pub use baseline::StructureChoice;
 pub use cause::Cause;
@@ -56,6 +57,7 @@ pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role,
 pub use html::render_html;
 pub use policy::DecisionPolicy;
 pub use report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
+pub use verdict::{Verdict, VerdictKind};
 
 /// Errors of the diagnosis crate.
 #[derive(Debug, thiserror::Error)]

@@ -90,6 +90,7 @@ pub(crate) fn diagnose_long(
         found.report.steps,
         found.report.causes,
         structure,
+        pol,
     );
     dg.report.data.decision = dg.report.structure.decision.clone();
     Ok(dg)

@@ -36,6 +36,7 @@ use crate::DiagnoseError;
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
 /// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search (the structure found so far is refitted and reported) |
 /// | `refit_iterations` | 10 | Levenberg–Marquardt iterations of the refit on the whole record (started from the subsample's model) |
+/// | `verdict_level` | 0.01 | overall level of the final residual tests (Bonferroni over the tests): "adequate" only when none rejects |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
     /// Smallest relative NRMSE gain on the select block that counts.
@@ -108,6 +109,8 @@ pub struct DecisionPolicy {
     pub search_budget_s: f64,
     /// LM iterations of the refit on the whole record.
     pub refit_iterations: usize,
+    /// Overall level of the final residual tests.
+    pub verdict_level: f64,
 }
 
 impl Default for DecisionPolicy {
@@ -148,6 +151,7 @@ impl Default for DecisionPolicy {
             search_samples: 20_000,
             search_budget_s: 300.0,
             refit_iterations: 10,
+            verdict_level: 0.01,
         }
     }
 }
@@ -176,7 +180,7 @@ impl DecisionPolicy {
             return bad("tolerances >= 1");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
-        if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) {
+        if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) || !p_ok(self.verdict_level) {
             return bad("p-value levels in (0,1)");
         }
         if self.tie_bootstrap < 10 || self.min_block < 10 || self.min_fit < 10 {

@@ -1,5 +1,6 @@
 //! The report of a diagnosis (its JSON form) and the plain-text renderer.
 use crate::evaluate::Evaluated;
+use crate::verdict::Verdict;
 use crate::{Cause, Evidence};
 use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
@@ -141,6 +142,8 @@ pub struct Report {
     pub evidence: Evidence,
     /// Residual evidence of the final model.
     pub final_evidence: Evidence,
+    /// What the residual tests say about the final model.
+    pub verdict: Verdict,
 }
 
 impl Report {
@@ -205,6 +208,7 @@ impl Report {
             r.cause_names().join(", ")
         };
         let _ = writeln!(s, "\ncauses: {causes}");
+        let _ = writeln!(s, "verdict: {}", r.verdict.text);
         let _ = writeln!(
             s,
             "final: {}  NRMSE {:.4}  nll {:.3}",

@@ -88,6 +88,8 @@ pub struct Outcome {
     pub order: usize,
     /// One line per candidate: iteration, cause, select gain, accepted.
     pub steps: Vec<String>,
+    /// The verdict says "adequate" (no residual test rejects).
+    pub adequate: bool,
 }
 
 /// The only place that calls the diagnosis API (adapt here when it changes).
@@ -118,6 +120,7 @@ pub fn run_diagnosis(case: &Case, order: OrderMode) -> Result<Outcome, String> {
         final_nrmse: r.final_model.nrmse,
         order: r.baseline.order,
         steps,
+        adequate: r.verdict.kind == crate::VerdictKind::Adequate,
     })
 }
 
@@ -150,7 +153,8 @@ pub struct CaseResult {
     pub right: bool,
     /// Right causes and final ≤ 1.3 × floor.
     pub right_tight: bool,
-    /// No cause named while final > 1.5 × floor (an "adequate" verdict that is not).
+    /// The verdict says "adequate" while final > 1.5 × floor (an "adequate"
+    /// verdict that is not).
     pub adequate_above_floor: bool,
     /// Wall time of the diagnosis (s).
     pub seconds: f64,
@@ -223,7 +227,7 @@ pub fn run_one(spec: &CaseSpec, opts: &SweepOptions) -> CaseResult {
         foreign_named: case.foreign_named(&out.causes),
         right: causes_right && ratio <= 1.5,
         right_tight: causes_right && ratio <= 1.3,
-        adequate_above_floor: out.causes.is_empty() && ratio > 1.5,
+        adequate_above_floor: out.adequate && ratio > 1.5,
         causes_right,
         named: out.causes,
         baseline_nrmse: out.baseline_nrmse,

@@ -262,9 +262,10 @@ impl LocalModelNetwork {
     }
 
     /// Relay grid on the output, if any.
-    pub(crate) fn relay_grid(&self) -> Option<crate::relay::RelayGrid> {
+    pub(crate) fn relay_grid(&self) -> Option<gb_preisach::RelayGrid> {
         (self.spec.output_relays > 0)
-            .then(|| crate::relay::RelayGrid::new(self.spec.output_relays, 2.5))
+            .then(|| gb_preisach::RelayGrid::uniform(self.spec.output_relays, 2.5).ok())
+            .flatten()
     }
 
     /// Spectral radius of each leaf's autoregressive part, without and with all
