@@ -5,9 +5,10 @@
 //! ```
 use gb_diagnose::generator::{draw_with, Knobs};
 use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice};
+use std::error::Error;
 use std::time::Instant;
 
-fn main() {
+fn main() -> Result<(), Box<dyn Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
     if a.len() < 2 {
         eprintln!("usage: case FAMILY SEED [--n-train N] [--n-validate N] [--order auto|N]");
@@ -18,21 +19,24 @@ fn main() {
     let mut i = 2;
     while i + 1 < a.len() {
         match a[i].as_str() {
-            "--n-train" => knobs.n_train = a[i + 1].parse().ok(),
-            "--n-validate" => knobs.n_validate = a[i + 1].parse().ok(),
+            "--n-train" => knobs.n_train = Some(a[i + 1].parse()?),
+            "--n-validate" => knobs.n_validate = Some(a[i + 1].parse()?),
             "--order" => {
                 order = Some(match a[i + 1].as_str() {
                     "auto" => OrderChoice::Auto,
-                    n => OrderChoice::Fixed(n.parse().expect("order")),
+                    n => OrderChoice::Fixed(n.parse()?),
                 })
             }
-            f => panic!("unknown flag {f}"),
+            f => return Err(format!("unknown flag {f}").into()),
         }
         i += 2;
     }
-    let c = draw_with(&a[0], a[1].parse().expect("seed"), &knobs).expect("case");
-    println!("{}\nexpected {:?}, floor {:.4}, true order {}, delay {}, feedthrough {}", c.description, c.expected, c.noise_floor_nrmse, c.true_order, c.input_delay, c.feedthrough);
-    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).expect("data");
+    let c = draw_with(&a[0], a[1].parse()?, &knobs)?;
+    println!(
+        "{}\nexpected {:?}, floor {:.4}, true order {}, delay {}, feedthrough {}",
+        c.description, c.expected, c.noise_floor_nrmse, c.true_order, c.input_delay, c.feedthrough
+    );
+    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone())?;
     let o = DiagnoseOptions {
         order: order.unwrap_or(OrderChoice::Fixed(c.model_order)),
         ..DiagnoseOptions::default()
@@ -43,4 +47,5 @@ fn main() {
         Err(e) => println!("error: {e}"),
     }
     println!("{:.1} s", t.elapsed().as_secs_f64());
+    Ok(())
 }

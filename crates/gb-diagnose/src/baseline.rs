@@ -90,7 +90,10 @@ impl StructureChoice {
                 .iter()
                 .map(|(n, e)| format!("{n}: {e:.4}"))
                 .collect();
-            s.push_str(&format!("; order chosen on the training data ({})", o.join(", ")));
+            s.push_str(&format!(
+                "; order chosen on the training data ({})",
+                o.join(", ")
+            ));
         } else {
             s.push_str("; order: the engineer's");
         }
@@ -104,7 +107,6 @@ pub(crate) struct Baseline {
     pub plan: Plan,
     pub choice: StructureChoice,
 }
-
 
 /// Information criterion N ln σ² + p ln N of a network's in-sample
 /// simulation error on `rec` (unbiased under output noise, unlike an ARX
@@ -185,8 +187,15 @@ fn oe_delay_scan(
                         fit_net(&params(&t), &rec, None).ok()?
                     } else {
                         let spec = params(&t).network_spec(rec.n_inputs());
-                        let s = gb_lmn::fixed_pole_start(poles.as_ref()?, &spec, &rec.inputs, &rec.output)?;
-                        gb_lmn::refine_output_error(&s, &rec.inputs, &rec.output, &opts.fit).ok()?.0
+                        let s = gb_lmn::fixed_pole_start(
+                            poles.as_ref()?,
+                            &spec,
+                            &rec.inputs,
+                            &rec.output,
+                        )?;
+                        gb_lmn::refine_output_error(&s, &rec.inputs, &rec.output, &opts.fit)
+                            .ok()?
+                            .0
                     };
                     Some((d, bic(&net, &rec), net))
                 })
@@ -278,10 +287,8 @@ pub(crate) fn baseline(
             || fit_structure(plan0, d, opts, n_ref, &scan.best, None),
             || fit_structure(&inc_plan, d, opts, n_ref, &scan.best, None),
         );
-        let e = |r: &Result<Evaluated, _>| {
-            r.as_ref()
-                .map_or(f64::INFINITY, |e| e.scores.nrmse_select)
-        };
+        let e =
+            |r: &Result<Evaluated, _>| r.as_ref().map_or(f64::INFINITY, |e| e.scores.nrmse_select);
         choice.integrator_test = Some([e(&plain), e(&inc)]);
         if e(&inc) <= e(&plain) * (1.0 - pol.integrator_gain) {
             inc_plan

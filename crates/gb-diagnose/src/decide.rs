@@ -228,14 +228,15 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
         hysteresis: true,
         ..pl.clone()
     };
-    let fold = |e: &'_ Evaluated, t: Option<usize>| -> Result<FittedModel, DiagnoseError> {
-        match t {
-            None => Ok(e.model.clone()),
-            Some(k) => e.folds.get(k).map(|f| f.model.clone()).ok_or_else(|| {
-                DiagnoseError::InvalidArgument("a fold without its model".into())
-            }),
-        }
-    };
+    let fold =
+        |e: &'_ Evaluated, t: Option<usize>| -> Result<FittedModel, DiagnoseError> {
+            match t {
+                None => Ok(e.model.clone()),
+                Some(k) => e.folds.get(k).map(|f| f.model.clone()).ok_or_else(|| {
+                    DiagnoseError::InvalidArgument("a fold without its model".into())
+                }),
+            }
+        };
     assess(ctx.plan, ctx.data, Lineage::Io(both.clone()), &|t| {
         combined_fit(&fold(lmn, t)?, &fold(hyst, t)?, &both, &ctx.at(t))
     })

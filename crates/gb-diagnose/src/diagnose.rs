@@ -133,7 +133,9 @@ pub(crate) fn fit_proposal(
     p: &Proposal,
     ctx: &Context,
 ) -> Result<Evaluated, DiagnoseError> {
-    assess(ctx.plan, ctx.data, p.lineage.clone(), &|t| e.fit(p, &ctx.at(t)))
+    assess(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
+        e.fit(p, &ctx.at(t))
+    })
 }
 
 /// The escalation (tried once per diagnosis) when no new cause was chosen:
@@ -248,12 +250,7 @@ fn iterate(
     tried: &mut HashSet<&'static str>,
     it: usize,
 ) -> Option<Iteration> {
-    let Run {
-        d,
-        plan,
-        opts,
-        obs,
-    } = *run;
+    let Run { d, plan, opts, obs } = *run;
     let ev = Evidence::compute(&cur.select.e, &cur.select.yhat, &plan.decision_inputs(d));
     let simulated_fit = simulated_on(&cur.model, &plan.fit);
     let fold_sims: Vec<Option<Vec<f64>>> = cur
@@ -394,7 +391,15 @@ pub(crate) fn search(
         }
     }
     obs.progress(total, total, "done");
-    Ok(assemble(d, &plan, chain, steps, causes, choice, &opts.policy))
+    Ok(assemble(
+        d,
+        &plan,
+        chain,
+        steps,
+        causes,
+        choice,
+        &opts.policy,
+    ))
 }
 
 /// The diagnosis from its chain of models and its rows.

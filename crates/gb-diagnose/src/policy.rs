@@ -198,9 +198,8 @@ impl DecisionPolicy {
         if self.max_delay > 64 || self.max_delay_divisor == 0 || self.delay_tolerance < 1.0 {
             return bad("max_delay <= 64, max_delay_divisor >= 1, delay_tolerance >= 1");
         }
-        if !(self.integrator_pole > 0.0 && self.integrator_pole < 1.0)
-            || !(0.0..1.0).contains(&self.integrator_gain)
-        {
+        let open_unit = |x: f64| x > 0.0 && x < 1.0;
+        if !open_unit(self.integrator_pole) || !(0.0..1.0).contains(&self.integrator_gain) {
             return bad("integrator_pole in (0,1), integrator_gain in [0,1)");
         }
         if !(2..=20).contains(&self.cv_folds) || self.structure_scan_samples < 100 {
@@ -208,9 +207,12 @@ impl DecisionPolicy {
         }
         if self.search_samples < 1000
             || self.long_record < self.search_samples
-            || !(self.search_budget_s > 0.0)
+            || self.search_budget_s.is_nan()
+            || self.search_budget_s <= 0.0
         {
-            return bad("search_samples >= 1000, long_record >= search_samples, search_budget_s > 0");
+            return bad(
+                "search_samples >= 1000, long_record >= search_samples, search_budget_s > 0",
+            );
         }
         Ok(())
     }

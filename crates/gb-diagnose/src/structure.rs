@@ -28,7 +28,11 @@ fn arx(
     last: usize,
     start: usize,
 ) -> Option<(f64, usize, Vec<f64>)> {
-    let p = 1 + na + nk.iter().map(|&k| last + 1 - k.min(last + 1)).sum::<usize>();
+    let p = 1
+        + na
+        + nk.iter()
+            .map(|&k| last + 1 - k.min(last + 1))
+            .sum::<usize>();
     let n = y.len();
     if n < start + 2 * p + 10 {
         return None;

@@ -23,10 +23,20 @@ fn a_dead_time_of_three_samples_is_found() {
         ..Knobs::default()
     };
     let c = draw_with("linear", 48, &knobs).unwrap();
-    assert_eq!((c.input_delay, c.feedthrough), (2, false), "{}", c.description);
+    assert_eq!(
+        (c.input_delay, c.feedthrough),
+        (2, false),
+        "{}",
+        c.description
+    );
     let d = DiagnoseData::with_validation(c.train, c.validate).unwrap();
     let dg = diagnose(&d, &options(c.model_order, 0), None).unwrap();
-    assert_eq!(dg.report.structure.delay, vec![3], "{}", dg.report.to_text());
+    assert_eq!(
+        dg.report.structure.delay,
+        vec![3],
+        "{}",
+        dg.report.to_text()
+    );
     assert_eq!(dg.report.baseline.delay, vec![3]);
 }
 
@@ -51,7 +61,13 @@ fn integrated(r: &Record, seed: u64) -> Record {
             v + 0.01 * sd * e
         })
         .collect();
-    Record::new(r.input_names.clone(), r.output_name.clone(), r.inputs.clone(), y).unwrap()
+    Record::new(
+        r.input_names.clone(),
+        r.output_name.clone(),
+        r.inputs.clone(),
+        y,
+    )
+    .unwrap()
 }
 
 #[test]
@@ -63,8 +79,8 @@ fn an_integrating_system_gets_the_integrating_baseline_and_it_predicts_better() 
         ..Knobs::default()
     };
     let c = draw_with("linear", 48, &knobs).unwrap();
-    let d = DiagnoseData::with_validation(integrated(&c.train, 1), integrated(&c.validate, 2))
-        .unwrap();
+    let d =
+        DiagnoseData::with_validation(integrated(&c.train, 1), integrated(&c.validate, 2)).unwrap();
     let o = options(c.model_order, 0);
     let with = diagnose(&d, &o, None).unwrap().report;
     assert!(with.structure.integrating, "{}", with.to_text());

@@ -897,7 +897,6 @@ impl LocalModelNetwork {
             .map(|k| y[k] - self.output_scaling.from_norm(buf[k]))
             .collect())
     }
-
 }
 
 impl LocalModelNetwork {
