@@ -6,7 +6,7 @@
 //! | field | default | meaning |
 //! |---|---|---|
 //! | `order` | 2 | n = n_a = n_b per input |
-//! | `delay` | 1 per input | dead time n_k (0: direct feedthrough) |
+//! | `delay` | 1 per input | dead time n_k per input; 0 = direct feedthrough, and then the input enters with lags 0..n (n + 1 coefficients: the biproper transfer function of order n) |
 //! | `network` | false | LOLIMOT local model network instead of one linear model |
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
@@ -79,6 +79,12 @@ impl IoNetworkParams {
         let mut spec = NetworkSpec::order(self.order, n_inputs);
         if self.delay.len() == n_inputs {
             spec.nk = self.delay.clone();
+            // direct feedthrough: b₀ u(k) + … + b_n u(k−n), order n biproper
+            for (b, &d) in spec.nb.iter_mut().zip(&self.delay) {
+                if d == 0 {
+                    *b = self.order + 1;
+                }
+            }
         }
         if self.hysteresis {
             // thresholds in normalised (unit-variance) output units

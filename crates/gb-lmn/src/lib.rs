@@ -81,8 +81,9 @@ pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion}
 pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
-    embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
-    refine_output_error_with_observer, zero_linear_network, FitOptions, TrainReport,
+    embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, fixed_pole_start,
+    refine_output_error, refine_output_error_with_observer, zero_linear_network, FitOptions,
+    TrainReport,
 };
 pub use regressors::{RegressorSpec, Signal, Tap};
 pub use scaling::Scaling;

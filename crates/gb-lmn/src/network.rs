@@ -303,18 +303,18 @@ impl LocalModelNetwork {
     /// The description without the noise model.
     pub fn describe_structure(&self) -> String {
         let nb: Vec<String> = self.spec.nb.iter().map(|b| b.to_string()).collect();
+        let mut lags = format!("nb={}", nb.join("/"));
+        if self.spec.nk.iter().any(|&k| k != 1) {
+            let nk: Vec<String> = self.spec.nk.iter().map(|k| k.to_string()).collect();
+            lags.push_str(&format!(", nk={}", nk.join("/")));
+        }
         let core = if self.leaves.len() == 1 {
-            format!(
-                "linear output-error, order {} (nb={})",
-                self.spec.na,
-                nb.join("/")
-            )
+            format!("linear output-error, order {} ({lags})", self.spec.na)
         } else {
             format!(
-                "local model network, {} local linear models, order {} (nb={})",
+                "local model network, {} local linear models, order {} ({lags})",
                 self.leaves.len(),
-                self.spec.na,
-                nb.join("/")
+                self.spec.na
             )
         };
         let h = self.spec.n_hysteresis();

@@ -222,6 +222,10 @@ fn mirror_upper(g: &mut DMatrix<f64>) {
 pub(crate) struct Prepared {
     pub un: Vec<Vec<f64>>,
     pub yn: Vec<f64>,
+    /// The initial output history (normalised, `max_lag` values) that
+    /// simulations for fitting start from: the measured samples, or their
+    /// least-squares estimate ([`LocalModelNetwork::estimate_init`]).
+    pub init: Vec<f64>,
     /// Input play columns per input (each a list of columns over time).
     pub ucols: Vec<Vec<Vec<f64>>>,
 }
@@ -314,6 +318,7 @@ impl<'a> NetworkStepper<'a> {
             p: Prepared {
                 un: vec![vec![]; ni],
                 yn: vec![],
+                init: vec![],
                 ucols: banks
                     .iter()
                     .map(|b| b.as_ref().map_or_else(Vec::new, |b| vec![vec![]; b.len()]))
@@ -522,7 +527,13 @@ impl LocalModelNetwork {
             .zip(&un)
             .map(|(b, u)| b.as_ref().map_or_else(Vec::new, |b| b.apply(u)))
             .collect();
-        Ok(Prepared { un, yn, ucols })
+        let init = smoothed_start(&yn, self.spec.max_lag());
+        Ok(Prepared {
+            un,
+            yn,
+            init,
+            ucols,
+        })
     }
 
     #[inline]
@@ -667,6 +678,7 @@ impl LocalModelNetwork {
         let p_win = Prepared {
             un: p_full.un.iter().map(|u| u[..w].to_vec()).collect(),
             yn: vec![],
+            init: vec![],
             ucols: p_full
                 .ucols
                 .iter()
@@ -708,7 +720,9 @@ impl LocalModelNetwork {
         jtj.fill(0.0);
         jtr.fill(0.0);
         let mut out = vec![0.0; n];
-        out[..k0].copy_from_slice(&p.yn[..k0]);
+        for k in 0..k0 {
+            out[k] = p.init.get(k).copied().unwrap_or(p.yn[k]);
+        }
         let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
         let mut oh = OutputHysteresis::new(self, y0);
         let nop = oh.play.len();
@@ -814,7 +828,7 @@ impl LocalModelNetwork {
     ) -> Option<f64> {
         let n = p.yn.len();
         let k0 = self.spec.max_lag().min(n);
-        if !self.simulate_norm(p, n, &p.yn[..k0], buf) {
+        if !self.simulate_norm(p, n, &p.init, buf) {
             return None;
         }
         Some(
@@ -858,15 +872,139 @@ impl LocalModelNetwork {
 
     /// Residuals (physical units) of the free-run simulation on a data set,
     /// initialised with the first `max_lag` measured outputs, for k ≥ max_lag.
+    ///
+    /// The `max_lag` starting values are estimated by least squares
+    /// ([`estimate_init`](Self::estimate_init)), not copied: with poles near
+    /// 1 (oversampled records) a noisy starting slope is a long transient
+    /// that would dominate the error. Output-error training projects the
+    /// starting values out the same way.
     pub fn simulation_residuals(
         &self,
         inputs: &[Vec<f64>],
         y: &[f64],
     ) -> Result<Vec<f64>, LmnError> {
-        let sim = self.simulate_signals(inputs, y)?;
-        let k0 = self.spec.max_lag().min(y.len());
-        Ok(y[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b).collect())
+        let mut p = self.prepare(inputs, y)?;
+        self.estimate_init(&mut p);
+        let n = y.len();
+        let mut buf = Vec::with_capacity(n);
+        if !self.simulate_norm(&p, n, &p.init, &mut buf) {
+            return Err(LmnError::Unstable(
+                "the simulation diverged on these inputs".into(),
+            ));
+        }
+        let k0 = self.spec.max_lag().min(n);
+        Ok((k0..n)
+            .map(|k| y[k] - self.output_scaling.from_norm(buf[k]))
+            .collect())
     }
+}
+
+impl LocalModelNetwork {
+    /// Estimate the starting history `p.init` (normalised, `max_lag` values)
+    /// by Gauss–Newton on the simulation error over the first `min(n, 400)`
+    /// samples, the history's own samples included (which keeps it near the
+    /// measurements); started from [`smoothed_start`]. For a linear network
+    /// the simulated output is affine in the starting values, so one step is
+    /// exact (variable projection: output-error training calls this for
+    /// every trial model). Leaves the start when the simulation diverges.
+    pub(crate) fn estimate_init(&self, p: &mut Prepared) {
+        let n = p.yn.len();
+        let k0 = self.spec.max_lag().min(n);
+        let w = n.min(400);
+        p.init = smoothed_start(&p.yn, k0);
+        if k0 == 0 || w <= k0 + 1 {
+            return;
+        }
+        let steps = if self.leaves.len() == 1 && self.spec.n_hysteresis() == 0 {
+            1
+        } else {
+            3
+        };
+        let mut buf = Vec::with_capacity(w);
+        let mut init = p.init.clone();
+        let resid = |init: &[f64], buf: &mut Vec<f64>| -> Option<Vec<f64>> {
+            if !self.simulate_norm(p, w, init, buf) {
+                return None;
+            }
+            Some((0..w).map(|k| p.yn[k] - buf[k]).collect())
+        };
+        let Some(mut r0) = resid(&init, &mut buf) else {
+            return;
+        };
+        let mut c0: f64 = r0.iter().map(|v| v * v).sum();
+        for _ in 0..steps {
+            let h = 1e-3;
+            let mut jac = DMatrix::<f64>::zeros(w, k0);
+            for i in 0..k0 {
+                let mut t = init.clone();
+                t[i] += h;
+                let Some(ri) = resid(&t, &mut buf) else {
+                    return;
+                };
+                for k in 0..w {
+                    jac[(k, i)] = (ri[k] - r0[k]) / h;
+                }
+            }
+            let jtj = jac.transpose() * &jac;
+            let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+            let Some(ch) = (jtj + DMatrix::<f64>::identity(k0, k0) * 1e-9).cholesky() else {
+                break;
+            };
+            let delta = ch.solve(&(-jtr));
+            let t: Vec<f64> = init.iter().zip(delta.iter()).map(|(a, d)| a + d).collect();
+            match resid(&t, &mut buf) {
+                Some(r) => {
+                    let c: f64 = r.iter().map(|v| v * v).sum();
+                    if c >= c0 {
+                        break;
+                    }
+                    init = t;
+                    r0 = r;
+                    c0 = c;
+                }
+                None => break,
+            }
+        }
+        p.init = init;
+    }
+}
+
+/// The first `k0` values of `y` smoothed: a least-squares quadratic through
+/// the first `max(4·k0, 12)` samples, evaluated at 0..k0 (the samples
+/// themselves when there are too few). The starting history of simulations
+/// for fitting: copying noisy samples starts a simulation with a noisy slope,
+/// which poles near 1 turn into a long transient (and output-error fits of
+/// oversampled records into local minima).
+pub(crate) fn smoothed_start(y: &[f64], k0: usize) -> Vec<f64> {
+    let k0 = k0.min(y.len());
+    let m = (4 * k0).max(12);
+    if k0 == 0 || y.len() < m {
+        return y[..k0].to_vec();
+    }
+    // normal equations of [1, t, t²] on t = k/m
+    let mut g = [[0.0f64; 3]; 3];
+    let mut h = [0.0f64; 3];
+    for (k, &v) in y[..m].iter().enumerate() {
+        let t = k as f64 / m as f64;
+        let phi = [1.0, t, t * t];
+        for a in 0..3 {
+            h[a] += phi[a] * v;
+            for b in 0..3 {
+                g[a][b] += phi[a] * phi[b];
+            }
+        }
+    }
+    let gm = DMatrix::from_fn(3, 3, |a, b| g[a][b]);
+    let Some(ch) = gm.cholesky() else {
+        return y[..k0].to_vec();
+    };
+    let c = ch.solve(&DVector::from_column_slice(&h));
+    (0..k0)
+        .map(|k| {
+            let t = k as f64 / m as f64;
+            c[0] + c[1] * t + c[2] * t * t
+        })
+        .collect()
 }
 
 /// The simulation error of a network with fixed structure as a
@@ -875,9 +1013,14 @@ impl LocalModelNetwork {
 /// (sensitivity recursion, blocked GEMM), the damped system solved by the
 /// fused left-looking Cholesky [`spd_solve`]; trial points whose local models
 /// are not stable are inadmissible.
+///
+/// The starting history is projected out (variable projection): every
+/// cost and linearisation first estimates `p.init` for the trial θ by
+/// [`LocalModelNetwork::estimate_init`], so the caller re-estimates it for
+/// the final θ.
 struct OutputErrorProblem<'a> {
     net: LocalModelNetwork,
-    p: &'a Prepared,
+    p: &'a mut Prepared,
     weights: Option<&'a [f64]>,
     jtj: DMatrix<f64>,
     jtr: DVector<f64>,
@@ -885,15 +1028,16 @@ struct OutputErrorProblem<'a> {
 }
 
 impl<'a> OutputErrorProblem<'a> {
-    fn new(net: &LocalModelNetwork, p: &'a Prepared, weights: Option<&'a [f64]>) -> Self {
+    fn new(net: &LocalModelNetwork, p: &'a mut Prepared, weights: Option<&'a [f64]>) -> Self {
         let np = net.n_parameters();
+        let n = p.yn.len();
         Self {
             net: net.clone(),
             p,
             weights,
             jtj: DMatrix::zeros(np, np),
             jtr: DVector::zeros(np),
-            buf: Vec::with_capacity(p.yn.len()),
+            buf: Vec::with_capacity(n),
         }
     }
 }
@@ -904,10 +1048,12 @@ impl LeastSquaresProblem for OutputErrorProblem<'_> {
     }
     fn cost(&mut self, theta: &[f64]) -> Option<f64> {
         self.net.set_parameters(theta);
+        self.net.estimate_init(self.p);
         self.net.weighted_cost(self.p, self.weights, &mut self.buf)
     }
     fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
         self.net.set_parameters(theta);
+        self.net.estimate_init(self.p);
         let c = self
             .net
             .simulate_sens(self.p, self.weights, &mut self.jtj, &mut self.jtr)?;
@@ -967,7 +1113,7 @@ pub fn refine_output_error_with_observer(
     observer: &dyn Observer,
 ) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
     opts.check()?;
-    let p = net.prepare(inputs, y)?;
+    let mut p = net.prepare(inputs, y)?;
     let n = y.len();
     let k0 = net.spec.max_lag();
     let np = net.n_parameters();
@@ -983,6 +1129,7 @@ pub fn refine_output_error_with_observer(
     }
     let mut buf = Vec::with_capacity(n);
     let neff = (n - k0) as f64;
+    cur.estimate_init(&mut p);
     let mse0 = match cur.weighted_cost(&p, None, &mut buf) {
         Some(c) => c / neff,
         None => {
@@ -1012,7 +1159,7 @@ pub fn refine_output_error_with_observer(
             opts.max_iter
         };
         let lm = oe_solver(iters, opts.tol)?;
-        let mut problem = OutputErrorProblem::new(&cur, &p, weights.as_deref());
+        let mut problem = OutputErrorProblem::new(&cur, &mut p, weights.as_deref());
         match lm.minimize(&mut problem, &cur.parameters(), observer) {
             Ok(state) => {
                 total_iter += state.iterations;
@@ -1021,6 +1168,8 @@ pub fn refine_output_error_with_observer(
             // the start diverges: the round's first iteration fails
             Err(_) => total_iter += iters.min(1),
         }
+        // the problem left the start of its last trial: back to θ's own
+        cur.estimate_init(&mut p);
     }
     let mse1 = cur
         .weighted_cost(&p, None, &mut buf)
@@ -1232,6 +1381,76 @@ pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<Local
     Some(out)
 }
 
+/// A linear start for the structure `spec` (no hysteresis columns) that
+/// keeps the poles of `poles` (a one-leaf network with the same number of
+/// output lags, fitted on any data: its AR coefficients do not depend on
+/// the output's scaling) and estimates the offset and the numerator of every
+/// input by least squares on the inputs filtered by 1/A (a Steiglitz–McBride
+/// step: given the denominator the output-error model is linear in the
+/// numerator, and the regression is unbiased under output noise). A start
+/// for [`refine_output_error`] when a structure differs only in its input
+/// lags (another dead time): output-error costs of oversampled records have
+/// local minima that a cold start falls into. `None` when the structures do
+/// not fit or the regression is singular.
+pub fn fixed_pole_start(
+    poles: &LocalModelNetwork,
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+) -> Option<LocalModelNetwork> {
+    if poles.leaves.len() != 1 || poles.spec.na != spec.na || spec.n_hysteresis() > 0 {
+        return None;
+    }
+    spec.check(inputs.len()).ok()?;
+    let mut net = linear_network(spec, inputs, y);
+    let p = net.prepare(inputs, y).ok()?;
+    let a = &poles.leaves[0].theta[1..=spec.na];
+    let n = y.len();
+    // 1/A applied from rest: v(k) = x(k) + Σ aᵢ v(k−i)
+    let filt = |x: &dyn Fn(usize) -> f64| -> Vec<f64> {
+        let mut v = vec![0.0; n];
+        for k in 0..n {
+            let mut s = x(k);
+            for (i, ai) in a.iter().enumerate() {
+                if k > i {
+                    s += ai * v[k - 1 - i];
+                }
+            }
+            v[k] = s;
+        }
+        v
+    };
+    let ones = filt(&|_| 1.0);
+    let uf: Vec<Vec<f64>> = p.un.iter().map(|u| filt(&|k| u[k])).collect();
+    let k0 = spec.max_lag().max(n / 10);
+    let nbs: usize = spec.nb.iter().sum();
+    let np = 1 + nbs;
+    if n < k0 + 2 * np + 10 {
+        return None;
+    }
+    let rows = n - k0;
+    let mut m = vec![0.0; rows * np];
+    for (r, k) in (k0..n).enumerate() {
+        let row = &mut m[r * np..(r + 1) * np];
+        row[0] = ones[k];
+        let mut c = 1;
+        for (j, u) in uf.iter().enumerate() {
+            for l in 0..spec.nb[j] {
+                let d = spec.nk[j] + l;
+                row[c] = if k >= d { u[k - d] } else { 0.0 };
+                c += 1;
+            }
+        }
+    }
+    let th = weighted_ls(&m, &p.yn[k0..], None, np, 1e-9).ok()?;
+    let mut theta = vec![0.0; 1 + spec.n_dynamic()];
+    theta[0] = th[0];
+    theta[1..=spec.na].copy_from_slice(a);
+    theta[1 + spec.na..].copy_from_slice(&th[1..]);
+    net.leaves[0].theta = theta;
+    net.is_acceptably_stable().then_some(net)
+}
+
 /// Add the hysteresis columns of `spec` (with zero weights) to a network
 /// whose dynamic structure equals `spec`'s: the result simulates exactly like
 /// `net` and can be trained further. `None` if the dynamic structures differ.
@@ -1323,19 +1542,21 @@ fn fit_linear_oe_cold(
             got: y.len(),
         });
     }
-    let p = net.prepare(inputs, y)?;
+    let mut p = net.prepare(inputs, y)?;
     global_ls(&mut net, &p, &p.yn, opts.ridge)?;
     net.stabilise(0.995);
     let n = y.len();
-    let k0 = spec.max_lag();
     let mut buf = Vec::with_capacity(n);
     let mut best = net.clone();
+    best.estimate_init(&mut p);
+    let mut best_init = p.init.clone();
     let mut best_cost = net
         .weighted_cost(&p, None, &mut buf)
         .unwrap_or(f64::INFINITY);
     for _ in 0..3 {
         let mut cand = best.clone();
-        if !cand.simulate_norm(&p, n, &p.yn[..k0], &mut buf) {
+        p.init.clone_from(&best_init);
+        if !cand.simulate_norm(&p, n, &p.init, &mut buf) {
             break;
         }
         let yreg = buf.clone();
@@ -1343,10 +1564,12 @@ fn fit_linear_oe_cold(
             break;
         }
         cand.stabilise(0.995);
+        cand.estimate_init(&mut p);
         match cand.weighted_cost(&p, None, &mut buf) {
             Some(c) if c < best_cost => {
                 best_cost = c;
                 best = cand;
+                best_init.clone_from(&p.init);
             }
             _ => break,
         }
@@ -1542,6 +1765,28 @@ mod tests {
                 "param {q}: fd {fd} analytic {an}"
             );
         }
+    }
+
+    #[test]
+    fn a_fixed_pole_start_recovers_the_numerator_of_another_dead_time() {
+        // y0(k) = 1.5 y0(k-1) - 0.7 y0(k-2) + 0.5 u(k-1) + 0.3 u(k-2), shifted by 3 more samples
+        let mut r = rand::rngs::SmallRng::seed_from_u64(5);
+        let u: Vec<f64> = (0..3000).map(|_| StandardNormal.sample(&mut r)).collect();
+        let y1 = simulate_true(&u, 0.0, 1);
+        let mut y4 = vec![0.0; u.len()];
+        y4[3..].copy_from_slice(&y1[..u.len() - 3]);
+        let inputs = vec![u];
+        let s1 = NetworkSpec::order(2, 1);
+        let poles = fit_linear_oe(&s1, &inputs, &y1, &FitOptions::default()).unwrap();
+        let mut s4 = s1.clone();
+        s4.nk = vec![4];
+        let start = fixed_pole_start(&poles, &s4, &inputs, &y4).unwrap();
+        let e = start.simulation_residuals(&inputs, &y4).unwrap();
+        let rms = gb_core::metrics::rms(&e[100..]) / gb_core::metrics::std(&y4);
+        assert!(rms < 1e-3, "{rms}");
+        let mut bad = s4.clone();
+        bad.na = 3;
+        assert!(fixed_pole_start(&poles, &bad, &inputs, &y4).is_none());
     }
 
     #[test]

@@ -58,6 +58,11 @@ pub static CLASSES: &[ModelClass] = &[
         summary: "wavelet-sparse grey-box state space with hidden states and Preisach terms (gb-model)",
         decode: |b, v| boxed(SparseStateSpace::decode(b, v)),
     },
+    ModelClass {
+        tag: "integrating",
+        summary: "integrating model: a model of any class simulates the output increments, which are summed (a pole at 1; gb-model)",
+        decode: |b, v| boxed(crate::IntegratingModel::decode(b, v)),
+    },
 ];
 
 /// The registry as a [`ClassDecoder`] for [`FittedModel::from_bytes`].
