@@ -686,6 +686,116 @@ fn axis_split(lo: &[f64], hi: &[f64], d: usize, smooth: f64) -> (Vec<f64>, f64) 
     (w, w0)
 }
 
+/// The splittable leaf with the largest local loss
+/// Lᵢ = Σ_{k∈leaf} w_k (t_k − ŷ_k)², if any.
+fn worst_splittable_leaf(rows: &Rows, leaves: &[LeafSt], yhat: &[f64]) -> Option<usize> {
+    let mut worst = None;
+    let mut wl = -1.0;
+    for (i, st) in leaves.iter().enumerate() {
+        if !st.splittable {
+            continue;
+        }
+        let l: f64 = st
+            .idx
+            .iter()
+            .zip(&st.w)
+            .map(|(&r, &w)| w * (rows.t[r as usize] - yhat[r as usize]).powi(2))
+            .sum();
+        if l > wl {
+            wl = l;
+            worst = Some(i);
+        }
+    }
+    worst
+}
+
+/// The best split of leaf `st` (node `node`): the axis split with the
+/// smallest ΔSSE over the partition dimensions (in parallel), refined by an
+/// oblique search when asked for (and kept if better). `None` if no axis
+/// split gives two fittable children. `base_k = t_k − ŷ_k + w_k a_kᵀθ_old` is
+/// the target of the leaf's rows without the leaf's own contribution.
+#[allow(clippy::too_many_arguments)]
+fn best_split_trial(
+    rows: &Rows,
+    o: &LmnParams,
+    node: &Node,
+    st: &LeafSt,
+    base: &[f64],
+    sse_old: f64,
+    min_eff: f64,
+) -> Option<Trial> {
+    let nz = rows.nz;
+    let (clo, chi) = (node.lower.clone(), node.upper.clone());
+    let trials: Vec<Trial> = (0..nz)
+        .into_par_iter()
+        .filter_map(|d| {
+            if chi[d] - clo[d] < 1e-9 {
+                return None;
+            }
+            let (w, w0) = axis_split(&clo, &chi, d, o.smoothness);
+            let mut psi = vec![0.0; st.idx.len()];
+            psi_of(rows, st, &w, w0, &mut psi);
+            let (tl, tr) = fit_children(rows, st, &psi, o.ridge, min_eff)?;
+            let s = split_sse(rows, st, base, &psi, &tl, &tr);
+            Some(Trial {
+                dsse: s - sse_old,
+                w,
+                w0,
+                axis: Some(d),
+                tl,
+                tr,
+            })
+        })
+        .collect();
+    let mut best = trials
+        .into_iter()
+        .min_by(|a, b| a.dsse.total_cmp(&b.dsse))?;
+    if o.splits == SplitKind::Oblique && nz > 1 {
+        let w0n = best.w.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if let Some(ob) =
+            optimise_oblique(rows, st, base, &best, sse_old, o.ridge, min_eff, 20.0 * w0n)
+        {
+            if ob.dsse < best.dsse {
+                best = ob;
+            }
+        }
+    }
+    Some(best)
+}
+
+/// The two children of leaf `st` under the split's ψ: the left one keeps
+/// the rows with w_k(1 − ψ_k) > TINY, the right one those with w_k ψ_k > TINY
+/// (nodes not yet assigned).
+fn child_leaves(st: &LeafSt, psi: &[f64]) -> [LeafSt; 2] {
+    let mut kids = [
+        LeafSt {
+            node: 0,
+            idx: vec![],
+            w: vec![],
+            splittable: true,
+        },
+        LeafSt {
+            node: 0,
+            idx: vec![],
+            w: vec![],
+            splittable: true,
+        },
+    ];
+    for (i, &r) in st.idx.iter().enumerate() {
+        let wr = st.w[i] * psi[i];
+        let wl = st.w[i] - wr;
+        if wl > TINY {
+            kids[0].idx.push(r);
+            kids[0].w.push(wl);
+        }
+        if wr > TINY {
+            kids[1].idx.push(r);
+            kids[1].w.push(wr);
+        }
+    }
+    kids
+}
+
 /// Grow with tree weights: splitting a leaf changes only its own rows.
 pub(crate) fn grow_tree(
     rows: &Rows,
@@ -720,28 +830,11 @@ pub(crate) fn grow_tree(
         return Ok(Grown { snapshots: snaps });
     }
     while leaves.len() < o.max_leaves {
-        // worst splittable leaf by local loss
-        let mut worst = None;
-        let mut wl = -1.0;
-        for (i, st) in leaves.iter().enumerate() {
-            if !st.splittable {
-                continue;
-            }
-            let l: f64 = st
-                .idx
-                .iter()
-                .zip(&st.w)
-                .map(|(&r, &w)| w * (rows.t[r as usize] - yhat[r as usize]).powi(2))
-                .sum();
-            if l > wl {
-                wl = l;
-                worst = Some(i);
-            }
-        }
-        let Some(wi) = worst else { break };
+        let Some(wi) = worst_splittable_leaf(rows, &leaves, &yhat) else {
+            break;
+        };
         let st = leaves[wi].clone();
-        let nd = &part.nodes[st.node];
-        let th_old = nd.theta.clone();
+        let th_old = part.nodes[st.node].theta.clone();
         let base: Vec<f64> = st
             .idx
             .iter()
@@ -756,78 +849,16 @@ pub(crate) fn grow_tree(
             .iter()
             .map(|&r| (rows.t[r as usize] - yhat[r as usize]).powi(2))
             .sum();
-        let (clo, chi) = (nd.lower.clone(), nd.upper.clone());
-        let trials: Vec<Trial> = (0..nz)
-            .into_par_iter()
-            .filter_map(|d| {
-                if chi[d] - clo[d] < 1e-9 {
-                    return None;
-                }
-                let (w, w0) = axis_split(&clo, &chi, d, o.smoothness);
-                let mut psi = vec![0.0; st.idx.len()];
-                psi_of(rows, &st, &w, w0, &mut psi);
-                let (tl, tr) = fit_children(rows, &st, &psi, o.ridge, min_eff)?;
-                let s = split_sse(rows, &st, &base, &psi, &tl, &tr);
-                Some(Trial {
-                    dsse: s - sse_old,
-                    w,
-                    w0,
-                    axis: Some(d),
-                    tl,
-                    tr,
-                })
-            })
-            .collect();
-        let Some(mut best) = trials.into_iter().min_by(|a, b| a.dsse.total_cmp(&b.dsse)) else {
+        let Some(best) =
+            best_split_trial(rows, o, &part.nodes[st.node], &st, &base, sse_old, min_eff)
+        else {
             leaves[wi].splittable = false;
             continue;
         };
-        if o.splits == SplitKind::Oblique && nz > 1 {
-            let w0n = best.w.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if let Some(ob) = optimise_oblique(
-                rows,
-                &st,
-                &base,
-                &best,
-                sse_old,
-                o.ridge,
-                min_eff,
-                20.0 * w0n,
-            ) {
-                if ob.dsse < best.dsse {
-                    best = ob;
-                }
-            }
-        }
         // apply: children weights, local models with n_eff, predictions
         let mut psi = vec![0.0; st.idx.len()];
         psi_of(rows, &st, &best.w, best.w0, &mut psi);
-        let mut kids = [
-            LeafSt {
-                node: 0,
-                idx: vec![],
-                w: vec![],
-                splittable: true,
-            },
-            LeafSt {
-                node: 0,
-                idx: vec![],
-                w: vec![],
-                splittable: true,
-            },
-        ];
-        for (i, &r) in st.idx.iter().enumerate() {
-            let wr = st.w[i] * psi[i];
-            let wl = st.w[i] - wr;
-            if wl > TINY {
-                kids[0].idx.push(r);
-                kids[0].w.push(wl);
-            }
-            if wr > TINY {
-                kids[1].idx.push(r);
-                kids[1].w.push(wr);
-            }
-        }
+        let mut kids = child_leaves(&st, &psi);
         let (Some((tl, nl)), Some((tr, nr))) = (
             wls(rows, &kids[0].idx, &kids[0].w, o.ridge, true),
             wls(rows, &kids[1].idx, &kids[1].w, o.ridge, true),

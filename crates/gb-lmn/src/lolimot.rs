@@ -121,6 +121,276 @@ fn predict(cells: &[Cell], phi: &[f64], a: &[f64], pl: usize, nrow: usize, out: 
     }
 }
 
+/// The local design rows `[1, xᵀ]` (row-major, `nrow × (1 + ncol)`) of the
+/// regression rows `x` (row-major, `nrow × ncol`).
+fn local_design(rows: &[f64], nrow: usize, ncol: usize) -> Vec<f64> {
+    let pl = 1 + ncol;
+    let mut a = vec![0.0; nrow * pl];
+    for r in 0..nrow {
+        a[r * pl] = 1.0;
+        a[r * pl + 1..(r + 1) * pl].copy_from_slice(&rows[r * ncol..(r + 1) * ncol]);
+    }
+    a
+}
+
+/// The partition inputs scaled to the unit cube, `z = (x_zi − lo) / (hi − lo)`
+/// per column `zi` of the regression rows, with the bounds `(lo, hi)` (a
+/// constant column gets `hi = lo + 1`). Returns `(z, lo, hi)`, z row-major
+/// `nrow × zi.len()`.
+fn unit_partition_inputs(
+    rows: &[f64],
+    nrow: usize,
+    ncol: usize,
+    zi: &[usize],
+) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
+    let nz = zi.len();
+    let mut zlo = vec![f64::INFINITY; nz];
+    let mut zhi = vec![f64::NEG_INFINITY; nz];
+    for r in 0..nrow {
+        for (d, &i) in zi.iter().enumerate() {
+            let v = rows[r * ncol + i];
+            zlo[d] = zlo[d].min(v);
+            zhi[d] = zhi[d].max(v);
+        }
+    }
+    for d in 0..nz {
+        if zhi[d] - zlo[d] < 1e-12 {
+            zhi[d] = zlo[d] + 1.0;
+        }
+    }
+    let mut z = vec![0.0; nrow * nz];
+    for r in 0..nrow {
+        for (d, &i) in zi.iter().enumerate() {
+            z[r * nz + d] = (rows[r * ncol + i] - zlo[d]) / (zhi[d] - zlo[d]);
+        }
+    }
+    (z, zlo, zhi)
+}
+
+/// Sum of squared errors Σ_k (ŷ_k − y_k)².
+fn sum_squared_error(yhat: &[f64], target: &[f64]) -> f64 {
+    yhat.iter()
+        .zip(target)
+        .map(|(a, b)| (a - b) * (a - b))
+        .sum()
+}
+
+/// The leaves of `cells` as network leaves (local parameters cut to the
+/// `nd + 1` dynamic ones).
+fn leaves_of(cells: &[Cell], nd: usize) -> Vec<Leaf> {
+    cells
+        .iter()
+        .map(|c| Leaf {
+            lower: c.lower.clone(),
+            upper: c.upper.clone(),
+            theta: c.theta[..nd + 1].to_vec(),
+        })
+        .collect()
+}
+
+/// The data of one LOLIMOT construction in normalised units: local design
+/// `a` (`nrow × pl`), target `y`, unit-cube partition inputs `z`
+/// (`nrow × nz`).
+struct LolimotProblem<'a> {
+    a: &'a [f64],
+    target: &'a [f64],
+    z: &'a [f64],
+    nrow: usize,
+    pl: usize,
+    nz: usize,
+    opts: &'a LolimotOptions,
+}
+
+impl LolimotProblem<'_> {
+    /// Weighted least-squares local parameters θ = argmin Σ_k φ_k (y_k − a_kᵀθ)²
+    /// (with the relative ridge of the options).
+    fn fit_cell(&self, phi_i: &[f64]) -> Result<Vec<f64>, LmnError> {
+        weighted_ls(self.a, self.target, Some(phi_i), self.pl, self.opts.ridge)
+    }
+
+    /// Network output ŷ_k = Σᵢ Φᵢ(z_k) a_kᵀθᵢ into `out`.
+    fn predict(&self, cells: &[Cell], phi: &[f64], out: &mut [f64]) {
+        predict(cells, phi, self.a, self.pl, self.nrow, out);
+    }
+
+    /// The termination criterion of `m` leaves with residual `sse`:
+    /// N ln(SSE/N) + 2p + 2p(p+1)/(N−p−1) (AICc), N ln(SSE/N) + p ln N (BIC)
+    /// with p = m·pl, or −m (grow to the maximum).
+    fn criterion(&self, sse: f64, m: usize) -> f64 {
+        let n = self.nrow as f64;
+        let pe = (m * self.pl) as f64;
+        let base = n * (sse / n).max(1e-300).ln();
+        match self.opts.criterion {
+            TerminationCriterion::Aicc => {
+                if n - pe - 1.0 <= 0.0 {
+                    f64::INFINITY
+                } else {
+                    base + 2.0 * pe + 2.0 * pe * (pe + 1.0) / (n - pe - 1.0)
+                }
+            }
+            TerminationCriterion::Bic => base + pe * n.ln(),
+            TerminationCriterion::MaxLeaves => -(m as f64),
+        }
+    }
+
+    /// The splittable leaf with the largest local loss
+    /// Lᵢ = Σ_k Φᵢ(z_k) (y_k − ŷ_k)², if any.
+    fn worst_splittable_leaf(&self, cells: &[Cell], phi: &[f64], yhat: &[f64]) -> Option<usize> {
+        let nrow = self.nrow;
+        let mut worst = None;
+        let mut worst_loss = -1.0;
+        for (i, c) in cells.iter().enumerate() {
+            if !c.splittable {
+                continue;
+            }
+            let l: f64 = (0..nrow)
+                .map(|r| phi[i * nrow + r] * (self.target[r] - yhat[r]).powi(2))
+                .sum();
+            if l > worst_loss {
+                worst_loss = l;
+                worst = Some(i);
+            }
+        }
+        worst
+    }
+
+    /// The cells with leaf `w` halved in dimension `d` (the two halves last,
+    /// their parameters not yet estimated).
+    fn halved(cells: &[Cell], w: usize, d: usize) -> Vec<Cell> {
+        let mid = 0.5 * (cells[w].lower[d] + cells[w].upper[d]);
+        let mut left_u = cells[w].upper.clone();
+        left_u[d] = mid;
+        let mut right_l = cells[w].lower.clone();
+        right_l[d] = mid;
+        let mut trial: Vec<Cell> = cells
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| *i != w)
+            .map(|(_, c)| Cell {
+                lower: c.lower.clone(),
+                upper: c.upper.clone(),
+                theta: c.theta.clone(),
+                splittable: c.splittable,
+            })
+            .collect();
+        trial.push(Cell {
+            lower: cells[w].lower.clone(),
+            upper: left_u,
+            theta: vec![],
+            splittable: true,
+        });
+        trial.push(Cell {
+            lower: right_l,
+            upper: cells[w].upper.clone(),
+            theta: vec![],
+            splittable: true,
+        });
+        trial
+    }
+
+    /// The best halving of leaf `w` over all partition dimensions: the one
+    /// with the smallest global SSE whose two halves have at least
+    /// `min_eff` effective samples (Σ_k Φ) and a solvable local fit.
+    /// Returns `(sse, cells, validities)`.
+    fn best_split(
+        &self,
+        cells: &[Cell],
+        w: usize,
+        min_eff: f64,
+    ) -> Option<(f64, Vec<Cell>, Vec<f64>)> {
+        let nrow = self.nrow;
+        let mut best: Option<(f64, Vec<Cell>, Vec<f64>)> = None;
+        for d in 0..self.nz {
+            let mut trial = Self::halved(cells, w, d);
+            let tphi = validities(&trial, self.z, self.nz, nrow);
+            let mt = trial.len();
+            let mut ok = true;
+            for i in [mt - 2, mt - 1] {
+                let col = &tphi[i * nrow..(i + 1) * nrow];
+                if col.iter().sum::<f64>() < min_eff {
+                    ok = false;
+                    break;
+                }
+                match self.fit_cell(col) {
+                    Ok(t) => trial[i].theta = t,
+                    Err(_) => {
+                        ok = false;
+                        break;
+                    }
+                }
+            }
+            if !ok {
+                continue;
+            }
+            let mut yt = vec![0.0; nrow];
+            self.predict(&trial, &tphi, &mut yt);
+            let sse = sum_squared_error(&yt, self.target);
+            if best.as_ref().is_none_or(|(b, _, _)| sse < *b) {
+                best = Some((sse, trial, tphi));
+            }
+        }
+        best
+    }
+
+    /// Greedy growth from one leaf: split the worst leaf in its best
+    /// dimension, re-estimate every local model, until `max_leaves`, two
+    /// criterion values in a row no better than the best, or no leaf can be
+    /// split. Returns every visited partition with its criterion value.
+    fn grow(&self, nd: usize) -> Result<Vec<(f64, Vec<Leaf>)>, LmnError> {
+        let (nrow, nz, opts) = (self.nrow, self.nz, self.opts);
+        let min_eff = opts.min_samples_per_param * self.pl as f64;
+        let mut cells = vec![Cell {
+            lower: vec![0.0; nz],
+            upper: vec![1.0; nz],
+            theta: self.fit_cell(&vec![1.0; nrow])?,
+            splittable: nz > 0,
+        }];
+        let mut phi = validities(&cells, self.z, nz, nrow);
+        let mut yhat = vec![0.0; nrow];
+        let mut history: Vec<(f64, Vec<Leaf>)> = Vec::new();
+        let mut worse_in_row = 0;
+        loop {
+            self.predict(&cells, &phi, &mut yhat);
+            let sse = sum_squared_error(&yhat, self.target);
+            let c = self.criterion(sse, cells.len());
+            if history.last().is_some_and(|(best, _)| c >= *best) {
+                worse_in_row += 1;
+            } else {
+                worse_in_row = 0;
+            }
+            history.push((c, leaves_of(&cells, nd)));
+            if cells.len() >= opts.max_leaves
+                || (worse_in_row >= 2 && opts.criterion != TerminationCriterion::MaxLeaves)
+            {
+                break;
+            }
+            let Some(w) = self.worst_splittable_leaf(&cells, &phi, &yhat) else {
+                break;
+            };
+            match self.best_split(&cells, w, min_eff) {
+                None => cells[w].splittable = false,
+                Some((_, mut trial, tphi)) => {
+                    // re-estimate every local model under the new validity functions
+                    for (i, c) in trial.iter_mut().enumerate() {
+                        if let Ok(t) = self.fit_cell(&tphi[i * nrow..(i + 1) * nrow]) {
+                            c.theta = t;
+                        }
+                    }
+                    cells = trial;
+                    phi = tphi;
+                }
+            }
+            if cells.iter().all(|c| !c.splittable) {
+                self.predict(&cells, &phi, &mut yhat);
+                let sse = sum_squared_error(&yhat, self.target);
+                history.push((self.criterion(sse, cells.len()), leaves_of(&cells, nd)));
+                break;
+            }
+        }
+        Ok(history)
+    }
+}
+
 /// Grow a LOLIMOT network for `spec` on physical signals. Output lags are taken
 /// from `yreg` (e.g. the free-run simulation of a previous model, which makes
 /// the construction output-error-like) or from the measured `y` if `None`.
@@ -157,202 +427,20 @@ pub fn fit_lolimot(
             got: y.len(),
         });
     }
-    let target = &p.yn[k0..];
-    // local design [1, x_dyn, h]
-    let mut a = vec![0.0; nrow * pl];
-    for r in 0..nrow {
-        a[r * pl] = 1.0;
-        a[r * pl + 1..(r + 1) * pl].copy_from_slice(&rows[r * ncol..(r + 1) * ncol]);
-    }
-    let zi = net.z_index.clone();
-    let nz = zi.len();
-    let mut zlo = vec![f64::INFINITY; nz];
-    let mut zhi = vec![f64::NEG_INFINITY; nz];
-    for r in 0..nrow {
-        for (d, &i) in zi.iter().enumerate() {
-            let v = rows[r * ncol + i];
-            zlo[d] = zlo[d].min(v);
-            zhi[d] = zhi[d].max(v);
-        }
-    }
-    for d in 0..nz {
-        if zhi[d] - zlo[d] < 1e-12 {
-            zhi[d] = zlo[d] + 1.0;
-        }
-    }
-    let mut z = vec![0.0; nrow * nz];
-    for r in 0..nrow {
-        for (d, &i) in zi.iter().enumerate() {
-            z[r * nz + d] = (rows[r * ncol + i] - zlo[d]) / (zhi[d] - zlo[d]);
-        }
-    }
+    let a = local_design(&rows, nrow, ncol);
+    let (z, zlo, zhi) = unit_partition_inputs(&rows, nrow, ncol, &net.z_index);
     net.z_lower = zlo;
     net.z_upper = zhi;
-
-    let min_eff = opts.min_samples_per_param * pl as f64;
-    let fit_cell = |phi_i: &[f64]| weighted_ls(&a, target, Some(phi_i), pl, opts.ridge);
-    let mut cells = vec![Cell {
-        lower: vec![0.0; nz],
-        upper: vec![1.0; nz],
-        theta: fit_cell(&vec![1.0; nrow])?,
-        splittable: nz > 0,
-    }];
-    let mut phi = validities(&cells, &z, nz, nrow);
-    let mut yhat = vec![0.0; nrow];
-    let n = nrow as f64;
-    let crit = |sse: f64, m: usize| {
-        let pe = (m * pl) as f64;
-        let base = n * (sse / n).max(1e-300).ln();
-        match opts.criterion {
-            TerminationCriterion::Aicc => {
-                if n - pe - 1.0 <= 0.0 {
-                    f64::INFINITY
-                } else {
-                    base + 2.0 * pe + 2.0 * pe * (pe + 1.0) / (n - pe - 1.0)
-                }
-            }
-            TerminationCriterion::Bic => base + pe * n.ln(),
-            TerminationCriterion::MaxLeaves => -(m as f64),
-        }
+    let problem = LolimotProblem {
+        a: &a,
+        target: &p.yn[k0..],
+        z: &z,
+        nrow,
+        pl,
+        nz: net.z_index.len(),
+        opts,
     };
-    let mut history: Vec<(f64, Vec<Leaf>)> = Vec::new();
-    let mut worse_in_row = 0;
-    loop {
-        predict(&cells, &phi, &a, pl, nrow, &mut yhat);
-        let sse: f64 = yhat
-            .iter()
-            .zip(target)
-            .map(|(a, b)| (a - b) * (a - b))
-            .sum();
-        let c = crit(sse, cells.len());
-        if history.last().is_some_and(|(best, _)| c >= *best) {
-            worse_in_row += 1;
-        } else {
-            worse_in_row = 0;
-        }
-        history.push((
-            c,
-            cells
-                .iter()
-                .map(|c| Leaf {
-                    lower: c.lower.clone(),
-                    upper: c.upper.clone(),
-                    theta: c.theta[..nd + 1].to_vec(),
-                })
-                .collect(),
-        ));
-        if cells.len() >= opts.max_leaves
-            || (worse_in_row >= 2 && opts.criterion != TerminationCriterion::MaxLeaves)
-        {
-            break;
-        }
-        // worst splittable leaf
-        let mut worst = None;
-        let mut worst_loss = -1.0;
-        for (i, c) in cells.iter().enumerate() {
-            if !c.splittable {
-                continue;
-            }
-            let l: f64 = (0..nrow)
-                .map(|r| phi[i * nrow + r] * (target[r] - yhat[r]).powi(2))
-                .sum();
-            if l > worst_loss {
-                worst_loss = l;
-                worst = Some(i);
-            }
-        }
-        let Some(w) = worst else { break };
-        let mut best: Option<(f64, Vec<Cell>, Vec<f64>)> = None;
-        for d in 0..nz {
-            let mid = 0.5 * (cells[w].lower[d] + cells[w].upper[d]);
-            let mut left_u = cells[w].upper.clone();
-            left_u[d] = mid;
-            let mut right_l = cells[w].lower.clone();
-            right_l[d] = mid;
-            let mut trial: Vec<Cell> = cells
-                .iter()
-                .enumerate()
-                .filter(|(i, _)| *i != w)
-                .map(|(_, c)| Cell {
-                    lower: c.lower.clone(),
-                    upper: c.upper.clone(),
-                    theta: c.theta.clone(),
-                    splittable: c.splittable,
-                })
-                .collect();
-            trial.push(Cell {
-                lower: cells[w].lower.clone(),
-                upper: left_u,
-                theta: vec![],
-                splittable: true,
-            });
-            trial.push(Cell {
-                lower: right_l,
-                upper: cells[w].upper.clone(),
-                theta: vec![],
-                splittable: true,
-            });
-            let tphi = validities(&trial, &z, nz, nrow);
-            let mt = trial.len();
-            let mut ok = true;
-            for i in [mt - 2, mt - 1] {
-                let col = &tphi[i * nrow..(i + 1) * nrow];
-                if col.iter().sum::<f64>() < min_eff {
-                    ok = false;
-                    break;
-                }
-                match fit_cell(col) {
-                    Ok(t) => trial[i].theta = t,
-                    Err(_) => {
-                        ok = false;
-                        break;
-                    }
-                }
-            }
-            if !ok {
-                continue;
-            }
-            let mut yt = vec![0.0; nrow];
-            predict(&trial, &tphi, &a, pl, nrow, &mut yt);
-            let sse: f64 = yt.iter().zip(target).map(|(a, b)| (a - b) * (a - b)).sum();
-            if best.as_ref().is_none_or(|(b, _, _)| sse < *b) {
-                best = Some((sse, trial, tphi));
-            }
-        }
-        match best {
-            None => cells[w].splittable = false,
-            Some((_, mut trial, tphi)) => {
-                // re-estimate every local model under the new validity functions
-                for (i, c) in trial.iter_mut().enumerate() {
-                    if let Ok(t) = fit_cell(&tphi[i * nrow..(i + 1) * nrow]) {
-                        c.theta = t;
-                    }
-                }
-                cells = trial;
-                phi = tphi;
-            }
-        }
-        if cells.iter().all(|c| !c.splittable) {
-            predict(&cells, &phi, &a, pl, nrow, &mut yhat);
-            let sse: f64 = yhat
-                .iter()
-                .zip(target)
-                .map(|(a, b)| (a - b) * (a - b))
-                .sum();
-            history.push((
-                crit(sse, cells.len()),
-                cells
-                    .iter()
-                    .map(|c| Leaf {
-                        lower: c.lower.clone(),
-                        upper: c.upper.clone(),
-                        theta: c.theta[..nd + 1].to_vec(),
-                    })
-                    .collect(),
-            ));
-            break;
-        }
-    }
+    let mut history = problem.grow(nd)?;
     // networks ordered from the criterion's best to worst
     history.sort_by(|a, b| a.0.total_cmp(&b.0));
     let mut out = Vec::new();

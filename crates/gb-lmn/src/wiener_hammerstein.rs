@@ -595,6 +595,18 @@ fn rms(e: &[f64]) -> f64 {
     (e.iter().map(|v| v * v).sum::<f64>() / e.len().max(1) as f64).sqrt()
 }
 
+/// A network with its score (an RMSE).
+type ScoredNetwork = (f64, WienerHammersteinNetwork);
+
+/// RMS of the tail error `sim[n_fit..] − y[n_fit..]`.
+fn tail_rms(sim: &[f64], y: &[f64], n_fit: usize) -> f64 {
+    rms(&sim[n_fit..]
+        .iter()
+        .zip(&y[n_fit..])
+        .map(|(a, b)| a - b)
+        .collect::<Vec<_>>())
+}
+
 /// Columns `G₂(ϕₖ(v))` of the model linear in the network coefficients.
 fn network_columns(m: &WienerHammersteinNetwork, u: &[f64]) -> Vec<Vec<f64>> {
     let v = filtered(&m.b1, &m.a1, u);
@@ -658,6 +670,67 @@ impl WhFitter {
         observer: &dyn Observer,
     ) -> Result<(WienerHammersteinNetwork, WhReport)> {
         let p = &self.p;
+        self.check_record(u, y)?;
+        let n = u.len();
+        let n_fit = n - (p.holdout * n as f64) as usize;
+        let extras: Vec<usize> = if p.extra_g1 == 0 {
+            vec![0]
+        } else {
+            (1..=p.extra_g1).collect()
+        };
+        let total = 3 + p.candidates * extras.len();
+        // 1. best linear approximation (its order chosen on the hold-out)
+        observer.progress(0, total, "Wiener-Hammerstein: best linear approximation");
+        let (orders, bla_holdout_rmse) = match p.bla_orders {
+            Some(o) => (o, vec![]),
+            None => self.bla_orders_on_holdout(u, y, n_fit),
+        };
+        let (bb, ab, bla_rmse, skip) = self.bla(u, y, orders, observer)?;
+        // 2. split scan
+        observer.progress(1, total, "Wiener-Hammerstein: pole/zero split scan");
+        let ns = p.scan_samples.min(n);
+        let (scored, tried) = self.scan_splits(&bb, &ab, &u[..ns], &y[..ns], skip);
+        let best_split_rmse = scored.first().map_or(f64::INFINITY, |s| s.0);
+        if scored.is_empty() {
+            return Err(LmnError::Unstable(
+                "no pole/zero split gave a finite model".into(),
+            ));
+        }
+        // 3. refine the best splits with extra G₁ freedom; choose on the hold-out tail
+        let starts: Vec<WienerHammersteinNetwork> =
+            scored.into_iter().take(p.candidates).map(|s| s.1).collect();
+        let (mut refined, holdout_rmse) =
+            self.refine_starts(&starts, &extras, u, y, n_fit, skip, total, observer)?;
+        refined.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let (_, m) = refined.swap_remove(0);
+        observer.progress(
+            total - 1,
+            total,
+            "Wiener-Hammerstein: final Levenberg-Marquardt",
+        );
+        let (m, rmse, iterations) = self.refine(m, u, y, p.max_iter.div_ceil(3), skip, observer)?;
+        m.check()?;
+        observer.progress(total, total, "Wiener-Hammerstein network fitted");
+        Ok((
+            m,
+            WhReport {
+                bla_orders: orders,
+                bla_holdout_rmse,
+                skip,
+                bla_rmse,
+                splits_tried: tried,
+                best_split_rmse,
+                holdout_rmse,
+                rmse,
+                iterations,
+            },
+        ))
+    }
+
+    /// Check the record: equal lengths, at least
+    /// max(500, 20·(BLA size + 2·knots + 8) + skip) samples, all finite.
+    fn check_record(&self, u: &[f64], y: &[f64]) -> Result<()> {
+        let p = &self.p;
         let n = u.len();
         if y.len() != n {
             return Err(LmnError::Dimension(format!(
@@ -675,48 +748,51 @@ impl WhFitter {
         if !u.iter().chain(y).all(|v| v.is_finite()) {
             return Err(LmnError::InvalidArgument("non-finite samples".into()));
         }
-        let n_fit = n - (p.holdout * n as f64) as usize;
-        let extras: Vec<usize> = if p.extra_g1 == 0 {
-            vec![0]
-        } else {
-            (1..=p.extra_g1).collect()
-        };
-        let total = 3 + p.candidates * extras.len();
-        // 1. best linear approximation (its order chosen on the hold-out)
-        observer.progress(0, total, "Wiener-Hammerstein: best linear approximation");
+        Ok(())
+    }
+
+    /// The BLA order k (k poles, k zeros), k = 1..=max, with the smallest
+    /// free-run RMSE on the hold-out tail `n_fit..` of a fit on `..n_fit`;
+    /// with the hold-out RMSE of every order that could be fitted.
+    fn bla_orders_on_holdout(
+        &self,
+        u: &[f64],
+        y: &[f64],
+        n_fit: usize,
+    ) -> ((usize, usize), Vec<(usize, f64)>) {
         let mut bla_holdout_rmse = vec![];
-        let orders = match p.bla_orders {
-            Some(o) => o,
-            None => {
-                let mut best = (1, f64::INFINITY);
-                for k in 1..=p.max_bla_order {
-                    let Ok((b, a, _, _)) = self.bla(&u[..n_fit], &y[..n_fit], (k, k), &Silent)
-                    else {
-                        continue;
-                    };
-                    let sim = filtered(&b, &a, u);
-                    let e = rms(&sim[n_fit..]
-                        .iter()
-                        .zip(&y[n_fit..])
-                        .map(|(a, b)| a - b)
-                        .collect::<Vec<_>>());
-                    bla_holdout_rmse.push((k, e));
-                    if e < best.1 {
-                        best = (k, e);
-                    }
-                }
-                (best.0, best.0)
+        let mut best = (1, f64::INFINITY);
+        for k in 1..=self.p.max_bla_order {
+            let Ok((b, a, _, _)) = self.bla(&u[..n_fit], &y[..n_fit], (k, k), &Silent) else {
+                continue;
+            };
+            let sim = filtered(&b, &a, u);
+            let e = tail_rms(&sim, y, n_fit);
+            bla_holdout_rmse.push((k, e));
+            if e < best.1 {
+                best = (k, e);
             }
-        };
-        let (bb, ab, bla_rmse, skip) = self.bla(u, y, orders, observer)?;
-        // 2. split scan
-        observer.progress(1, total, "Wiener-Hammerstein: pole/zero split scan");
-        let ns = p.scan_samples.min(n);
-        let (us, ys) = (&u[..ns], &y[..ns]);
-        let pg = root_groups(&roots(&ab));
-        let zg = root_groups(&roots(&bb));
+        }
+        ((best.0, best.0), bla_holdout_rmse)
+    }
+
+    /// Score every split of the BLA's pole groups (roots of `ab`) and zero
+    /// groups (roots of `bb`) between G₁ and G₂ (G₁ with unit static gain,
+    /// the rest of the gain in G₂) by the RMSE of its least-squares start
+    /// network on `(us, ys)`. Returns the scored networks, best first, and
+    /// the number of splits tried.
+    fn scan_splits(
+        &self,
+        bb: &[f64],
+        ab: &[f64],
+        us: &[f64],
+        ys: &[f64],
+        skip: usize,
+    ) -> (Vec<ScoredNetwork>, usize) {
+        let pg = root_groups(&roots(ab));
+        let zg = root_groups(&roots(bb));
         let lead = bb.iter().copied().find(|v| *v != 0.0).unwrap_or(1.0);
-        let mut scored: Vec<(f64, WienerHammersteinNetwork)> = vec![];
+        let mut scored: Vec<ScoredNetwork> = vec![];
         let mut tried = 0;
         for pm in 0u32..(1 << pg.len()) {
             for zm in 0u32..(1 << zg.len()) {
@@ -750,19 +826,30 @@ impl WhFitter {
             }
         }
         scored.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let best_split_rmse = scored.first().map_or(f64::INFINITY, |s| s.0);
-        if scored.is_empty() {
-            return Err(LmnError::Unstable(
-                "no pole/zero split gave a finite model".into(),
-            ));
-        }
-        // 3. refine the best splits with extra G₁ freedom; choose on the hold-out tail
+        (scored, tried)
+    }
+
+    /// Refine every start network with each extra G₁ order (zero
+    /// coefficients appended to b₁ and a₁) by LM on `..n_fit`; returns the
+    /// refined networks with their hold-out RMSE (0 without a hold-out), and
+    /// those RMSEs in order (start-major).
+    #[allow(clippy::too_many_arguments)]
+    fn refine_starts(
+        &self,
+        starts: &[WienerHammersteinNetwork],
+        extras: &[usize],
+        u: &[f64],
+        y: &[f64],
+        n_fit: usize,
+        skip: usize,
+        total: usize,
+        observer: &dyn Observer,
+    ) -> Result<(Vec<ScoredNetwork>, Vec<f64>)> {
+        let n = u.len();
         let mut refined = vec![];
         let mut holdout_rmse = vec![];
-        let starts: Vec<WienerHammersteinNetwork> =
-            scored.into_iter().take(p.candidates).map(|s| s.1).collect();
-        for m0 in &starts {
-            for &extra in &extras {
+        for m0 in starts {
+            for &extra in extras {
                 observer.progress(
                     2 + refined.len(),
                     total,
@@ -774,14 +861,9 @@ impl WhFitter {
                     m.a1.push(0.0);
                 }
                 let (m, _, _) =
-                    self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter, skip, observer)?;
+                    self.refine(m, &u[..n_fit], &y[..n_fit], self.p.max_iter, skip, observer)?;
                 let e = if n_fit < n {
-                    let sim = m.simulate(u);
-                    rms(&sim[n_fit..]
-                        .iter()
-                        .zip(&y[n_fit..])
-                        .map(|(a, b)| a - b)
-                        .collect::<Vec<_>>())
+                    tail_rms(&m.simulate(u), y, n_fit)
                 } else {
                     0.0
                 };
@@ -789,30 +871,7 @@ impl WhFitter {
                 refined.push((e, m));
             }
         }
-        refined.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let (_, m) = refined.swap_remove(0);
-        observer.progress(
-            total - 1,
-            total,
-            "Wiener-Hammerstein: final Levenberg-Marquardt",
-        );
-        let (m, rmse, iterations) = self.refine(m, u, y, p.max_iter.div_ceil(3), skip, observer)?;
-        m.check()?;
-        observer.progress(total, total, "Wiener-Hammerstein network fitted");
-        Ok((
-            m,
-            WhReport {
-                bla_orders: orders,
-                bla_holdout_rmse,
-                skip,
-                bla_rmse,
-                splits_tried: tried,
-                best_split_rmse,
-                holdout_rmse,
-                rmse,
-                iterations,
-            },
-        ))
+        Ok((refined, holdout_rmse))
     }
 
     /// OE best linear approximation with `(poles, zeros)`: ARX start, then

@@ -86,48 +86,70 @@ fn score(
     Ok((metrics::nrmse(&y[range], &sim)?, sim))
 }
 
-fn main() -> Res<()> {
-    let dir = std::env::var_os("GREYBOX_DATA")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
-    let file = dir.join("mr_damper_dyke_nees/ranran_50.csv");
-    if !file.is_file() {
-        eprintln!(
-            "mr_damper example skipped: {} not found (set GREYBOX_DATA)",
-            file.display()
-        );
-        return Ok(());
-    }
-    let out = std::env::args().nth(1).map(PathBuf::from);
-    let t = CsvTable::read(&file)?;
-    let (d, v, f) = (t.column("D")?, t.column("V")?, t.column("F")?);
-    let n = f.len();
-    let n_fit = n * 7 / 10;
-    let mut inputs: Vec<Vec<f64>> = ["D", "V", "Y"]
-        .iter()
-        .map(|c| t.column(c).map(|s| s.to_vec()))
-        .collect::<Result<_, _>>()?;
-    let use_acc = env_flag("MR_A", false);
-    if use_acc {
-        inputs.push(t.column("A")?.to_vec());
-    }
-    // the excitation ends with the last sample with the voltage on
-    let n_exc = t
-        .column("Y")?
-        .iter()
-        .rposition(|y| *y > 0.1)
-        .map_or(n, |k| k + 1)
-        .max(n_fit + 2);
-    let head = |k: usize| -> Vec<Vec<f64>> { inputs.iter().map(|s| s[..k].to_vec()).collect() };
-    let t0 = Instant::now();
+/// The record: displacement, velocity, force, the model inputs (D, V, Y and
+/// with `MR_A=1` A), its length, the end of the training part and of the
+/// excitation.
+struct MrRecord {
+    d: Vec<f64>,
+    v: Vec<f64>,
+    f: Vec<f64>,
+    inputs: Vec<Vec<f64>>,
+    n: usize,
+    n_fit: usize,
+    n_exc: usize,
+}
 
-    // linear baselines (gb-lmn OE, order 2), with and without A; the better
-    // one on each score is the reference
+impl MrRecord {
+    /// Reads `ranran_50.csv` (first 70 % trains; the excitation ends with
+    /// the last sample with the voltage on).
+    fn read(file: &std::path::Path) -> Res<Self> {
+        let t = CsvTable::read(file)?;
+        let (d, v, f) = (t.column("D")?, t.column("V")?, t.column("F")?);
+        let n = f.len();
+        let n_fit = n * 7 / 10;
+        let mut inputs: Vec<Vec<f64>> = ["D", "V", "Y"]
+            .iter()
+            .map(|c| t.column(c).map(|s| s.to_vec()))
+            .collect::<Result<_, _>>()?;
+        let use_acc = env_flag("MR_A", false);
+        if use_acc {
+            inputs.push(t.column("A")?.to_vec());
+        }
+        // the excitation ends with the last sample with the voltage on
+        let n_exc = t
+            .column("Y")?
+            .iter()
+            .rposition(|y| *y > 0.1)
+            .map_or(n, |k| k + 1)
+            .max(n_fit + 2);
+        Ok(Self {
+            d: d.to_vec(),
+            v: v.to_vec(),
+            f: f.to_vec(),
+            inputs,
+            n,
+            n_fit,
+            n_exc,
+        })
+    }
+
+    /// The first `k` samples of every input.
+    fn head(&self, k: usize) -> Vec<Vec<f64>> {
+        self.inputs.iter().map(|s| s[..k].to_vec()).collect()
+    }
+}
+
+/// Linear baselines (gb-lmn OE, order 2), with and without A; the better
+/// one on each score is the reference. Returns the best NRMSE on the excited
+/// test part, the best on the whole test part, and the free run of the
+/// model best on the excited part (test part).
+fn linear_baselines(rec: &MrRecord) -> Res<(f64, f64, Vec<f64>)> {
+    let (f, n_fit, n, n_exc) = (&rec.f, rec.n_fit, rec.n, rec.n_exc);
     let (mut e_lin, mut e_lin_all) = (f64::INFINITY, f64::INFINITY);
     let mut lsim = Vec::new();
-    for k in [3, 4].into_iter().filter(|&k| k <= inputs.len()) {
-        let lin = linear_from_oe(&head(n_fit)[..k], &f[..n_fit], 2)?;
-        let (e_all, s) = score(&lin, &inputs[..k], f, n_fit..n)?;
+    for k in [3, 4].into_iter().filter(|&k| k <= rec.inputs.len()) {
+        let lin = linear_from_oe(&rec.head(n_fit)[..k], &f[..n_fit], 2)?;
+        let (e_all, s) = score(&lin, &rec.inputs[..k], f, n_fit..n)?;
         let e = metrics::nrmse(&f[n_fit..n_exc], &s[..n_exc - n_fit])?;
         println!(
             "linear OE (order 2, inputs D, V, Y{}): test NRMSE {e:.4} excited, {e_all:.4} with the standstill",
@@ -138,10 +160,15 @@ fn main() -> Res<()> {
             (e_lin, lsim) = (e, s);
         }
     }
+    Ok((e_lin, e_lin_all, lsim))
+}
 
-    // the resonance set (MR_RES_HZ: one set, `150,120`; default: 150 Hz
-    // alone or 150 and 120 Hz) and the ridge weight, chosen on the last
-    // 20 % of the training part
+/// The grey-box model: the resonance set (MR_RES_HZ: one set, `150,120`;
+/// default: 150 Hz alone or 150 and 120 Hz) and the ridge weight, chosen on
+/// the last 20 % of the training part, refitted on all of it; prints the
+/// scores and the stages. Returns the model and its ridge weight.
+fn select_grey_box(rec: &MrRecord) -> Res<(SparseStateSpace, f64)> {
+    let n_fit = rec.n_fit;
     let res_sets: Vec<Vec<f64>> = match std::env::var("MR_RES_HZ") {
         Ok(_) => vec![env_list("MR_RES_HZ", &[])],
         Err(_) => vec![vec![150.0], vec![150.0, 120.0]],
@@ -162,8 +189,8 @@ fn main() -> Res<()> {
         &structures,
         &oe,
         &ridges,
-        &head(n_fit),
-        &f[..n_fit],
+        &rec.head(n_fit),
+        &rec.f[..n_fit],
         &StageLog::default(),
     )?;
     for (k, r, e) in &fit.scores {
@@ -186,9 +213,80 @@ fn main() -> Res<()> {
             if s.accepted { "kept" } else { "rejected" }
         );
     }
-    let (e_all, sim) = score(&model, &inputs, f, n_fit..n)?;
+    Ok((model, ridge))
+}
+
+/// Writes `mr_damper_loops.csv` (velocity, displacement, measured, linear
+/// and model force on the test part), `mr_damper.gbs` and the force–velocity
+/// loops of 0.5 s, 1 s after the split, as `mr_damper_loops.svg`.
+fn write_outputs(
+    o: &std::path::Path,
+    rec: &MrRecord,
+    model: &SparseStateSpace,
+    (sim, e): (&[f64], f64),
+    (lsim, e_lin): (&[f64], f64),
+) -> Res<()> {
+    let (d, v, n_fit, n) = (&rec.d, &rec.v, rec.n_fit, rec.n);
+    std::fs::create_dir_all(o)?;
+    let f_test = &rec.f[n_fit..];
+    let rows: Vec<String> = (0..f_test.len())
+        .map(|k| {
+            format!(
+                "{},{},{},{},{}",
+                v[n_fit + k],
+                d[n_fit + k],
+                f_test[k],
+                lsim[k],
+                sim[k]
+            )
+        })
+        .collect();
+    gb_core::write_atomic(
+        o.join("mr_damper_loops.csv"),
+        format!(
+            "velocity,displacement,force,linear,model\n{}\n",
+            rows.join("\n")
+        )
+        .as_bytes(),
+    )?;
+    gb_core::write_atomic(o.join("mr_damper.gbs"), &model.to_bytes()?)?;
+    // 0.5 s of the test part, 1 s after the split
+    let w0 = 3005.min(f_test.len());
+    let w1 = (w0 + 1502).min(f_test.len());
+    let svg = loops_svg(
+        &v[n_fit..n],
+        [
+            ("measured", f_test),
+            (&format!("wavelet grey-box (NRMSE {e:.3})"), sim),
+            (&format!("linear OE (NRMSE {e_lin:.3})"), lsim),
+        ],
+        w0..w1,
+    )?;
+    gb_core::write_atomic(o.join("mr_damper_loops.svg"), svg.as_bytes())?;
+    Ok(())
+}
+
+fn main() -> Res<()> {
+    let dir = std::env::var_os("GREYBOX_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"));
+    let file = dir.join("mr_damper_dyke_nees/ranran_50.csv");
+    if !file.is_file() {
+        eprintln!(
+            "mr_damper example skipped: {} not found (set GREYBOX_DATA)",
+            file.display()
+        );
+        return Ok(());
+    }
+    let out = std::env::args().nth(1).map(PathBuf::from);
+    let rec = MrRecord::read(&file)?;
+    let (f, n, n_fit, n_exc) = (&rec.f, rec.n, rec.n_fit, rec.n_exc);
+    let t0 = Instant::now();
+    let (e_lin, e_lin_all, lsim) = linear_baselines(&rec)?;
+    let (model, ridge) = select_grey_box(&rec)?;
+    let (e_all, sim) = score(&model, &rec.inputs, f, n_fit..n)?;
     let e = metrics::nrmse(&f[n_fit..n_exc], &sim[..n_exc - n_fit])?;
-    let tail: Vec<Vec<f64>> = inputs.iter().map(|s| s[n_fit..].to_vec()).collect();
+    let tail: Vec<Vec<f64>> = rec.inputs.iter().map(|s| s[n_fit..].to_vec()).collect();
     let (e_rest, _) =
         score(&model, &tail, &f[n_fit..], 0..n - n_fit).unwrap_or((f64::NAN, Vec::new()));
     println!(
@@ -201,42 +299,13 @@ fn main() -> Res<()> {
         model.describe()
     );
     if let Some(o) = out {
-        std::fs::create_dir_all(&o)?;
-        let f_test = &f[n_fit..];
-        let rows: Vec<String> = (0..f_test.len())
-            .map(|k| {
-                format!(
-                    "{},{},{},{},{}",
-                    v[n_fit + k],
-                    d[n_fit + k],
-                    f_test[k],
-                    lsim[k],
-                    sim[k]
-                )
-            })
-            .collect();
-        gb_core::write_atomic(
-            o.join("mr_damper_loops.csv"),
-            format!(
-                "velocity,displacement,force,linear,model\n{}\n",
-                rows.join("\n")
-            )
-            .as_bytes(),
+        write_outputs(
+            &o,
+            &rec,
+            &model,
+            (sim.as_slice(), e),
+            (lsim.as_slice(), e_lin),
         )?;
-        gb_core::write_atomic(o.join("mr_damper.gbs"), &model.to_bytes()?)?;
-        // 0.5 s of the test part, 1 s after the split
-        let w0 = 3005.min(f_test.len());
-        let w1 = (w0 + 1502).min(f_test.len());
-        let svg = loops_svg(
-            &v[n_fit..n],
-            [
-                ("measured", f_test),
-                (&format!("wavelet grey-box (NRMSE {e:.3})"), &sim),
-                (&format!("linear OE (NRMSE {e_lin:.3})"), &lsim),
-            ],
-            w0..w1,
-        )?;
-        gb_core::write_atomic(o.join("mr_damper_loops.svg"), svg.as_bytes())?;
     }
     Ok(())
 }

@@ -171,6 +171,257 @@ pub(crate) fn hysteresis_regressors(m: &SparseStateSpace, inputs: &[Vec<f64>]) -
         .collect()
 }
 
+/// Marks a model entry that is not a parameter of the pass.
+const NONE: usize = usize::MAX;
+
+/// Column of each model entry in the parameter vector (`NONE` when the
+/// entry is held fixed): the inverse of the `cols` list.
+struct ParamColumns {
+    a: Vec<usize>,
+    b: Vec<usize>,
+    c: Vec<usize>,
+    d: Vec<usize>,
+    x0: Vec<usize>,
+    offset: usize,
+    /// Per nonlinear term, per expansion coefficient.
+    coef: Vec<Vec<usize>>,
+    /// Per hysteresis term, per Everett coefficient.
+    hyst: Vec<Vec<usize>>,
+}
+
+impl ParamColumns {
+    fn new(m: &SparseStateSpace, cols: &[Param]) -> Self {
+        let n = m.n_states;
+        let nu = m.n_inputs;
+        let mut pc = Self {
+            a: vec![NONE; n * n],
+            b: vec![NONE; n * nu],
+            c: vec![NONE; n],
+            d: vec![NONE; nu],
+            x0: vec![NONE; n],
+            offset: NONE,
+            coef: m
+                .terms
+                .iter()
+                .map(|t| vec![NONE; t.expansion.len()])
+                .collect(),
+            hyst: m
+                .hysteresis
+                .iter()
+                .map(|h| vec![NONE; h.everett.expansion().len()])
+                .collect(),
+        };
+        for (c, p) in cols.iter().enumerate() {
+            match *p {
+                Param::A(i) => pc.a[i] = c,
+                Param::B(i) => pc.b[i] = c,
+                Param::C(i) => pc.c[i] = c,
+                Param::D(i) => pc.d[i] = c,
+                Param::X0(i) => pc.x0[i] = c,
+                Param::Offset => pc.offset = c,
+                Param::Coef(k, i) => pc.coef[k][i] = c,
+                Param::Hyst(k, i) => pc.hyst[k][i] = c,
+            }
+        }
+        pc
+    }
+}
+
+/// Scratch of one expansion evaluation: basis values, arguments, gradient.
+struct TermScratch {
+    ev: EvalScratch,
+    args: [f64; MAX_DIMS],
+    grad: [f64; MAX_DIMS],
+}
+
+/// Current sample of a sensitivity pass: time `t`, state `x` (n), its
+/// sensitivities `s = ∂x/∂θ` (n×q row-major), input `u`, hysteresis
+/// outputs `hk`.
+struct SampleState<'a> {
+    t: usize,
+    x: &'a [f64],
+    s: &'a [f64],
+    u: &'a [f64],
+    hk: &'a [f64],
+}
+
+/// One forward-sensitivity simulation: model, parameter columns,
+/// hysteresis regressors (`N × K_k` per term), number of parameters q.
+struct SensitivityPass<'a> {
+    m: &'a SparseStateSpace,
+    cols: ParamColumns,
+    hreg: &'a [Vec<f64>],
+    q: usize,
+}
+
+impl SensitivityPass<'_> {
+    /// Output ŷ = c·x + d·u + offset + Σ f_k + Σ h_k and its gradient
+    /// `jrow = ∂ŷ/∂θ = cᵀS + ∂ŷ/∂θ|_explicit` (chain rule through the
+    /// state arguments of the output terms).
+    fn output(&self, st: &SampleState, jrow: &mut [f64], sc: &mut TermScratch) -> f64 {
+        let (m, pc, q) = (self.m, &self.cols, self.q);
+        let (n, nu) = (m.n_states, m.n_inputs);
+        let (x, s, u, hk, t) = (st.x, st.s, st.u, st.hk, st.t);
+        let mut yh = m.y_offset;
+        jrow.fill(0.0);
+        for i in 0..n {
+            yh += m.c[i] * x[i];
+            let ci = m.c[i];
+            if ci != 0.0 {
+                for (jr, sv) in jrow.iter_mut().zip(&s[i * q..(i + 1) * q]) {
+                    *jr += ci * sv;
+                }
+            }
+            if pc.c[i] != NONE {
+                jrow[pc.c[i]] += x[i];
+            }
+        }
+        for j in 0..nu {
+            yh += m.d[j] * u[j];
+            if pc.d[j] != NONE {
+                jrow[pc.d[j]] += u[j];
+            }
+        }
+        if pc.offset != NONE {
+            jrow[pc.offset] += 1.0;
+        }
+        for (k, term) in m.terms.iter().enumerate() {
+            if term.target != Target::Output {
+                continue;
+            }
+            let d = term.args.len();
+            SparseStateSpace::gather(&term.args, x, u, &mut sc.args);
+            yh +=
+                term.expansion
+                    .eval_with(&sc.args[..d], Some(&mut sc.grad[..d]), true, &mut sc.ev);
+            for (dd, a) in term.args.iter().enumerate() {
+                if let Signal::State(i) = *a {
+                    let g = sc.grad[dd];
+                    if g != 0.0 {
+                        for (jr, sv) in jrow.iter_mut().zip(&s[i * q..(i + 1) * q]) {
+                            *jr += g * sv;
+                        }
+                    }
+                }
+            }
+            for &(ix, v) in &sc.ev.basis {
+                let c = pc.coef[k][ix as usize];
+                if c != NONE {
+                    jrow[c] += v;
+                }
+            }
+        }
+        for (k, hy) in m.hysteresis.iter().enumerate() {
+            if hy.target == Target::Output {
+                yh += hk[k];
+                let kk = pc.hyst[k].len();
+                for (i, &c) in pc.hyst[k].iter().enumerate() {
+                    if c != NONE {
+                        jrow[c] += self.hreg[k][t * kk + i];
+                    }
+                }
+            }
+        }
+        yh
+    }
+
+    /// One sub-step x⁺ = A x + B u + Σ f_k + Σ h_k into `xn`, with the
+    /// sensitivities S⁺ = A S + ∂x⁺/∂θ|_explicit + Σ ∇f_k S into `sn`.
+    fn substep(&self, st: &SampleState, xn: &mut [f64], sn: &mut [f64], sc: &mut TermScratch) {
+        let (m, pc, q) = (self.m, &self.cols, self.q);
+        let (n, nu) = (m.n_states, m.n_inputs);
+        let (x, s, u, hk, t) = (st.x, st.s, st.u, st.hk, st.t);
+        for i in 0..n {
+            let mut v = 0.0;
+            let srow = &mut sn[i * q..(i + 1) * q];
+            srow.fill(0.0);
+            for j in 0..n {
+                let aij = m.a[i * n + j];
+                v += aij * x[j];
+                if aij != 0.0 {
+                    for (o, sv) in srow.iter_mut().zip(&s[j * q..(j + 1) * q]) {
+                        *o += aij * sv;
+                    }
+                }
+                let c = pc.a[i * n + j];
+                if c != NONE {
+                    srow[c] += x[j];
+                }
+            }
+            for j in 0..nu {
+                v += m.b[i * nu + j] * u[j];
+                let c = pc.b[i * nu + j];
+                if c != NONE {
+                    srow[c] += u[j];
+                }
+            }
+            xn[i] = v;
+        }
+        for (k, term) in m.terms.iter().enumerate() {
+            let Target::State(i) = term.target else {
+                continue;
+            };
+            let d = term.args.len();
+            SparseStateSpace::gather(&term.args, x, u, &mut sc.args);
+            xn[i] +=
+                term.expansion
+                    .eval_with(&sc.args[..d], Some(&mut sc.grad[..d]), true, &mut sc.ev);
+            for (dd, a) in term.args.iter().enumerate() {
+                if let Signal::State(src) = *a {
+                    let g = sc.grad[dd];
+                    if g != 0.0 {
+                        for c in 0..q {
+                            sn[i * q + c] += g * s[src * q + c];
+                        }
+                    }
+                }
+            }
+            for &(ix, v) in &sc.ev.basis {
+                let c = pc.coef[k][ix as usize];
+                if c != NONE {
+                    sn[i * q + c] += v;
+                }
+            }
+        }
+        for (k, hy) in m.hysteresis.iter().enumerate() {
+            if let Target::State(i) = hy.target {
+                xn[i] += hk[k];
+                let kk = pc.hyst[k].len();
+                for (ii, &c) in pc.hyst[k].iter().enumerate() {
+                    if c != NONE {
+                        sn[i * q + c] += self.hreg[k][t * kk + ii];
+                    }
+                }
+            }
+        }
+    }
+}
+
+impl SensOut {
+    /// Add one residual e with Jacobian row j: SSE += e², Jᵀe += j e,
+    /// diag(JᵀJ) += j², and (when `full`) the upper triangle of JᵀJ += j jᵀ.
+    fn accumulate(&mut self, jrow: &[f64], e: f64, full: bool) {
+        let q = jrow.len();
+        self.sse += e * e;
+        for (c, &jv) in jrow.iter().enumerate() {
+            self.jte[c] += jv * e;
+            self.diag[c] += jv * jv;
+        }
+        if full {
+            for a in 0..q {
+                let ja = jrow[a];
+                if ja == 0.0 {
+                    continue;
+                }
+                let row = &mut self.jtj[a * q..(a + 1) * q];
+                for b in a..q {
+                    row[b] += ja * jrow[b];
+                }
+            }
+        }
+    }
+}
+
 /// Simulation with forward sensitivities for the parameters `cols`.
 pub(crate) fn sensitivities(
     m: &SparseStateSpace,
@@ -185,43 +436,20 @@ pub(crate) fn sensitivities(
     let nu = m.n_inputs;
     let q = cols.len();
     let len = y.len();
-    const NONE: usize = usize::MAX;
-    let mut a_col = vec![NONE; n * n];
-    let mut b_col = vec![NONE; n * nu];
-    let mut c_col = vec![NONE; n];
-    let mut d_col = vec![NONE; nu];
-    let mut x0_col = vec![NONE; n];
-    let mut off_col = NONE;
-    let mut coef_col: Vec<Vec<usize>> = m
-        .terms
-        .iter()
-        .map(|t| vec![NONE; t.expansion.len()])
-        .collect();
-    let mut hyst_col: Vec<Vec<usize>> = m
-        .hysteresis
-        .iter()
-        .map(|h| vec![NONE; h.everett.expansion().len()])
-        .collect();
-    for (c, p) in cols.iter().enumerate() {
-        match *p {
-            Param::A(i) => a_col[i] = c,
-            Param::B(i) => b_col[i] = c,
-            Param::C(i) => c_col[i] = c,
-            Param::D(i) => d_col[i] = c,
-            Param::X0(i) => x0_col[i] = c,
-            Param::Offset => off_col = c,
-            Param::Coef(k, i) => coef_col[k][i] = c,
-            Param::Hyst(k, i) => hyst_col[k][i] = c,
-        }
-    }
+    let pass = SensitivityPass {
+        m,
+        cols: ParamColumns::new(m, cols),
+        hreg,
+        q,
+    };
     let hout = m.hysteresis_outputs(inputs)?;
     let mut x = m.x0.clone();
     let mut xn = vec![0.0; n];
     let mut s = vec![0.0; n * q];
     let mut sn = vec![0.0; n * q];
-    for i in 0..n {
-        if x0_col[i] != NONE {
-            s[i * q + x0_col[i]] = 1.0;
+    for (i, &c) in pass.cols.x0.iter().enumerate() {
+        if c != NONE {
+            s[i * q + c] = 1.0;
         }
     }
     let mut jrow = vec![0.0; q];
@@ -233,9 +461,11 @@ pub(crate) fn sensitivities(
     };
     let mut u = vec![0.0; nu];
     let mut hk = vec![0.0; m.hysteresis.len()];
-    let mut ev = EvalScratch::default();
-    let mut args = [0.0f64; MAX_DIMS];
-    let mut grad = [0.0f64; MAX_DIMS];
+    let mut sc = TermScratch {
+        ev: EvalScratch::default(),
+        args: [0.0f64; MAX_DIMS],
+        grad: [0.0f64; MAX_DIMS],
+    };
     for t in 0..len {
         for j in 0..nu {
             u[j] = inputs[j][t];
@@ -244,151 +474,27 @@ pub(crate) fn sensitivities(
             *v = hout[k][t];
         }
         // output and its sensitivity
-        let mut yh = m.y_offset;
-        jrow.fill(0.0);
-        for i in 0..n {
-            yh += m.c[i] * x[i];
-            let ci = m.c[i];
-            if ci != 0.0 {
-                for (jr, sv) in jrow.iter_mut().zip(&s[i * q..(i + 1) * q]) {
-                    *jr += ci * sv;
-                }
-            }
-            if c_col[i] != NONE {
-                jrow[c_col[i]] += x[i];
-            }
-        }
-        for j in 0..nu {
-            yh += m.d[j] * u[j];
-            if d_col[j] != NONE {
-                jrow[d_col[j]] += u[j];
-            }
-        }
-        if off_col != NONE {
-            jrow[off_col] += 1.0;
-        }
-        for (k, term) in m.terms.iter().enumerate() {
-            if term.target != Target::Output {
-                continue;
-            }
-            let d = term.args.len();
-            SparseStateSpace::gather(&term.args, &x, &u, &mut args);
-            yh += term
-                .expansion
-                .eval_with(&args[..d], Some(&mut grad[..d]), true, &mut ev);
-            for (dd, a) in term.args.iter().enumerate() {
-                if let Signal::State(i) = *a {
-                    let g = grad[dd];
-                    if g != 0.0 {
-                        for (jr, sv) in jrow.iter_mut().zip(&s[i * q..(i + 1) * q]) {
-                            *jr += g * sv;
-                        }
-                    }
-                }
-            }
-            for &(ix, v) in &ev.basis {
-                let c = coef_col[k][ix as usize];
-                if c != NONE {
-                    jrow[c] += v;
-                }
-            }
-        }
-        for (k, hy) in m.hysteresis.iter().enumerate() {
-            if hy.target == Target::Output {
-                yh += hk[k];
-                let kk = hyst_col[k].len();
-                for (i, &c) in hyst_col[k].iter().enumerate() {
-                    if c != NONE {
-                        jrow[c] += hreg[k][t * kk + i];
-                    }
-                }
-            }
-        }
+        let st = SampleState {
+            t,
+            x: &x,
+            s: &s,
+            u: &u,
+            hk: &hk,
+        };
+        let yh = pass.output(&st, &mut jrow, &mut sc);
         if t >= skip {
-            let e = y[t] - yh;
-            out.sse += e * e;
-            for (c, &jv) in jrow.iter().enumerate() {
-                out.jte[c] += jv * e;
-                out.diag[c] += jv * jv;
-            }
-            if full {
-                for a in 0..q {
-                    let ja = jrow[a];
-                    if ja == 0.0 {
-                        continue;
-                    }
-                    let row = &mut out.jtj[a * q..(a + 1) * q];
-                    for b in a..q {
-                        row[b] += ja * jrow[b];
-                    }
-                }
-            }
+            out.accumulate(&jrow, y[t] - yh, full);
         }
         // state update with sensitivities
         for _ in 0..m.substeps {
-            for i in 0..n {
-                let mut v = 0.0;
-                let srow = &mut sn[i * q..(i + 1) * q];
-                srow.fill(0.0);
-                for j in 0..n {
-                    let aij = m.a[i * n + j];
-                    v += aij * x[j];
-                    if aij != 0.0 {
-                        for (o, sv) in srow.iter_mut().zip(&s[j * q..(j + 1) * q]) {
-                            *o += aij * sv;
-                        }
-                    }
-                    let c = a_col[i * n + j];
-                    if c != NONE {
-                        srow[c] += x[j];
-                    }
-                }
-                for j in 0..nu {
-                    v += m.b[i * nu + j] * u[j];
-                    let c = b_col[i * nu + j];
-                    if c != NONE {
-                        srow[c] += u[j];
-                    }
-                }
-                xn[i] = v;
-            }
-            for (k, term) in m.terms.iter().enumerate() {
-                let Target::State(i) = term.target else {
-                    continue;
-                };
-                let d = term.args.len();
-                SparseStateSpace::gather(&term.args, &x, &u, &mut args);
-                xn[i] += term
-                    .expansion
-                    .eval_with(&args[..d], Some(&mut grad[..d]), true, &mut ev);
-                for (dd, a) in term.args.iter().enumerate() {
-                    if let Signal::State(src) = *a {
-                        let g = grad[dd];
-                        if g != 0.0 {
-                            for c in 0..q {
-                                sn[i * q + c] += g * s[src * q + c];
-                            }
-                        }
-                    }
-                }
-                for &(ix, v) in &ev.basis {
-                    let c = coef_col[k][ix as usize];
-                    if c != NONE {
-                        sn[i * q + c] += v;
-                    }
-                }
-            }
-            for (k, hy) in m.hysteresis.iter().enumerate() {
-                if let Target::State(i) = hy.target {
-                    xn[i] += hk[k];
-                    let kk = hyst_col[k].len();
-                    for (ii, &c) in hyst_col[k].iter().enumerate() {
-                        if c != NONE {
-                            sn[i * q + c] += hreg[k][t * kk + ii];
-                        }
-                    }
-                }
-            }
+            let st = SampleState {
+                t,
+                x: &x,
+                s: &s,
+                u: &u,
+                hk: &hk,
+            };
+            pass.substep(&st, &mut xn, &mut sn, &mut sc);
             std::mem::swap(&mut x, &mut xn);
             std::mem::swap(&mut s, &mut sn);
         }
@@ -568,6 +674,48 @@ pub struct OeReport {
     pub log_likelihood: f64,
     /// Always [`IdentificationPath::OutputError`].
     pub path: IdentificationPath,
+}
+
+/// Boxes of the empty wavelet terms fitted to the free-run trajectory: per
+/// argument, the range [l, h] of the simulated states (or inputs) widened by
+/// a quarter span on each side (the old box where the span is 0 or not
+/// finite).
+fn boxes_around_trajectory(
+    m: &mut SparseStateSpace,
+    inputs: &[Vec<f64>],
+    len: usize,
+) -> Result<()> {
+    let (_, xs) = m.simulate_states(inputs)?;
+    let n = m.n_states;
+    for t in m.terms.iter_mut() {
+        if !t.expansion.is_empty() {
+            continue;
+        }
+        let mut lo = Vec::new();
+        let mut hi = Vec::new();
+        for (d, a) in t.args.iter().enumerate() {
+            let (mut l, mut h) = (f64::MAX, f64::MIN);
+            for k in 0..len {
+                let v = match *a {
+                    Signal::State(i) => xs[k * n + i],
+                    Signal::Input(j) => inputs[j][k],
+                };
+                l = l.min(v);
+                h = h.max(v);
+            }
+            let span = h - l;
+            if span > 0.0 && span.is_finite() {
+                lo.push(l - 0.25 * span);
+                hi.push(h + 0.25 * span);
+            } else {
+                lo.push(t.expansion.lo()[d]);
+                hi.push(t.expansion.hi()[d]);
+            }
+        }
+        let w = t.expansion.wavelet().to_string();
+        t.expansion = crate::basis::SparseExpansion::new(&w, lo, hi)?;
+    }
+    Ok(())
 }
 
 struct Ctx<'a, 'o> {
@@ -911,24 +1059,8 @@ impl OutputError {
         y: &[f64],
         obs: &dyn Observer,
     ) -> Result<(SparseStateSpace, OeReport)> {
-        start.check()?;
-        let len = start.check_inputs(inputs)?;
-        if len != y.len() {
-            return Err(ModelError::Dimension(format!(
-                "{len} input samples, {} output samples",
-                y.len()
-            )));
-        }
-        if y.iter().any(|v| !v.is_finite()) || inputs.iter().flatten().any(|v| !v.is_finite()) {
-            return Err(ModelError::InvalidArgument("data must be finite".into()));
-        }
+        let len = self.checked_record_length(&start, inputs, y)?;
         let p = &self.params;
-        if len < p.skip + 10 {
-            return Err(ModelError::InvalidArgument(format!(
-                "{len} samples are too few (skip {})",
-                p.skip
-            )));
-        }
         let levels = (p.max_level - p.coarse_level + 1).max(0) as usize;
         let mut ctx = Ctx {
             inputs,
@@ -957,109 +1089,12 @@ impl OutputError {
             accepted: true,
         });
         if nonlinear && p.adapt_boxes {
-            let (_, xs) = m.simulate_states(inputs)?;
-            let n = m.n_states;
-            for t in m.terms.iter_mut() {
-                if !t.expansion.is_empty() {
-                    continue;
-                }
-                let mut lo = Vec::new();
-                let mut hi = Vec::new();
-                for (d, a) in t.args.iter().enumerate() {
-                    let (mut l, mut h) = (f64::MAX, f64::MIN);
-                    for k in 0..len {
-                        let v = match *a {
-                            Signal::State(i) => xs[k * n + i],
-                            Signal::Input(j) => inputs[j][k],
-                        };
-                        l = l.min(v);
-                        h = h.max(v);
-                    }
-                    let span = h - l;
-                    if span > 0.0 && span.is_finite() {
-                        lo.push(l - 0.25 * span);
-                        hi.push(h + 0.25 * span);
-                    } else {
-                        lo.push(t.expansion.lo()[d]);
-                        hi.push(t.expansion.hi()[d]);
-                    }
-                }
-                let w = t.expansion.wavelet().to_string();
-                t.expansion = crate::basis::SparseExpansion::new(&w, lo, hi)?;
-            }
+            boxes_around_trajectory(&mut m, inputs, len)?;
         }
         if nonlinear {
-            // 2. coarse grid
-            for t in m.terms.iter_mut() {
-                if t.expansion.is_empty() {
-                    t.expansion.add_coarse_grid(p.coarse_level)?;
-                }
-            }
-            for h in m.hysteresis.iter_mut() {
-                if h.everett.expansion().is_empty() {
-                    h.everett.expansion_mut().add_coarse_grid(p.coarse_level)?;
-                }
-            }
-            let cols = layout(&m);
-            cost = self.lm(&mut m, &cols, &mut ctx, "coarse")?;
-            if p.prune && self.prune(&mut m, cost, &ctx)? > 0 {
-                let cols = layout(&m);
-                cost = self.lm(&mut m, &cols, &mut ctx, "coarse, thresholded")?;
-            }
-            let mut best_bic = self.bic(&m, cost, &ctx);
-            stages.push(StageReport {
-                stage: format!("coarse j0={}", p.coarse_level),
-                coefficients: m.n_coefficients(),
-                rmse: (cost / n_eff).sqrt(),
-                bic: best_bic,
-                accepted: true,
-            });
-            // 3. refinement, coarse to fine
-            for level in p.coarse_level..=p.max_level {
-                let before = m.clone();
-                let before_cost = cost;
-                let added = self.add_candidates(&mut m, level, cost, &mut ctx)?;
-                if added == 0 {
-                    stages.push(StageReport {
-                        stage: format!("level {level}"),
-                        coefficients: m.n_coefficients(),
-                        rmse: (cost / n_eff).sqrt(),
-                        bic: best_bic,
-                        accepted: false,
-                    });
-                    break;
-                }
-                let cols = layout(&m);
-                let stage = format!("level {level}");
-                cost = self
-                    .lm(&mut m, &cols, &mut ctx, &stage)
-                    .unwrap_or(f64::INFINITY);
-                if cost.is_finite() && p.prune && self.prune(&mut m, cost, &ctx)? > 0 {
-                    let cols = layout(&m);
-                    cost = self
-                        .lm(&mut m, &cols, &mut ctx, &stage)
-                        .unwrap_or(f64::INFINITY);
-                }
-                let bic = if cost.is_finite() {
-                    self.bic(&m, cost, &ctx)
-                } else {
-                    f64::INFINITY
-                };
-                let accepted = bic < best_bic;
-                stages.push(StageReport {
-                    stage,
-                    coefficients: m.n_coefficients(),
-                    rmse: (cost / n_eff).sqrt(),
-                    bic,
-                    accepted,
-                });
-                if !accepted {
-                    m = before;
-                    cost = before_cost;
-                    break;
-                }
-                best_bic = bic;
-            }
+            let best_bic;
+            (cost, best_bic) = self.coarse_stage(&mut m, &mut ctx, &mut stages)?;
+            cost = self.refine_levels(&mut m, cost, best_bic, &mut ctx, &mut stages)?;
             for t in m.terms.iter_mut() {
                 t.expansion.drop_zeros();
             }
@@ -1082,6 +1117,130 @@ impl OutputError {
                 path: IdentificationPath::OutputError,
             },
         ))
+    }
+
+    /// Checks the model and the record (matching lengths, finite samples,
+    /// at least `skip + 10` samples); returns the record length.
+    fn checked_record_length(
+        &self,
+        start: &SparseStateSpace,
+        inputs: &[Vec<f64>],
+        y: &[f64],
+    ) -> Result<usize> {
+        start.check()?;
+        let len = start.check_inputs(inputs)?;
+        if len != y.len() {
+            return Err(ModelError::Dimension(format!(
+                "{len} input samples, {} output samples",
+                y.len()
+            )));
+        }
+        if y.iter().any(|v| !v.is_finite()) || inputs.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(ModelError::InvalidArgument("data must be finite".into()));
+        }
+        let p = &self.params;
+        if len < p.skip + 10 {
+            return Err(ModelError::InvalidArgument(format!(
+                "{len} samples are too few (skip {})",
+                p.skip
+            )));
+        }
+        Ok(len)
+    }
+
+    /// Stage 2: the coarse grid of level `j₀` in every empty term, fitted
+    /// (and thresholded and refitted when pruning). Returns the cost and
+    /// its BIC.
+    fn coarse_stage(
+        &self,
+        m: &mut SparseStateSpace,
+        ctx: &mut Ctx,
+        stages: &mut Vec<StageReport>,
+    ) -> Result<(f64, f64)> {
+        let p = &self.params;
+        for t in m.terms.iter_mut() {
+            if t.expansion.is_empty() {
+                t.expansion.add_coarse_grid(p.coarse_level)?;
+            }
+        }
+        for h in m.hysteresis.iter_mut() {
+            if h.everett.expansion().is_empty() {
+                h.everett.expansion_mut().add_coarse_grid(p.coarse_level)?;
+            }
+        }
+        let cols = layout(m);
+        let mut cost = self.lm(m, &cols, ctx, "coarse")?;
+        if p.prune && self.prune(m, cost, ctx)? > 0 {
+            let cols = layout(m);
+            cost = self.lm(m, &cols, ctx, "coarse, thresholded")?;
+        }
+        let best_bic = self.bic(m, cost, ctx);
+        stages.push(StageReport {
+            stage: format!("coarse j0={}", p.coarse_level),
+            coefficients: m.n_coefficients(),
+            rmse: (cost / self.n_eff(ctx)).sqrt(),
+            bic: best_bic,
+            accepted: true,
+        });
+        Ok((cost, best_bic))
+    }
+
+    /// Stage 3: refinement from coarse to fine; each level adds the detail
+    /// candidates that pay, refits (and prunes), and is kept only while the
+    /// BIC falls (else the model before it is restored and refinement
+    /// stops). Returns the cost of the kept model.
+    fn refine_levels(
+        &self,
+        m: &mut SparseStateSpace,
+        mut cost: f64,
+        mut best_bic: f64,
+        ctx: &mut Ctx,
+        stages: &mut Vec<StageReport>,
+    ) -> Result<f64> {
+        let p = &self.params;
+        let n_eff = self.n_eff(ctx);
+        for level in p.coarse_level..=p.max_level {
+            let before = m.clone();
+            let before_cost = cost;
+            let added = self.add_candidates(m, level, cost, ctx)?;
+            if added == 0 {
+                stages.push(StageReport {
+                    stage: format!("level {level}"),
+                    coefficients: m.n_coefficients(),
+                    rmse: (cost / n_eff).sqrt(),
+                    bic: best_bic,
+                    accepted: false,
+                });
+                break;
+            }
+            let cols = layout(m);
+            let stage = format!("level {level}");
+            cost = self.lm(m, &cols, ctx, &stage).unwrap_or(f64::INFINITY);
+            if cost.is_finite() && p.prune && self.prune(m, cost, ctx)? > 0 {
+                let cols = layout(m);
+                cost = self.lm(m, &cols, ctx, &stage).unwrap_or(f64::INFINITY);
+            }
+            let bic = if cost.is_finite() {
+                self.bic(m, cost, ctx)
+            } else {
+                f64::INFINITY
+            };
+            let accepted = bic < best_bic;
+            stages.push(StageReport {
+                stage,
+                coefficients: m.n_coefficients(),
+                rmse: (cost / n_eff).sqrt(),
+                bic,
+                accepted,
+            });
+            if !accepted {
+                *m = before;
+                cost = before_cost;
+                break;
+            }
+            best_bic = bic;
+        }
+        Ok(cost)
     }
 
     /// Scores the detail candidates of `level` and keeps those that pay.

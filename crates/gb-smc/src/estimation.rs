@@ -587,15 +587,7 @@ impl If2 {
             .build(theta0)
             .ok_or(SmcError::InvalidInitialParameter)?;
         let fill = model0.sample_initial(obs.input(0), &mut stream(cfg.seed, domain::FILL, 0, 0));
-        let mut x = vec![fill.clone(); n];
-        let mut x_new = vec![fill; n];
-        let mut th: Vec<f64> = theta0.iter().copied().cycle().take(n * d).collect();
-        let mut th_new = th.clone();
-        let mut lw = vec![0.0; n];
-        let mut w = vec![0.0; n];
-        let mut anc: Vec<usize> = (0..n).collect();
-        let mut counts = Vec::new();
-        let mut stats: Vec<(f64, f64, bool)> = Vec::new();
+        let mut swarm = If2Swarm::<P::Model>::new(fill, theta0, n);
         let mut trace = Vec::with_capacity(cfg.n_iter);
         let mut lls = Vec::with_capacity(cfg.n_iter);
         let ln_n = (n as f64).ln();
@@ -604,116 +596,18 @@ impl If2 {
             let seed = derive_seed(cfg.seed, domain::IF2, m as u64);
             let mut loglik = 0.0;
             for t in 0..tt {
-                let y = obs.y(t);
-                let u = obs.input(t);
-                let (x_old, th_old, anc_ref) = (&x, &th, &anc);
-                let rw = &cfg.rw_sd;
-                let body = |(k, (((xc, tc), lc), wc)): If2Item<'_, _>| {
-                    let mut rng: SmcRng = stream(seed, domain::MOVE, t as u64, k as u64);
-                    let mut max = f64::NEG_INFINITY;
-                    let mut bad = false;
-                    for j in 0..xc.len() {
-                        let i = k * CHUNK + j;
-                        let a = if t == 0 { i } else { anc_ref[i] };
-                        let ti = &mut tc[j * d..(j + 1) * d];
-                        for q in 0..d {
-                            let z = standard_normal(&mut rng);
-                            ti[q] = th_old[a * d + q] + scale * rw[q] * z;
-                        }
-                        let l = match problem.build(ti) {
-                            Some(model) => {
-                                let xi = if t == 0 {
-                                    model.sample_initial(u, &mut rng)
-                                } else {
-                                    model.sample_transition(t, &x_old[a], u, &mut rng)
-                                };
-                                let l = model.log_observation(t, &xi, y, u);
-                                xc[j] = xi;
-                                l
-                            }
-                            None => f64::NEG_INFINITY,
-                        };
-                        bad |= l.is_nan() || l == f64::INFINITY;
-                        lc[j] = l;
-                        max = max.max(l);
-                    }
-                    let mut s = 0.0;
-                    if max > f64::NEG_INFINITY && !bad {
-                        for (wi, &l) in wc.iter_mut().zip(lc.iter()) {
-                            *wi = crate::filter::exp_nonpos(l - max);
-                            s += *wi;
-                        }
-                    } else {
-                        wc.iter_mut().for_each(|v| *v = 0.0);
-                    }
-                    (max, s, bad)
+                let step = If2Step {
+                    t,
+                    y: obs.y(t),
+                    u: obs.input(t),
+                    seed,
+                    scale,
+                    rw_sd: &cfg.rw_sd,
                 };
-                if cfg.parallel && n >= PAR_MIN {
-                    x_new
-                        .par_chunks_mut(CHUNK)
-                        .zip(th_new.par_chunks_mut(CHUNK * d))
-                        .zip(lw.par_chunks_mut(CHUNK))
-                        .zip(w.par_chunks_mut(CHUNK))
-                        .enumerate()
-                        .map(body)
-                        .collect_into_vec(&mut stats);
-                } else {
-                    stats.clear();
-                    stats.extend(
-                        x_new
-                            .chunks_mut(CHUNK)
-                            .zip(th_new.chunks_mut(CHUNK * d))
-                            .zip(lw.chunks_mut(CHUNK))
-                            .zip(w.chunks_mut(CHUNK))
-                            .enumerate()
-                            .map(body),
-                    );
-                }
-                if stats.iter().any(|s| s.2) {
-                    return Err(SmcError::InvalidLogWeight { t });
-                }
-                let max = stats.iter().map(|s| s.0).fold(f64::NEG_INFINITY, f64::max);
-                if max == f64::NEG_INFINITY {
-                    return Err(SmcError::AllWeightsZero { t });
-                }
-                let mut total = 0.0;
-                for (wc, s) in w.chunks_mut(CHUNK).zip(&stats) {
-                    let f = if s.0 > f64::NEG_INFINITY {
-                        (s.0 - max).exp()
-                    } else {
-                        0.0
-                    };
-                    wc.iter_mut().for_each(|v| *v *= f);
-                    total += s.1 * f;
-                }
-                loglik += max + total.ln() - ln_n;
-                std::mem::swap(&mut x, &mut x_new);
-                std::mem::swap(&mut th, &mut th_new);
-                let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
-                resample_unchecked(
-                    Resampling::Systematic,
-                    &w,
-                    total,
-                    &mut rng,
-                    &mut anc,
-                    &mut counts,
-                );
+                swarm.perturb_and_weight(problem, &step, cfg.parallel);
+                loglik += swarm.normalise_and_resample(t, seed, ln_n)?;
             }
-            // final swarm: resampled parameters
-            for (i, &a) in anc.iter().enumerate() {
-                th_new[i * d..(i + 1) * d].copy_from_slice(&th[a * d..(a + 1) * d]);
-            }
-            std::mem::swap(&mut th, &mut th_new);
-            let mut mean = vec![0.0; d];
-            for p in th.chunks(d) {
-                for (m_, v) in mean.iter_mut().zip(p) {
-                    *m_ += v / n as f64;
-                }
-            }
-            // the next iteration starts from the final swarm (identity ancestors)
-            for (i, a) in anc.iter_mut().enumerate() {
-                *a = i;
-            }
+            let mean = swarm.resampled_mean(d);
             let state = If2State {
                 iter: m + 1,
                 theta: mean.clone(),
@@ -734,5 +628,194 @@ impl If2 {
             trace,
             log_likelihoods: lls,
         })
+    }
+}
+
+/// One time step of an IF2 iteration: observation, input, the iteration's
+/// seed, the random-walk scale `c^m` and standard deviations.
+struct If2Step<'a, O: ?Sized> {
+    t: usize,
+    y: &'a O,
+    u: &'a [f64],
+    seed: u64,
+    scale: f64,
+    rw_sd: &'a [f64],
+}
+
+/// The IF2 swarm: states and parameter vectors (`n × d`, row-major),
+/// current and next, log-weights, weights, ancestors, and scratch.
+struct If2Swarm<M: StateSpaceModel> {
+    x: Vec<M::State>,
+    x_new: Vec<M::State>,
+    th: Vec<f64>,
+    th_new: Vec<f64>,
+    lw: Vec<f64>,
+    w: Vec<f64>,
+    anc: Vec<usize>,
+    counts: Vec<u32>,
+    /// Per chunk: (max log-weight, Σ exp(ℓ − max), any invalid log-weight).
+    stats: Vec<(f64, f64, bool)>,
+}
+
+impl<M: StateSpaceModel> If2Swarm<M> {
+    /// `n` particles at `fill`, every parameter vector at `theta0`.
+    fn new(fill: M::State, theta0: &[f64], n: usize) -> Self {
+        let d = theta0.len();
+        let th: Vec<f64> = theta0.iter().copied().cycle().take(n * d).collect();
+        Self {
+            x: vec![fill.clone(); n],
+            x_new: vec![fill; n],
+            th_new: th.clone(),
+            th,
+            lw: vec![0.0; n],
+            w: vec![0.0; n],
+            anc: (0..n).collect(),
+            counts: Vec::new(),
+            stats: Vec::new(),
+        }
+    }
+
+    /// Move of step t, chunk by chunk: θ_i = θ_{a_i} + c^m σ ∘ z
+    /// (z ~ N(0, I)), x_i ~ f_θi(· | x_{a_i}) (or the initial law at t = 0),
+    /// ℓ_i = log g_θi(y_t | x_i) (−∞ where θ_i is invalid), and unnormalised
+    /// chunk weights exp(ℓ_i − max_chunk ℓ) with their chunk statistics.
+    fn perturb_and_weight<P: ParametricModel<Model = M>>(
+        &mut self,
+        problem: &P,
+        step: &If2Step<'_, M::Obs>,
+        parallel: bool,
+    ) {
+        let n = self.x.len();
+        let d = problem.dim();
+        let &If2Step {
+            t,
+            y,
+            u,
+            seed,
+            scale,
+            rw_sd: rw,
+        } = step;
+        let (x_old, th_old, anc_ref) = (&self.x, &self.th, &self.anc);
+        let body = |(k, (((xc, tc), lc), wc)): If2Item<'_, _>| {
+            let mut rng: SmcRng = stream(seed, domain::MOVE, t as u64, k as u64);
+            let mut max = f64::NEG_INFINITY;
+            let mut bad = false;
+            for j in 0..xc.len() {
+                let i = k * CHUNK + j;
+                let a = if t == 0 { i } else { anc_ref[i] };
+                let ti = &mut tc[j * d..(j + 1) * d];
+                for q in 0..d {
+                    let z = standard_normal(&mut rng);
+                    ti[q] = th_old[a * d + q] + scale * rw[q] * z;
+                }
+                let l = match problem.build(ti) {
+                    Some(model) => {
+                        let xi = if t == 0 {
+                            model.sample_initial(u, &mut rng)
+                        } else {
+                            model.sample_transition(t, &x_old[a], u, &mut rng)
+                        };
+                        let l = model.log_observation(t, &xi, y, u);
+                        xc[j] = xi;
+                        l
+                    }
+                    None => f64::NEG_INFINITY,
+                };
+                bad |= l.is_nan() || l == f64::INFINITY;
+                lc[j] = l;
+                max = max.max(l);
+            }
+            let mut s = 0.0;
+            if max > f64::NEG_INFINITY && !bad {
+                for (wi, &l) in wc.iter_mut().zip(lc.iter()) {
+                    *wi = crate::filter::exp_nonpos(l - max);
+                    s += *wi;
+                }
+            } else {
+                wc.iter_mut().for_each(|v| *v = 0.0);
+            }
+            (max, s, bad)
+        };
+        if parallel && n >= PAR_MIN {
+            self.x_new
+                .par_chunks_mut(CHUNK)
+                .zip(self.th_new.par_chunks_mut(CHUNK * d))
+                .zip(self.lw.par_chunks_mut(CHUNK))
+                .zip(self.w.par_chunks_mut(CHUNK))
+                .enumerate()
+                .map(body)
+                .collect_into_vec(&mut self.stats);
+        } else {
+            self.stats.clear();
+            self.stats.extend(
+                self.x_new
+                    .chunks_mut(CHUNK)
+                    .zip(self.th_new.chunks_mut(CHUNK * d))
+                    .zip(self.lw.chunks_mut(CHUNK))
+                    .zip(self.w.chunks_mut(CHUNK))
+                    .enumerate()
+                    .map(body),
+            );
+        }
+    }
+
+    /// Weights of step t on the common scale exp(ℓ − max ℓ), the moved
+    /// swarm made current, and systematic resampling of the ancestors.
+    /// Returns the log-likelihood increment max ℓ + ln Σ w − ln n.
+    fn normalise_and_resample(&mut self, t: usize, seed: u64, ln_n: f64) -> Result<f64> {
+        let stats = &self.stats;
+        if stats.iter().any(|s| s.2) {
+            return Err(SmcError::InvalidLogWeight { t });
+        }
+        let max = stats.iter().map(|s| s.0).fold(f64::NEG_INFINITY, f64::max);
+        if max == f64::NEG_INFINITY {
+            return Err(SmcError::AllWeightsZero { t });
+        }
+        let mut total = 0.0;
+        for (wc, s) in self.w.chunks_mut(CHUNK).zip(stats) {
+            let f = if s.0 > f64::NEG_INFINITY {
+                (s.0 - max).exp()
+            } else {
+                0.0
+            };
+            wc.iter_mut().for_each(|v| *v *= f);
+            total += s.1 * f;
+        }
+        let inc = max + total.ln() - ln_n;
+        std::mem::swap(&mut self.x, &mut self.x_new);
+        std::mem::swap(&mut self.th, &mut self.th_new);
+        let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
+        resample_unchecked(
+            Resampling::Systematic,
+            &self.w,
+            total,
+            &mut rng,
+            &mut self.anc,
+            &mut self.counts,
+        );
+        Ok(inc)
+    }
+
+    /// End of an iteration: the parameters of the resampled ancestors become
+    /// the swarm (identity ancestors for the next iteration); returns their
+    /// mean (1/n) Σ θ_i.
+    fn resampled_mean(&mut self, d: usize) -> Vec<f64> {
+        let n = self.anc.len();
+        // final swarm: resampled parameters
+        for (i, &a) in self.anc.iter().enumerate() {
+            self.th_new[i * d..(i + 1) * d].copy_from_slice(&self.th[a * d..(a + 1) * d]);
+        }
+        std::mem::swap(&mut self.th, &mut self.th_new);
+        let mut mean = vec![0.0; d];
+        for p in self.th.chunks(d) {
+            for (m_, v) in mean.iter_mut().zip(p) {
+                *m_ += v / n as f64;
+            }
+        }
+        // the next iteration starts from the final swarm (identity ancestors)
+        for (i, a) in self.anc.iter_mut().enumerate() {
+            *a = i;
+        }
+        mean
     }
 }

@@ -15,7 +15,7 @@
 use crate::error::{Result, SmcError};
 use crate::model::{Observations, StateSpaceModel, StateVector};
 use crate::resampling::{resample_unchecked, Resampling};
-use crate::rng::{domain, stream, CHUNK, FILTER_PAR_MIN, PAR_MIN_LIGHT};
+use crate::rng::{domain, stream, SmcRng, CHUNK, FILTER_PAR_MIN, PAR_MIN_LIGHT};
 use rand::Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -981,11 +981,7 @@ impl ParticleFilter {
                 &mut ws.anc,
                 &mut ws.stats,
             );
-            let norm = combine(&ws.stats, t, &mut ws.fac)?;
-            std::mem::swap(&mut ws.x, &mut ws.x_new);
-            std::mem::swap(&mut ws.lw, &mut ws.lw_new);
-            std::mem::swap(&mut ws.cum, &mut ws.cum_new);
-            normalise(par, &mut ws.w, &ws.fac);
+            let norm = Self::accept_move(par, t, ws)?;
             let inc = norm.max + norm.sum.ln() - ln_n;
             *carry = Some(Carry {
                 norm,
@@ -999,52 +995,9 @@ impl ParticleFilter {
         let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
         let mut sys_v = None;
         let resampled = if kind == FilterKind::Auxiliary {
-            // log η_t(x_{t-1}^i)
-            let (x, aux) = (&ws.x, &mut ws.aux);
-            let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
-            if par && n >= FILTER_PAR_MIN {
-                aux.par_iter_mut().zip(x.par_iter()).for_each(map);
-            } else {
-                aux.iter_mut().zip(x.iter()).for_each(map);
-            }
-            // first-stage weights W_i η_i (lw_new is scratch here)
-            let scratch = &mut ws.lw_new;
-            let mut amax = f64::NEG_INFINITY;
-            let mut bad = false;
-            for ((s, &wi), &a) in scratch.iter_mut().zip(ws.w.iter()).zip(ws.aux.iter()) {
-                let v = if wi > 0.0 {
-                    wi.ln() + a
-                } else {
-                    f64::NEG_INFINITY
-                };
-                bad |= v.is_nan() || v == f64::INFINITY;
-                *s = v;
-                amax = if v > amax { v } else { amax };
-            }
-            if bad {
-                return Err(SmcError::InvalidLogWeight { t });
-            }
-            if amax == f64::NEG_INFINITY {
-                return Err(SmcError::AllWeightsZero { t });
-            }
-            let (mut s, mut s2) = (0.0, 0.0);
-            for sc in scratch.iter_mut() {
-                let e = (*sc - amax).exp();
-                *sc = e;
-                s += e;
-                s2 += e * e;
-            }
-            let rs = always || s * s / s2 < cfg.ess_threshold * n as f64;
+            let (rs, log_first_stage) = self.resample_auxiliary(model, t, y, u, ws, &mut rng)?;
             if rs {
-                extra = amax + s.ln();
-                resample_unchecked(
-                    cfg.resampling,
-                    scratch,
-                    s,
-                    &mut rng,
-                    &mut ws.anc,
-                    &mut ws.counts,
-                );
+                extra = log_first_stage;
             }
             rs
         } else {
@@ -1117,11 +1070,7 @@ impl ParticleFilter {
             &mut ws.anc,
             &mut ws.stats,
         );
-        let norm = combine(&ws.stats, t, &mut ws.fac)?;
-        std::mem::swap(&mut ws.x, &mut ws.x_new);
-        std::mem::swap(&mut ws.lw, &mut ws.lw_new);
-        std::mem::swap(&mut ws.cum, &mut ws.cum_new);
-        normalise(par, &mut ws.w, &ws.fac);
+        let norm = Self::accept_move(par, t, ws)?;
         let inc = norm.max + norm.sum.ln() - prev_ln + extra;
         *carry = Some(Carry {
             norm,
@@ -1129,6 +1078,77 @@ impl ParticleFilter {
             loglik: prev.loglik + inc,
         });
         Ok((inc, resampled))
+    }
+
+    /// After the move of step `t`: the normaliser of the new log-weights
+    /// (per-chunk factors into `fac`), the new particles, log-weights and
+    /// cumulative weights made current, and the weights normalised.
+    fn accept_move<S>(par: bool, t: usize, ws: &mut FilterWorkspace<S>) -> Result<Norm> {
+        let norm = combine(&ws.stats, t, &mut ws.fac)?;
+        std::mem::swap(&mut ws.x, &mut ws.x_new);
+        std::mem::swap(&mut ws.lw, &mut ws.lw_new);
+        std::mem::swap(&mut ws.cum, &mut ws.cum_new);
+        normalise(par, &mut ws.w, &ws.fac);
+        Ok(norm)
+    }
+
+    /// First stage of the auxiliary filter at step `t`: log η_t(x_{t-1}^i)
+    /// into `aux`, first-stage weights W_i η_i (in `lw_new`, as scratch), and
+    /// resampling of those when their ESS (S²/S₂) falls below the threshold.
+    /// Returns whether it resampled and `max + ln S`, the log of the
+    /// first-stage normaliser.
+    fn resample_auxiliary<M: StateSpaceModel>(
+        &self,
+        model: &M,
+        t: usize,
+        y: &M::Obs,
+        u: &[f64],
+        ws: &mut FilterWorkspace<M::State>,
+        rng: &mut SmcRng,
+    ) -> Result<(bool, f64)> {
+        let cfg = &self.config;
+        let n = cfg.n_particles;
+        let always = cfg.ess_threshold >= 1.0;
+        // log η_t(x_{t-1}^i)
+        let (x, aux) = (&ws.x, &mut ws.aux);
+        let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
+        if cfg.parallel && n >= FILTER_PAR_MIN {
+            aux.par_iter_mut().zip(x.par_iter()).for_each(map);
+        } else {
+            aux.iter_mut().zip(x.iter()).for_each(map);
+        }
+        // first-stage weights W_i η_i (lw_new is scratch here)
+        let scratch = &mut ws.lw_new;
+        let mut amax = f64::NEG_INFINITY;
+        let mut bad = false;
+        for ((s, &wi), &a) in scratch.iter_mut().zip(ws.w.iter()).zip(ws.aux.iter()) {
+            let v = if wi > 0.0 {
+                wi.ln() + a
+            } else {
+                f64::NEG_INFINITY
+            };
+            bad |= v.is_nan() || v == f64::INFINITY;
+            *s = v;
+            amax = if v > amax { v } else { amax };
+        }
+        if bad {
+            return Err(SmcError::InvalidLogWeight { t });
+        }
+        if amax == f64::NEG_INFINITY {
+            return Err(SmcError::AllWeightsZero { t });
+        }
+        let (mut s, mut s2) = (0.0, 0.0);
+        for sc in scratch.iter_mut() {
+            let e = (*sc - amax).exp();
+            *sc = e;
+            s += e;
+            s2 += e * e;
+        }
+        let rs = always || s * s / s2 < cfg.ess_threshold * n as f64;
+        if rs {
+            resample_unchecked(cfg.resampling, scratch, s, rng, &mut ws.anc, &mut ws.counts);
+        }
+        Ok((rs, amax + s.ln()))
     }
 
     /// A filter fed one observation at a time ([`OnlineFilter::push`]) for

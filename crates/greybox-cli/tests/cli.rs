@@ -150,11 +150,8 @@ fn generate_fit_simulate_diagnose_round_trip() {
     assert!(stdout(&o).contains("causes: dynamics"));
 }
 
-#[test]
-fn bad_input_is_one_line_exit_2_no_output() {
-    let d = tmp("bad");
-    let out = d.join("out.gbm");
-    let o_s = out.to_str().unwrap();
+/// A valid record `good.csv` (t, u, y; 400 rows) in `d`.
+fn good_record(d: &Path) -> PathBuf {
     let good = d.join("good.csv");
     let mut text = String::from("t,u,y\n");
     for k in 0..400 {
@@ -165,6 +162,26 @@ fn bad_input_is_one_line_exit_2_no_output() {
         ));
     }
     write(&good, &text);
+    good
+}
+
+/// A record `const.csv` (u, y; 400 rows) in `d` whose input is constant.
+fn constant_input_record(d: &Path) -> PathBuf {
+    let f = d.join("const.csv");
+    let mut c = String::from("u,y\n");
+    for k in 0..400 {
+        c.push_str(&format!("1.0,{}\n", (k % 5) as f64));
+    }
+    write(&f, &c);
+    f
+}
+
+#[test]
+fn bad_csv_is_one_line_exit_2_no_output() {
+    let d = tmp("bad-csv");
+    let out = d.join("out.gbm");
+    let o_s = out.to_str().unwrap();
+    let good = good_record(&d);
     let g = good.to_str().unwrap();
     // missing file
     assert_bad(
@@ -213,22 +230,44 @@ fn bad_input_is_one_line_exit_2_no_output() {
     let f = d.join("empty.csv");
     write(&f, "");
     assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "empty", &out);
+}
+
+#[test]
+fn unusable_data_is_one_line_exit_2_no_output() {
+    let d = tmp("bad-data");
+    let out = d.join("out.gbm");
+    let o_s = out.to_str().unwrap();
     // too few samples
     let f = d.join("short.csv");
     write(&f, "u,y\n1,2\n2,3\n3,1\n");
     assert_bad(&["fit", f.to_str().unwrap(), "-o", o_s], "at least", &out);
     // constant input
-    let f = d.join("const.csv");
-    let mut c = String::from("u,y\n");
-    for k in 0..400 {
-        c.push_str(&format!("1.0,{}\n", (k % 5) as f64));
-    }
-    write(&f, &c);
+    let f = constant_input_record(&d);
     assert_bad(
         &["fit", f.to_str().unwrap(), "-o", o_s],
         "'u' is constant",
         &out,
     );
+    let rep = d.join("r.json");
+    assert_bad(
+        &[
+            "diagnose",
+            f.to_str().unwrap(),
+            "--json",
+            rep.to_str().unwrap(),
+        ],
+        "'u' is constant",
+        &rep,
+    );
+}
+
+#[test]
+fn bad_model_spec_or_option_is_one_line_exit_2_no_output() {
+    let d = tmp("bad-option");
+    let out = d.join("out.gbm");
+    let o_s = out.to_str().unwrap();
+    let good = good_record(&d);
+    let g = good.to_str().unwrap();
     // unknown model spec, absurd flags
     assert_bad(
         &["fit", g, "--model", "quantum", "-o", o_s],
@@ -248,62 +287,6 @@ fn bad_input_is_one_line_exit_2_no_output() {
         ],
         "--order",
         &rep,
-    );
-    assert_bad(
-        &[
-            "diagnose",
-            f.to_str().unwrap(),
-            "--json",
-            rep.to_str().unwrap(),
-        ],
-        "'u' is constant",
-        &rep,
-    );
-    // model files: not a model, truncated
-    let sim = d.join("sim.csv");
-    let fake = d.join("fake.gbm");
-    write(&fake, "hello");
-    assert_bad(
-        &[
-            "simulate",
-            fake.to_str().unwrap(),
-            g,
-            "-o",
-            sim.to_str().unwrap(),
-        ],
-        "not a greybox model file",
-        &sim,
-    );
-    let o = run(&["fit", g, "-o", o_s]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let bytes = std::fs::read(&out).unwrap();
-    let trunc = d.join("trunc.gbm");
-    std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
-    assert_bad(
-        &[
-            "simulate",
-            trunc.to_str().unwrap(),
-            g,
-            "-o",
-            sim.to_str().unwrap(),
-        ],
-        "truncated or corrupt",
-        &sim,
-    );
-    let mut other = bytes.clone();
-    other[4] = 9;
-    let ver = d.join("ver.gbm");
-    std::fs::write(&ver, &other).unwrap();
-    assert_bad(
-        &[
-            "simulate",
-            ver.to_str().unwrap(),
-            g,
-            "-o",
-            sim.to_str().unwrap(),
-        ],
-        "format version 9",
-        &sim,
     );
     // unknown wavelet / rule
     let den = d.join("den.csv");
@@ -335,7 +318,33 @@ fn bad_input_is_one_line_exit_2_no_output() {
         "--threshold",
         &den,
     );
-    // absurd sizes and values
+    let html = d.join("r.html");
+    assert_bad(
+        &[
+            "bench",
+            "--only",
+            "bogus",
+            "--results",
+            html.to_str().unwrap(),
+        ],
+        "unknown benchmark 'bogus'",
+        &html,
+    );
+    // unknown system
+    let gd = d.join("gen");
+    assert_bad(
+        &["generate", "warp-drive", "-o", gd.to_str().unwrap()],
+        "unknown system 'warp-drive'",
+        &gd.join("train.csv"),
+    );
+}
+
+#[test]
+fn absurd_sizes_are_one_line_exit_2_no_output() {
+    let d = tmp("bad-size");
+    let good = good_record(&d);
+    let g = good.to_str().unwrap();
+    let rep = d.join("r.json");
     let gd = d.join("gen");
     assert_bad(
         &[
@@ -382,23 +391,60 @@ fn bad_input_is_one_line_exit_2_no_output() {
         "order=1000: a whole number in 1..=",
         &out2,
     );
-    let html = d.join("r.html");
+}
+
+#[test]
+fn bad_model_file_is_one_line_exit_2_no_output() {
+    let d = tmp("bad-model");
+    let out = d.join("out.gbm");
+    let o_s = out.to_str().unwrap();
+    let good = good_record(&d);
+    let g = good.to_str().unwrap();
+    // model files: not a model, truncated
+    let sim = d.join("sim.csv");
+    let fake = d.join("fake.gbm");
+    write(&fake, "hello");
     assert_bad(
         &[
-            "bench",
-            "--only",
-            "bogus",
-            "--results",
-            html.to_str().unwrap(),
+            "simulate",
+            fake.to_str().unwrap(),
+            g,
+            "-o",
+            sim.to_str().unwrap(),
         ],
-        "unknown benchmark 'bogus'",
-        &html,
+        "not a greybox model file",
+        &sim,
     );
-    // unknown system
+    let o = run(&["fit", g, "-o", o_s]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let bytes = std::fs::read(&out).unwrap();
+    let trunc = d.join("trunc.gbm");
+    std::fs::write(&trunc, &bytes[..bytes.len() / 2]).unwrap();
     assert_bad(
-        &["generate", "warp-drive", "-o", gd.to_str().unwrap()],
-        "unknown system 'warp-drive'",
-        &gd.join("train.csv"),
+        &[
+            "simulate",
+            trunc.to_str().unwrap(),
+            g,
+            "-o",
+            sim.to_str().unwrap(),
+        ],
+        "truncated or corrupt",
+        &sim,
+    );
+    let mut other = bytes.clone();
+    other[4] = 9;
+    let ver = d.join("ver.gbm");
+    std::fs::write(&ver, &other).unwrap();
+    assert_bad(
+        &[
+            "simulate",
+            ver.to_str().unwrap(),
+            g,
+            "-o",
+            sim.to_str().unwrap(),
+        ],
+        "format version 9",
+        &sim,
     );
 }
 
