@@ -128,7 +128,7 @@ fn generate_fit_simulate_diagnose_round_trip() {
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
-    assert_eq!(r["version"], 2);
+    assert_eq!(r["version"], 3);
     assert_eq!(r["data"]["inputs"][0], "u");
     assert_eq!(r["data"]["output"], "y");
     assert_eq!(r["causes"][0], "dynamics", "{r}");
