@@ -34,6 +34,11 @@ pub struct FitOptions {
     pub ridge: f64,
     /// Fit a Student-t noise model and weight residuals robustly (IRLS).
     pub robust: bool,
+    /// Estimate the starting output history of every training simulation
+    /// by least squares (variable projection, [`LocalModelNetwork::estimate_init`])
+    /// instead of copying the first measured samples. `true` by default;
+    /// `false` gives the former fits bit for bit.
+    pub estimate_start: bool,
 }
 
 impl Default for FitOptions {
@@ -43,6 +48,7 @@ impl Default for FitOptions {
             tol: 1e-7,
             ridge: 1e-8,
             robust: false,
+            estimate_start: true,
         }
     }
 }
@@ -226,6 +232,9 @@ pub(crate) struct Prepared {
     /// simulations for fitting start from: the measured samples, or their
     /// least-squares estimate ([`LocalModelNetwork::estimate_init`]).
     pub init: Vec<f64>,
+    /// Whether [`LocalModelNetwork::estimate_init`] estimates `init` (else
+    /// it copies the first measured samples).
+    pub estimate: bool,
     /// Input play columns per input (each a list of columns over time).
     pub ucols: Vec<Vec<Vec<f64>>>,
 }
@@ -319,6 +328,7 @@ impl<'a> NetworkStepper<'a> {
                 un: vec![vec![]; ni],
                 yn: vec![],
                 init: vec![],
+                estimate: true,
                 ucols: banks
                     .iter()
                     .map(|b| b.as_ref().map_or_else(Vec::new, |b| vec![vec![]; b.len()]))
@@ -532,6 +542,7 @@ impl LocalModelNetwork {
             un,
             yn,
             init,
+            estimate: true,
             ucols,
         })
     }
@@ -679,6 +690,7 @@ impl LocalModelNetwork {
             un: p_full.un.iter().map(|u| u[..w].to_vec()).collect(),
             yn: vec![],
             init: vec![],
+            estimate: true,
             ucols: p_full
                 .ucols
                 .iter()
@@ -910,6 +922,10 @@ impl LocalModelNetwork {
     pub(crate) fn estimate_init(&self, p: &mut Prepared) {
         let n = p.yn.len();
         let k0 = self.spec.max_lag().min(n);
+        if !p.estimate {
+            p.init = p.yn[..k0].to_vec();
+            return;
+        }
         let w = n.min(400);
         p.init = smoothed_start(&p.yn, k0);
         if k0 == 0 || w <= k0 + 1 {
@@ -1114,6 +1130,7 @@ pub fn refine_output_error_with_observer(
 ) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
     opts.check()?;
     let mut p = net.prepare(inputs, y)?;
+    p.estimate = opts.estimate_start;
     let n = y.len();
     let k0 = net.spec.max_lag();
     let np = net.n_parameters();
@@ -1543,6 +1560,10 @@ fn fit_linear_oe_cold(
         });
     }
     let mut p = net.prepare(inputs, y)?;
+    p.estimate = opts.estimate_start;
+    if !p.estimate {
+        p.init = p.yn[..spec.max_lag().min(y.len())].to_vec();
+    }
     global_ls(&mut net, &p, &p.yn, opts.ridge)?;
     net.stabilise(0.995);
     let n = y.len();

@@ -85,6 +85,12 @@ pub fn linear_from_network(net: &LocalModelNetwork) -> Result<SparseStateSpace> 
 /// ```
 pub fn linear_from_oe(inputs: &[Vec<f64>], y: &[f64], order: usize) -> Result<SparseStateSpace> {
     let spec = NetworkSpec::order(order, inputs.len());
-    let net = fit_linear_oe(&spec, inputs, y, &FitOptions::default())?;
+    // the measured starting history (as the gb-model identification paths
+    // were tuned with)
+    let opts = FitOptions {
+        estimate_start: false,
+        ..FitOptions::default()
+    };
+    let net = fit_linear_oe(&spec, inputs, y, &opts)?;
     linear_from_network(&net)
 }
