@@ -52,6 +52,7 @@ mod lolimot;
 mod narx;
 mod network;
 pub mod noe;
+pub mod poly;
 mod prune;
 mod regressors;
 mod relay;
@@ -72,6 +73,7 @@ pub use noe::{
     embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
     zero_linear_network, FitOptions, TrainReport,
 };
+pub use poly::{PolyNarx, PolyParams, ValidPolyParams};
 pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
 pub use relay::RelayGrid;
 pub use scaling::Scaling;

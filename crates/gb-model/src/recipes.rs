@@ -150,6 +150,13 @@ pub static RECIPES: &[Recipe] = &[
         options: &["order=2: states", "resonances: +damper, start frequencies of rig resonances in Hz (a/b)", "sample_rate: +damper, Hz (default: the record's)", "ridge: +damper, Tikhonov weight (default: 0 or 1000, chosen on the last 20 %)"],
         fit: fit_sparse_state_space,
     },
+    Recipe {
+        name: "poly",
+        components: &[],
+        summary: "polynomial NARX/NOE: terms of degree <= 3 in lagged outputs and inputs chosen by FROLS (error reduction ratio), the number of terms on a hold-out, refined for the simulation error",
+        options: &["order=2: output lags", "input_lags=order (list)", "delay=1 (list)", "degree=3: 1..3", "max_terms=15", "focus=simulation: simulation|prediction"],
+        fit: |s, d, o| gb_lmn::poly::fit_spec(s, d, o).map(|(model, notes)| Fitted { model, notes }),
+    },
 ];
 
 /// The recipe of `name`.
