@@ -20,6 +20,8 @@ use crate::DiagnoseError;
 /// | `tie_bootstrap`, `tie_seed` | 50, 0 | replicates and seed of the unique-contribution comparison when nonlinearity and hysteresis tie |
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
+/// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
+/// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
 /// | `init_window` | 50 | leading samples of every evaluated record that set the initial state and are not scored (the benchmark convention) |
 /// | `min_block` | 100 | fewest samples of the select and report blocks |
 /// | `min_fit` | 60 | fewest samples of the fit block |
@@ -59,6 +61,10 @@ pub struct DecisionPolicy {
     pub unexplained_p: f64,
     /// Most fit samples of the hidden-state model.
     pub hidden_state_fit_samples: usize,
+    /// Most fit samples of the polynomial and block-oriented candidates.
+    pub nonlinear_fit_samples: usize,
+    /// Most fit samples of the tree and Wiener–Hammerstein networks.
+    pub expensive_fit_samples: usize,
     /// Init window of every evaluated record (not scored).
     pub init_window: usize,
     /// Fewest samples of the select and report blocks.
@@ -90,6 +96,8 @@ impl Default for DecisionPolicy {
             tie_seed: 0,
             unexplained_p: 1e-3,
             hidden_state_fit_samples: 4000,
+            nonlinear_fit_samples: 20_000,
+            expensive_fit_samples: 8000,
             init_window: 50,
             min_block: 100,
             min_fit: 60,
@@ -128,6 +136,9 @@ impl DecisionPolicy {
         }
         if self.tie_bootstrap < 10 || self.min_block < 10 || self.min_fit < 10 {
             return bad("tie_bootstrap, min_block and min_fit >= 10");
+        }
+        if self.nonlinear_fit_samples < 100 || self.expensive_fit_samples < 100 {
+            return bad("nonlinear_fit_samples and expensive_fit_samples >= 100");
         }
         if self.max_order == 0 || self.max_order > gb_lmn::MAX_IO_ORDER {
             return bad("max_order in 1..=30");

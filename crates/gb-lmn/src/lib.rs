@@ -44,6 +44,7 @@
 // Index loops mirror the subscripts of the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod block;
 mod dynamic;
 mod hilomot;
 mod io_network;
@@ -63,6 +64,7 @@ pub mod tree;
 mod views;
 mod wiener_hammerstein;
 
+pub use block::{BlockModel, BlockParams, MapBasis, StaticMap, ValidBlockParams};
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
 pub use io_network::{IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER};
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};

@@ -59,6 +59,11 @@ pub static CLASSES: &[ModelClass] = &[
         decode: |b, v| boxed(SparseStateSpace::decode(b, v)),
     },
     ModelClass {
+        tag: "block",
+        summary: "block-oriented model: static spline or piecewise-linear maps of the inputs (Hammerstein) and/or the output (Wiener) around linear dynamics (gb-lmn)",
+        decode: |b, v| boxed(gb_lmn::BlockModel::decode(b, v)),
+    },
+    ModelClass {
         tag: "poly-narx",
         summary: "polynomial NARX/NOE: terms of degree <= 3 in lagged outputs and inputs chosen by FROLS, refined for the simulation error (gb-lmn)",
         decode: |b, v| boxed(gb_lmn::PolyNarx::decode(b, v)),
