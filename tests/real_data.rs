@@ -1,6 +1,6 @@
 //! Diagnoses on the real benchmark data in `../shared/data` (or
 //! `$GREYBOX_DATA`). Skipped with a notice when the folder is absent.
-use gb_core::{CsvTable, DataSet};
+use gb_core::{CsvTable, Record};
 use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions};
 use std::path::PathBuf;
 
@@ -9,17 +9,17 @@ fn data_dir() -> Option<PathBuf> {
     gb_core::benchmark_data_dir(&default, "")
 }
 
-fn load(p: PathBuf) -> DataSet {
+fn load(p: PathBuf) -> Record {
     let t = CsvTable::read(&p).expect("read");
-    DataSet::from_table(&t, &["u".into()], Some("y")).expect("columns")
+    Record::from_table(&t, &["u".into()], Some("y")).expect("columns")
 }
 
 /// Diagnose `train` against `val` (`max_steps` steps) and require
 /// `expected` as the first cause and a final NRMSE below 0.6x the baseline.
 fn check(
     name: &str,
-    train: DataSet,
-    val: DataSet,
+    train: Record,
+    val: Record,
     expected: &str,
     max_steps: usize,
 ) -> gb_diagnose::Diagnosis {

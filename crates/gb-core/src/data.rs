@@ -1,8 +1,21 @@
 use crate::{metrics, CoreError, CsvTable};
 use serde::{Deserialize, Serialize};
 
-/// Columns that are never taken as inputs by default (time or sample index).
-const INDEX_COLUMNS: [&str; 4] = ["t", "time", "k", "ts"];
+/// Columns recognised as time or sample index (case-insensitive): never an
+/// input or output unless named.
+pub const INDEX_COLUMNS: [&str; 7] = ["t", "time", "timestamp", "k", "sample", "ts", "index"];
+
+/// Whether a column name looks like an output: `y`, `y1`, `y_2`, `output`,
+/// `out` (case-sensitive: `Y` is often a voltage).
+pub fn output_like(name: &str) -> bool {
+    let rest = name.strip_prefix('y').map(|r| r.trim_start_matches('_'));
+    matches!(name, "output" | "out") || rest.is_some_and(|r| r.chars().all(|c| c.is_ascii_digit()))
+}
+
+/// Whether a column name is a time or sample index.
+pub fn index_like(name: &str) -> bool {
+    INDEX_COLUMNS.contains(&name.to_lowercase().as_str())
+}
 
 /// One record (experiment) of measured or simulated data: named input
 /// signals and one output, equidistantly sampled.
@@ -21,9 +34,6 @@ pub struct Record {
     #[serde(default)]
     pub sample_time: Option<f64>,
 }
-
-/// The former name of [`Record`].
-pub type DataSet = Record;
 
 /// Three contiguous blocks of a record: fit, select (model choice) and report.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -81,44 +91,67 @@ impl Record {
         })
     }
 
-    /// Select signals from a CSV table. `output` defaults to the last column;
-    /// `inputs` defaults to every other column except time/index columns
-    /// (`t`, `time`, `k`, `ts`).
+    /// Select signals from a CSV table, never guessing silently:
+    ///
+    /// * the output is `output`, else the one output-like column
+    ///   ([`output_like`]: `y`, `y1`, `output`, …); none or several is an
+    ///   error listing the columns;
+    /// * the inputs are `inputs`, else every column that is neither the
+    ///   output nor a time/index column ([`INDEX_COLUMNS`]) — an error when
+    ///   another output-like column would become an input (a measured output
+    ///   used as an input is a data leak).
     pub fn from_table(
         table: &CsvTable,
         inputs: &[String],
         output: Option<&str>,
     ) -> Result<Self, CoreError> {
+        let file = table.path.display();
+        let cols = table.names.join(",");
         let output_name = match output {
             Some(o) => o.to_string(),
-            None => table.names.last().cloned().ok_or(CoreError::Empty {
-                path: table.path.clone(),
-            })?,
+            None => {
+                let like: Vec<&String> = table.names.iter().filter(|n| output_like(n)).collect();
+                match like.as_slice() {
+                    [one] => one.to_string(),
+                    [] => {
+                        return Err(CoreError::InvalidArgument(format!(
+                            "{file}: which column is the output? none is named y (columns: {cols}); give --output NAME"
+                        )))
+                    }
+                    many => {
+                        return Err(CoreError::InvalidArgument(format!(
+                            "{file}: several output-like columns ({}); give --output NAME (and --input for the inputs)",
+                            many.iter().map(|s| s.as_str()).collect::<Vec<_>>().join(", ")
+                        )))
+                    }
+                }
+            }
         };
         let y = table.column(&output_name)?.to_vec();
         let input_names: Vec<String> = if inputs.is_empty() {
-            table
+            let v: Vec<String> = table
                 .names
                 .iter()
-                .filter(|n| {
-                    **n != output_name && !INDEX_COLUMNS.contains(&n.to_lowercase().as_str())
-                })
+                .filter(|n| **n != output_name && !index_like(n))
                 .cloned()
-                .collect()
+                .collect();
+            if let Some(o) = v.iter().find(|n| output_like(n)) {
+                return Err(CoreError::InvalidArgument(format!(
+                    "{file}: column '{o}' looks like an output and would become an input; name the inputs with --input (columns: {cols})"
+                )));
+            }
+            v
         } else {
             inputs.to_vec()
         };
         if input_names.is_empty() {
             return Err(CoreError::InvalidArgument(format!(
-                "{}: no input column (columns: {})",
-                table.path.display(),
-                table.names.join(",")
+                "{file}: no input column (columns: {cols})"
             )));
         }
         if let Some(n) = input_names.iter().find(|n| **n == output_name) {
             return Err(CoreError::InvalidArgument(format!(
-                "{}: column '{n}' is both input and output",
-                table.path.display()
+                "{file}: column '{n}' is both input and output"
             )));
         }
         let u = input_names
@@ -195,8 +228,8 @@ impl Record {
     /// select (the rest is the report block).
     ///
     /// ```
-    /// # use gb_core::DataSet;
-    /// let ds = DataSet::new(vec!["u".into()], "y".into(), vec![vec![0.0; 100]], vec![0.0; 100]).unwrap();
+    /// # use gb_core::Record;
+    /// let ds = Record::new(vec!["u".into()], "y".into(), vec![vec![0.0; 100]], vec![0.0; 100]).unwrap();
     /// let s = ds.split_blocks(0.5, 0.25);
     /// assert_eq!((s.fit_end, s.select_end, s.len), (50, 75, 100));
     /// ```
@@ -359,16 +392,46 @@ mod tests {
     #[test]
     fn defaults_skip_time_and_take_last_as_output() {
         let t = table("t,u1,u2,y\n0,1,2,3\n1,2,3,4\n");
-        let d = DataSet::from_table(&t, &[], None).unwrap();
+        let d = Record::from_table(&t, &[], None).unwrap();
         assert_eq!(d.input_names, ["u1", "u2"]);
         assert_eq!(d.output_name, "y");
         assert_eq!(d.output, [3.0, 4.0]);
     }
 
     #[test]
+    fn roles_are_never_guessed_silently() {
+        // the measured y is the output even when it is not the last column
+        let d = Record::from_table(&table("t,y,u1,u2\n0,1,2,3\n1,2,3,4\n"), &[], None).unwrap();
+        assert_eq!(
+            (d.output_name.as_str(), d.input_names.clone()),
+            ("y", vec!["u1".to_string(), "u2".into()])
+        );
+        // two outputs: refuse rather than use y1 as an input of y2
+        let e =
+            Record::from_table(&table("u1,u2,y1,y2\n0,1,2,3\n1,2,3,4\n"), &[], None).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("several output-like columns (y1, y2)"),
+            "{e}"
+        );
+        let e = Record::from_table(&table("u1,u2,y1,y2\n0,1,2,3\n1,2,3,4\n"), &[], Some("y2"))
+            .unwrap_err();
+        assert!(e.to_string().contains("'y1' looks like an output"), "{e}");
+        // no output-like name: say which flag to use; timestamp is an index
+        let e = Record::from_table(&table("timestamp,D,F\n0,1,2\n1,2,3\n"), &[], None).unwrap_err();
+        assert!(
+            e.to_string().contains("give --output") && e.to_string().contains("timestamp,D,F"),
+            "{e}"
+        );
+        let d =
+            Record::from_table(&table("timestamp,D,F\n0,1,2\n1,2,3\n"), &[], Some("F")).unwrap();
+        assert_eq!(d.input_names, ["D"]);
+    }
+
+    #[test]
     fn constant_input_is_refused() {
         let t = table("u,y\n1,1\n1,2\n1,3\n");
-        let d = DataSet::from_table(&t, &[], None).unwrap();
+        let d = Record::from_table(&t, &[], None).unwrap();
         let e = d.check_identifiable("d.csv", 2).unwrap_err().to_string();
         assert!(e.contains("'u' is constant"), "{e}");
         let e = d.check_identifiable("d.csv", 10).unwrap_err().to_string();
@@ -378,9 +441,9 @@ mod tests {
     #[test]
     fn explicit_columns_and_missing() {
         let t = table("a,b,c\n0,1,2\n1,2,4\n");
-        let d = DataSet::from_table(&t, &["c".into()], Some("a")).unwrap();
+        let d = Record::from_table(&t, &["c".into()], Some("a")).unwrap();
         assert_eq!(d.inputs, vec![vec![2.0, 4.0]]);
-        assert!(DataSet::from_table(&t, &["zz".into()], Some("a")).is_err());
-        assert!(DataSet::from_table(&t, &["a".into()], Some("a")).is_err());
+        assert!(Record::from_table(&t, &["zz".into()], Some("a")).is_err());
+        assert!(Record::from_table(&t, &["a".into()], Some("a")).is_err());
     }
 }

@@ -34,7 +34,9 @@ mod spec;
 pub mod special;
 
 pub use csv_io::{write_atomic, write_csv_atomic, CsvTable};
-pub use data::{benchmark_data_dir, BlockSplit, DataSet, Record, Records};
+pub use data::{
+    benchmark_data_dir, index_like, output_like, BlockSplit, Record, Records, INDEX_COLUMNS,
+};
 pub use error::CoreError;
 pub use fitted::{
     decode_postcard, ClassDecoder, FittedModel, MODEL_FILE_MAGIC, MODEL_FORMAT_VERSION,

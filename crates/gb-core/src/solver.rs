@@ -11,13 +11,19 @@
 //! One iteration solves
 //!
 //! ```text
-//! (G + D_λ) δ = g,   D_λ,ii = λ·(max(Gᵢᵢ, ρ·maxⱼ Gⱼⱼ) + a) + ε·maxⱼ Gⱼⱼ
+//! (G + D_λ) δ = g,   D_λ,ii = λ·(max(Gᵢᵢ, ρ·maxⱼ Gⱼⱼ, ρ₀) + a) + ε·maxⱼ Gⱼⱼ + ε₀
 //! ```
 //!
-//! (Marquardt's scaling with a floor ρ, an additive term a and a jitter ε),
-//! and accepts θ + δ when it is admissible and lowers the cost; then
-//! `λ ← max(λ·down, λ_min)`. A rejected step raises `λ ← λ·up` (by `up_singular`
-//! when `G + D_λ` is not positive definite) and tries again, up to
+//! (Marquardt's scaling with a relative floor ρ, an absolute floor ρ₀, an
+//! additive term a and a relative / absolute jitter ε / ε₀), maps θ + δ
+//! through [`LeastSquaresProblem::project`] and accepts it when it is
+//! admissible and lowers the cost (with a Tikhonov penalty `Σ rᵢθᵢ²`,
+//! [`LeastSquaresProblem::tikhonov`], the system is
+//! `(G + D_λ + diag r) δ = g − r∘θ`); then `λ ← max(λ·down, λ_min)` (for
+//! `down = 1/m` with an integer m this is computed as λ/m, one rounding).
+//! A rejected step raises `λ ← λ·up` (by `up_singular` when `G + D_λ` is
+//! not positive definite, see [`LeastSquaresProblem::solve_damped`]) and
+//! tries again, up to
 //! `max_trials` times. It stops when the relative decrease of an accepted
 //! step falls below `tol`, when no trial lowers the cost, when `λ > λ_max`,
 //! or after `max_iter` iterations.
@@ -53,7 +59,7 @@
 //! ```
 use crate::observe::{IterationInfo, Observer};
 use crate::CoreError;
-use nalgebra::DMatrix;
+use nalgebra::{DMatrix, DVector};
 
 /// A nonlinear least-squares problem in normal-equation form.
 pub trait LeastSquaresProblem {
@@ -74,6 +80,44 @@ pub trait LeastSquaresProblem {
         let _ = theta;
         true
     }
+
+    /// Map a trial point onto the feasible set before it is checked and
+    /// evaluated (e.g. cap a norm); the accepted point is the projected one.
+    /// Default: unchanged.
+    fn project(&mut self, theta: &mut [f64]) {
+        let _ = theta;
+    }
+
+    /// Solve the damped normal equations `A δ = g` into `delta`; `a` is the
+    /// symmetric positive definite n×n matrix `G + D_λ`, column-major, and
+    /// may be overwritten. `false` where `A` is not positive definite. The
+    /// default is [`cholesky_solve`]; a problem may supply a faster or
+    /// structured factorisation.
+    fn solve_damped(&mut self, a: &mut [f64], g: &[f64], delta: &mut [f64]) -> bool {
+        cholesky_solve(a, g, delta)
+    }
+
+    /// Weights `ρᵢ ≥ 0` (one per parameter) of a Tikhonov penalty
+    /// `Σᵢ ρᵢ θᵢ²` that [`cost`](Self::cost) includes but
+    /// [`linearize`](Self::linearize) leaves out of the Gram matrix and the
+    /// gradient (they describe the data term alone). The solver adds `ρᵢ` to
+    /// the diagonal of the damped system and `−ρᵢ θᵢ` to the gradient, outside
+    /// the Marquardt scaling, so the damping scales with the data term only.
+    /// `None` (the default): no penalty.
+    fn tikhonov(&self) -> Option<&[f64]> {
+        None
+    }
+}
+
+/// Solve `A δ = g` for a symmetric positive definite `A` (n×n, column-major)
+/// by a Cholesky factorisation; `false` where `A` is not positive definite.
+pub fn cholesky_solve(a: &[f64], g: &[f64], delta: &mut [f64]) -> bool {
+    let n = g.len();
+    let Some(chol) = DMatrix::from_column_slice(n, n, a).cholesky() else {
+        return false;
+    };
+    delta.copy_from_slice(chol.solve(&DVector::from_column_slice(g)).as_slice());
+    true
 }
 
 /// Why the solver stopped.
@@ -106,8 +150,10 @@ pub enum Termination {
 /// | `lambda_max` | 1e12 | λ above which the solver gives up |
 /// | `max_trials` | 12 | trial steps per iteration |
 /// | `diag_floor` | 1e-9 | ρ: floor of the scaling, relative to `max Gⱼⱼ` |
+/// | `diag_floor_abs` | 0 | ρ₀: absolute floor of the scaling |
 /// | `diag_add` | 0 | a: added to the scaling (absolute) |
 /// | `jitter` | 1e-12 | ε: added to the diagonal, relative to `max Gⱼⱼ` |
+/// | `jitter_abs` | 0 | ε₀: added to the diagonal (absolute) |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmParams {
     /// Most iterations.
@@ -130,10 +176,14 @@ pub struct LmParams {
     pub max_trials: usize,
     /// Floor ρ of the Marquardt scaling, relative to the largest diagonal.
     pub diag_floor: f64,
+    /// Absolute floor ρ₀ of the Marquardt scaling.
+    pub diag_floor_abs: f64,
     /// Absolute term a added to the Marquardt scaling.
     pub diag_add: f64,
     /// Jitter ε added to the diagonal, relative to the largest diagonal.
     pub jitter: f64,
+    /// Absolute jitter ε₀ added to the diagonal.
+    pub jitter_abs: f64,
 }
 
 impl Default for LmParams {
@@ -149,8 +199,10 @@ impl Default for LmParams {
             lambda_max: 1e12,
             max_trials: 12,
             diag_floor: 1e-9,
+            diag_floor_abs: 0.0,
             diag_add: 0.0,
             jitter: 1e-12,
+            jitter_abs: 0.0,
         }
     }
 }
@@ -201,13 +253,32 @@ impl LmParams {
                 "Levenberg-Marquardt: lambda_min <= lambda_max and max_trials >= 1".into(),
             ));
         }
-        let nonneg = [self.tol, self.diag_floor, self.diag_add, self.jitter];
+        let nonneg = [
+            self.tol,
+            self.diag_floor,
+            self.diag_floor_abs,
+            self.diag_add,
+            self.jitter,
+            self.jitter_abs,
+        ];
         if nonneg.iter().any(|v| !(*v >= 0.0 && v.is_finite())) {
             return Err(CoreError::InvalidArgument(
-                "Levenberg-Marquardt: tol, diag_floor, diag_add and jitter must be >= 0".into(),
+                "Levenberg-Marquardt: tol, diag_floor(_abs), diag_add and jitter(_abs) must be >= 0"
+                    .into(),
             ));
         }
         Ok(LevenbergMarquardt { p: self })
+    }
+}
+
+/// `λ·down`, computed as `λ/m` when `down = 1/m` for an integer m (one
+/// rounding instead of two: a down factor of 1/3 divides by 3 exactly).
+fn shrink(lambda: f64, down: f64) -> f64 {
+    let m = 1.0 / down;
+    if m == m.round() {
+        lambda / m
+    } else {
+        lambda * down
     }
 }
 
@@ -241,7 +312,10 @@ pub struct LmState {
 pub struct LmWorkspace {
     gram: Vec<f64>,
     grad: Vec<f64>,
+    rhs: Vec<f64>,
+    ridge: Vec<f64>,
     trial: Vec<f64>,
+    delta: Vec<f64>,
     a: DMatrix<f64>,
 }
 
@@ -251,7 +325,10 @@ impl LmWorkspace {
         Self {
             gram: vec![0.0; n * n],
             grad: vec![0.0; n],
+            rhs: vec![0.0; n],
+            ridge: Vec::with_capacity(n),
             trial: vec![0.0; n],
+            delta: vec![0.0; n],
             a: DMatrix::zeros(n, n),
         }
     }
@@ -328,6 +405,20 @@ impl LevenbergMarquardt {
             .fold(0.0, f64::max)
             .max(1e-300);
         let p = &self.p;
+        let ridge = match problem.tikhonov() {
+            Some(r) if r.len() == n => {
+                ws.ridge.clear();
+                ws.ridge.extend_from_slice(r);
+                true
+            }
+            _ => false,
+        };
+        ws.rhs.copy_from_slice(&ws.grad);
+        if ridge {
+            for i in 0..n {
+                ws.rhs[i] -= ws.ridge[i] * state.theta[i];
+            }
+        }
         for _ in 0..p.max_trials {
             let lambda = state.lambda;
             for i in 0..n {
@@ -335,10 +426,16 @@ impl LevenbergMarquardt {
                     ws.a[(i, j)] = ws.gram[i * n + j];
                 }
                 let g = ws.gram[i * n + i];
-                ws.a[(i, i)] +=
-                    lambda * (g.max(p.diag_floor * dmax) + p.diag_add) + p.jitter * dmax;
+                ws.a[(i, i)] += lambda
+                    * (g.max(p.diag_floor * dmax).max(p.diag_floor_abs) + p.diag_add)
+                    + p.jitter * dmax
+                    + p.jitter_abs;
+                if ridge {
+                    ws.a[(i, i)] += ws.ridge[i];
+                }
             }
-            let Some(chol) = ws.a.clone().cholesky() else {
+            let solved = problem.solve_damped(ws.a.as_mut_slice(), &ws.rhs, &mut ws.delta);
+            if !solved || !ws.delta.iter().all(|d| d.is_finite()) {
                 state.lambda *= p.lambda_up_singular;
                 if state.lambda > p.lambda_max {
                     state.termination = Some(Termination::DampingOverflow);
@@ -346,10 +443,10 @@ impl LevenbergMarquardt {
                 }
                 continue;
             };
-            let delta = chol.solve(&nalgebra::DVector::from_column_slice(&ws.grad));
             for i in 0..n {
-                ws.trial[i] = state.theta[i] + delta[i];
+                ws.trial[i] = state.theta[i] + ws.delta[i];
             }
+            problem.project(&mut ws.trial);
             if problem.admissible(&ws.trial) {
                 state.evaluations += 1;
                 if let Some(c) = problem.cost(&ws.trial).filter(|c| c.is_finite()) {
@@ -357,7 +454,7 @@ impl LevenbergMarquardt {
                         let rel = (cost - c) / cost.max(1e-300);
                         state.theta.copy_from_slice(&ws.trial);
                         state.cost = c;
-                        state.lambda = (state.lambda * p.lambda_down).max(p.lambda_min);
+                        state.lambda = shrink(state.lambda, p.lambda_down).max(p.lambda_min);
                         if rel < p.tol {
                             state.termination = Some(Termination::Converged);
                         }
@@ -478,6 +575,134 @@ mod tests {
         assert!(s.theta[0] <= 0.5);
         // the constrained optimum lies on the bound θ₀ = 0.5
         assert!(s.theta[0] > 0.3, "{:?}", s.theta);
+    }
+
+    /// Linear least squares `y ≈ Xθ` with a Tikhonov penalty `Σ rᵢθᵢ²`
+    /// (the Gram matrix and gradient of the data term only).
+    struct Ridge {
+        x: Vec<[f64; 2]>,
+        y: Vec<f64>,
+        r: [f64; 2],
+    }
+    impl LeastSquaresProblem for Ridge {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            let sse: f64 = self
+                .x
+                .iter()
+                .zip(&self.y)
+                .map(|(x, y)| (y - x[0] * t[0] - x[1] * t[1]).powi(2))
+                .sum();
+            Some(sse + self.r[0] * t[0] * t[0] + self.r[1] * t[1] * t[1])
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            g.fill(0.0);
+            grad.fill(0.0);
+            for (x, y) in self.x.iter().zip(&self.y) {
+                let e = y - x[0] * t[0] - x[1] * t[1];
+                for a in 0..2 {
+                    grad[a] += x[a] * e;
+                    for b in 0..2 {
+                        g[a * 2 + b] += x[a] * x[b];
+                    }
+                }
+            }
+            self.cost(t)
+        }
+        fn tikhonov(&self) -> Option<&[f64]> {
+            Some(&self.r)
+        }
+    }
+
+    #[test]
+    fn tikhonov_penalty_gives_the_ridge_solution() {
+        let x: Vec<[f64; 2]> = (0..30).map(|k| [1.0, (k as f64 * 0.7).sin()]).collect();
+        let y: Vec<f64> = x
+            .iter()
+            .enumerate()
+            .map(|(k, x)| 0.5 + 2.0 * x[1] + 0.1 * (k as f64 * 1.3).cos())
+            .collect();
+        let r = [0.0, 5.0];
+        // closed form: (XᵀX + diag r) θ = Xᵀy
+        let mut a = nalgebra::Matrix2::<f64>::zeros();
+        let mut b = nalgebra::Vector2::<f64>::zeros();
+        for (xi, yi) in x.iter().zip(&y) {
+            for i in 0..2 {
+                b[i] += xi[i] * yi;
+                for j in 0..2 {
+                    a[(i, j)] += xi[i] * xi[j];
+                }
+            }
+        }
+        a[(1, 1)] += r[1];
+        let exact = a.lu().solve(&b).unwrap();
+        let lm = LmParams::default().tol(1e-15).check().unwrap();
+        let s = lm
+            .minimize(&mut Ridge { x, y, r }, &[0.0, 0.0], &crate::Silent)
+            .unwrap();
+        assert!((s.theta[0] - exact[0]).abs() < 1e-9, "{:?}", s.theta);
+        assert!((s.theta[1] - exact[1]).abs() < 1e-9, "{:?}", s.theta);
+        // the penalty shrinks the slope below the unpenalised 2
+        assert!(s.theta[1] < 1.9);
+    }
+
+    /// Counts the damped solves and caps θ₀ by projection.
+    struct Capped {
+        inner: Rosenbrock,
+        cap: f64,
+        solves: usize,
+    }
+    impl LeastSquaresProblem for Capped {
+        fn n_params(&self) -> usize {
+            2
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            self.inner.cost(t)
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            self.inner.linearize(t, g, grad)
+        }
+        fn project(&mut self, t: &mut [f64]) {
+            t[0] = t[0].min(self.cap);
+        }
+        fn solve_damped(&mut self, a: &mut [f64], g: &[f64], d: &mut [f64]) -> bool {
+            self.solves += 1;
+            cholesky_solve(a, g, d)
+        }
+    }
+
+    #[test]
+    fn projection_and_custom_solve_are_used() {
+        let lm = LmParams {
+            diag_floor_abs: 1e-12,
+            jitter_abs: 1e-12,
+            ..LmParams::default()
+        }
+        .check()
+        .unwrap();
+        let mut p = Capped {
+            inner: Rosenbrock {
+                admissible_calls: 0,
+                bound: f64::INFINITY,
+            },
+            cap: 0.5,
+            solves: 0,
+        };
+        let s = lm.minimize(&mut p, &[-1.2, 1.0], &crate::Silent).unwrap();
+        // every accepted point is a projected one; the optimum lies on the cap
+        assert!(s.theta[0] <= 0.5 && s.theta[0] > 0.3, "{:?}", s.theta);
+        assert!(p.solves >= s.iterations);
+    }
+
+    #[test]
+    fn a_reciprocal_integer_down_factor_divides() {
+        for l in [1e-3, 7.1e-5, 0.37, 123.456] {
+            assert_eq!(shrink(l, 1.0 / 3.0), l / 3.0);
+            assert_eq!(shrink(l, 0.3), l * 0.3);
+            assert_eq!(shrink(l, 0.5), l / 2.0);
+        }
     }
 
     #[test]

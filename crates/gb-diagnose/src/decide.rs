@@ -1,9 +1,10 @@
 //! Whether a candidate pays: moving-block-bootstrap intervals of its gain on
 //! the select block, and the choice among the candidates of an iteration.
-use crate::evaluate::{evaluate, Evaluated, Lineage};
+use crate::evaluate::{Evaluated, Lineage};
 use crate::extension::{io_model, Context, Extension, GainMetric, Proposal, Role};
+use crate::plan::{assess, core};
 use crate::{stats, Cause, DecisionPolicy, DiagnoseError};
-use gb_core::metrics;
+use gb_core::{metrics, FittedModel};
 
 /// Relative RMS gain `1 − rms(after)/rms(before)` and its 95 % moving-block
 /// bootstrap interval.
@@ -214,11 +215,10 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     ))
 }
 
-/// The model with both a network and hysteresis: the network with
-/// zero-weight hysteresis columns trained further by LM, or the hysteresis
-/// model itself, whichever simulates the fit block better.
+/// The model with both a network and hysteresis, fitted like any candidate
+/// (on the plan's record and, under cross-validation, on every fold).
 fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluated, DiagnoseError> {
-    let (Some(pl), Some(ph)) = (lmn.lineage.io(), hyst.lineage.io()) else {
+    let (Some(pl), Some(_)) = (lmn.lineage.io(), hyst.lineage.io()) else {
         return Err(DiagnoseError::InvalidArgument(
             "not input-output networks".into(),
         ));
@@ -228,9 +228,31 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
         hysteresis: true,
         ..pl.clone()
     };
-    let as_net = |e: &Evaluated| {
-        e.model
-            .dynamics
+    let fold =
+        |e: &'_ Evaluated, t: Option<usize>| -> Result<FittedModel, DiagnoseError> {
+            match t {
+                None => Ok(e.model.clone()),
+                Some(k) => e.folds.get(k).map(|f| f.model.clone()).ok_or_else(|| {
+                    DiagnoseError::InvalidArgument("a fold without its model".into())
+                }),
+            }
+        };
+    assess(ctx.plan, ctx.data, Lineage::Io(both.clone()), &|t| {
+        combined_fit(&fold(lmn, t)?, &fold(hyst, t)?, &both, &ctx.at(t))
+    })
+}
+
+/// The network with zero-weight hysteresis columns trained further by LM,
+/// or the hysteresis model itself, whichever simulates the fit record
+/// better.
+fn combined_fit(
+    lmn: &FittedModel,
+    hyst: &FittedModel,
+    both: &gb_lmn::IoNetworkParams,
+    ctx: &Context,
+) -> Result<FittedModel, DiagnoseError> {
+    let as_net = |m: &FittedModel| {
+        core(m)
             .as_any()
             .downcast_ref::<gb_lmn::LocalModelNetwork>()
             .cloned()
@@ -246,24 +268,16 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
             .map_or(f64::INFINITY, |e| metrics::rms(&e))
     };
     let mut best = nh;
-    let mut best_cost = cost(&best);
+    let best_cost = cost(&best);
     let spec = both.network_spec(fit.n_inputs());
     if let Some(start) = gb_lmn::embed_hysteresis(&nl, &spec) {
         if let Ok((net, _)) =
             gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &ctx.options.fit)
         {
-            let c = cost(&net);
-            if c < best_cost {
-                best_cost = c;
+            if cost(&net) < best_cost {
                 best = net;
             }
         }
     }
-    let _ = (best_cost, ph);
-    evaluate(
-        io_model(best, fit)?,
-        Lineage::Io(both),
-        ctx.data,
-        ctx.policy(),
-    )
+    io_model(best, fit)
 }

@@ -1,15 +1,18 @@
 //! The diagnosis loop: simulate the engineer's model, compute residual
 //! evidence, fit every candidate extension of the registry, keep the one
 //! whose gain on held-out data is significant, repeat.
+use crate::baseline::{baseline, StructureChoice};
 use crate::decide::{choose, relative_gain_ci, score, Candidate};
-use crate::evaluate::{evaluate, Evaluated, Lineage};
-use crate::extension::{io_model, Context, Extension, Proposal, Role, EXTENSIONS};
+use crate::evaluate::Evaluated;
+use crate::extension::{Context, Extension, Proposal, Role, EXTENSIONS};
+use crate::plan::{assess, core, Plan};
 use crate::report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, Evidence};
-use gb_core::{FittedModel, Init, Observer, Record, Silent};
-use gb_lmn::{FitOptions, IoNetworkParams, LolimotOptions, WarmStart};
+use gb_core::{FittedModel, Init, Observer, Silent};
+use gb_lmn::{FitOptions, LolimotOptions};
 use rayon::prelude::*;
 use std::collections::HashSet;
+use std::time::Instant;
 
 /// How the baseline order is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -84,53 +87,6 @@ pub struct Diagnosis {
     pub chain: Vec<Evaluated>,
 }
 
-/// Fit the input–output baseline of order `order` on the fit block.
-fn fit_baseline(
-    order: usize,
-    d: &DiagnoseData,
-    fit: &Record,
-    opts: &DiagnoseOptions,
-) -> Result<Evaluated, DiagnoseError> {
-    let p = IoNetworkParams {
-        fit: opts.fit.clone(),
-        lolimot: opts.lolimot.clone(),
-        ..IoNetworkParams::linear(order)
-    };
-    let net = p.check()?.fit(fit, WarmStart::default())?;
-    evaluate(io_model(net, fit)?, Lineage::Io(p), d, &opts.policy)
-}
-
-/// The engineer's baseline, or the order chosen on the select block.
-fn baseline(
-    d: &DiagnoseData,
-    fit: &Record,
-    opts: &DiagnoseOptions,
-) -> Result<Evaluated, DiagnoseError> {
-    match opts.order {
-        OrderChoice::Fixed(n) => fit_baseline(n, d, fit, opts),
-        OrderChoice::Auto => {
-            let fits: Vec<Evaluated> = opts
-                .policy
-                .auto_orders
-                .clone()
-                .into_par_iter()
-                .filter_map(|n| fit_baseline(n, d, fit, opts).ok())
-                .collect();
-            let best = fits
-                .iter()
-                .map(|e| e.scores.nrmse_select)
-                .fold(f64::INFINITY, f64::min);
-            fits.into_iter()
-                .find(|e| e.scores.nrmse_select <= best * opts.policy.auto_order_tolerance + 1e-12)
-                .ok_or_else(|| {
-                    DiagnoseError::Core(gb_core::CoreError::Unstable(
-                        "no order gave a stable model".into(),
-                    ))
-                })
-        }
-    }
-}
-
 /// What one iteration decided.
 struct Iteration {
     rows: Vec<Step>,
@@ -158,10 +114,7 @@ fn fit_candidates(
     let pol = ctx.policy();
     let fitted: Vec<Option<Evaluated>> = proposals
         .par_iter()
-        .map(|(e, p)| {
-            let m = e.fit(p, ctx).ok()?;
-            evaluate(m, p.lineage.clone(), ctx.data, pol).ok()
-        })
+        .map(|(e, p)| fit_proposal(*e, p, ctx).ok())
         .collect();
     proposals
         .into_iter()
@@ -172,6 +125,17 @@ fn fit_candidates(
             f.map(|f| score(e, p, f, ctx, seed))
         })
         .collect()
+}
+
+/// Fit a proposal on the plan's record (and its folds) and score it.
+pub(crate) fn fit_proposal(
+    e: &'static dyn Extension,
+    p: &Proposal,
+    ctx: &Context,
+) -> Result<Evaluated, DiagnoseError> {
+    assess(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
+        e.fit(p, &ctx.at(t))
+    })
 }
 
 /// The escalation (tried once per diagnosis) when no new cause was chosen:
@@ -186,10 +150,7 @@ fn escalate(
     let pol = ctx.policy();
     ctx.observer
         .progress(it, it + 1, "fitting the hidden-state model");
-    let f = ext
-        .fit(&p, ctx)
-        .and_then(|m| evaluate(m, p.lineage.clone(), ctx.data, pol))
-        .ok()?;
+    let f = fit_proposal(ext, &p, ctx).ok()?;
     let seed = pol.seed.wrapping_add(1000 * it as u64 + 999);
     let mut c = score(ext, p, f, ctx, seed);
     if let Some(simple) = chosen.map(|i| &cands[i].fitted) {
@@ -267,9 +228,18 @@ fn rows(
 /// What every iteration of one diagnosis shares.
 struct Run<'a> {
     d: &'a DiagnoseData,
-    fit: &'a Record,
+    plan: &'a Plan,
     opts: &'a DiagnoseOptions,
     obs: &'a dyn Observer,
+}
+
+/// Free-run simulation of the dynamics `m` extends on `rec`, started from
+/// its measured history (the warm start of output-error constructions).
+fn simulated_on(m: &FittedModel, rec: &gb_core::Record) -> Option<Vec<f64>> {
+    let c = core(m);
+    let hist = c.history_len().min(rec.len());
+    c.simulate(&rec.inputs, Init::History(&rec.output[..hist]))
+        .ok()
 }
 
 /// One iteration: evidence, candidates, choice, escalation, rows.
@@ -280,23 +250,26 @@ fn iterate(
     tried: &mut HashSet<&'static str>,
     it: usize,
 ) -> Option<Iteration> {
-    let Run { d, fit, opts, obs } = *run;
-    let w = opts.policy.init_window;
-    let ev = Evidence::compute(&cur.select.e, &cur.select.yhat, &d.select_inputs(w));
-    let hist = cur.model.dynamics.history_len().min(fit.len());
-    let simulated_fit = cur
-        .model
-        .simulate(&fit.inputs, Init::History(&fit.output[..hist]))
-        .ok();
+    let Run { d, plan, opts, obs } = *run;
+    let ev = Evidence::compute(&cur.select.e, &cur.select.yhat, &plan.decision_inputs(d));
+    let simulated_fit = simulated_on(&cur.model, &plan.fit);
+    let fold_sims: Vec<Option<Vec<f64>>> = cur
+        .folds
+        .iter()
+        .zip(&plan.folds)
+        .map(|(e, f)| simulated_on(&e.model, &f.fit))
+        .collect();
     let ctx = Context {
         data: d,
-        fit,
+        fit: &plan.fit,
         current: cur,
         causes,
         evidence: &ev,
         options: opts,
         simulated_fit: simulated_fit.as_deref(),
         observer: obs,
+        plan,
+        fold_sims: &fold_sims,
     };
     let props = proposals(&ctx, tried);
     if props.is_empty() {
@@ -349,6 +322,11 @@ fn tried_summary(steps: &[Step]) -> Vec<String> {
 }
 
 /// Run the diagnosis on `d`, reporting progress to `obs`.
+///
+/// Training records of the policy's `long_record` samples or more are
+/// searched on a subsample of `search_samples`, within `search_budget_s`,
+/// and the chosen baseline and final structures are refitted on the whole
+/// fit block (see [`DecisionPolicy`]).
 pub fn diagnose(
     d: &DiagnoseData,
     opts: &DiagnoseOptions,
@@ -358,18 +336,34 @@ pub fn diagnose(
     let pol = &opts.policy;
     d.check(pol.min_fit, pol.min_block)?;
     let obs: &dyn Observer = obs.unwrap_or(&Silent);
-    let fit = d.fit_record();
+    if d.select.end - d.fit.start >= pol.long_record {
+        return crate::long::diagnose_long(d, opts, obs);
+    }
+    search(d, opts, obs, None)
+}
+
+/// The diagnosis loop; with a `deadline`, no step starts after it.
+pub(crate) fn search(
+    d: &DiagnoseData,
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+    deadline: Option<Instant>,
+) -> Result<Diagnosis, DiagnoseError> {
     let total = 1 + opts.max_steps;
     obs.progress(0, total, "fitting the baseline");
-    let base = baseline(d, &fit, opts)?;
-    let w = pol.init_window;
-    let baseline_evidence =
-        Evidence::compute(&base.select.e, &base.select.yhat, &d.select_inputs(w));
-    let mut chain = vec![base];
+    let plan0 = Plan::new(d, &opts.policy);
+    let base = baseline(d, &plan0, opts)?;
+    let plan = base.plan;
+    let mut choice = base.choice;
+    choice.decision = plan.describe(d);
+    let mut chain = vec![base.eval];
     let mut steps = vec![];
     let mut causes: Vec<Cause> = vec![];
     let mut tried = HashSet::new();
     for it in 1..=opts.max_steps {
+        if deadline.is_some_and(|t| Instant::now() > t) {
+            break;
+        }
         obs.progress(
             it,
             total,
@@ -378,7 +372,7 @@ pub fn diagnose(
         let cur = chain.last().expect("the chain holds the baseline");
         let run = Run {
             d,
-            fit: &fit,
+            plan: &plan,
             opts,
             obs,
         };
@@ -397,12 +391,35 @@ pub fn diagnose(
         }
     }
     obs.progress(total, total, "done");
+    Ok(assemble(
+        d,
+        &plan,
+        chain,
+        steps,
+        causes,
+        choice,
+        &opts.policy,
+    ))
+}
+
+/// The diagnosis from its chain of models and its rows.
+pub(crate) fn assemble(
+    d: &DiagnoseData,
+    plan: &Plan,
+    chain: Vec<Evaluated>,
+    steps: Vec<Step>,
+    causes: Vec<Cause>,
+    structure: StructureChoice,
+    pol: &DecisionPolicy,
+) -> Diagnosis {
+    let inputs = plan.decision_inputs(d);
+    let base = &chain[0];
     let last = chain.last().expect("the chain holds the baseline");
-    let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &d.select_inputs(w));
+    let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &inputs);
     let verdict = crate::verdict::verdict(
         &last.select.e,
         &last.select.yhat,
-        &d.select_inputs(w),
+        &inputs,
         pol.verdict_level,
         &tried_summary(&steps),
     );
@@ -411,22 +428,25 @@ pub fn diagnose(
         data: DataSummary {
             inputs: d.train.input_names.clone(),
             output: d.train.output_name.clone(),
-            samples_fit: d.fit.len(),
+            samples_fit: plan.fit.len(),
             samples_select: d.select.len(),
-            samples_validate: d.report_scored(w).len(),
+            samples_validate: d.report_scored(plan.w).len(),
             split: d.split_text(),
+            init_window: plan.w,
+            decision: plan.describe(d),
         },
-        baseline: ModelSummary::of(&chain[0]),
+        baseline: ModelSummary::of(base),
+        structure,
         steps,
         causes,
         final_model: ModelSummary::of(last),
-        evidence: baseline_evidence,
+        evidence: Evidence::compute(&base.select.e, &base.select.yhat, &inputs),
         final_evidence,
         verdict,
     };
-    Ok(Diagnosis {
+    Diagnosis {
         report,
         model: last.model.clone(),
         chain,
-    })
+    }
 }

@@ -107,6 +107,10 @@ pub struct Evaluated {
     pub select: Residuals,
     /// Residuals on the report block.
     pub report: Residuals,
+    /// Under blocked cross-validation: the structure refitted for each fold
+    /// (its `select` residuals are the fold's held-out residuals); empty
+    /// when decisions use the select block.
+    pub folds: Vec<Evaluated>,
 }
 
 /// Residuals of `model` on `range` of `data`, simulating in free run from
@@ -128,17 +132,36 @@ pub fn residuals_on(
     })
 }
 
-/// Score `model` on the select and report blocks of `d`.
+/// Score `model` on the select and report blocks of `d` (init window from
+/// the policy and the shorter of the two blocks).
 pub fn evaluate(
     model: FittedModel,
     lineage: Lineage,
     d: &DiagnoseData,
     policy: &DecisionPolicy,
 ) -> Result<Evaluated, DiagnoseError> {
-    let w = policy.init_window;
-    let select = residuals_on(&model, &d.train, &d.select, w)?;
+    let w = policy.init_window_for(d.select.len().min(d.report_range.len()));
+    evaluate_on(model, lineage, d, w, None)
+}
+
+/// Score `model` on the report block of `d` with init window `w`, and on the
+/// decision data: the select block, or the given held-out residuals
+/// `(residuals, std of the measured output over them)`.
+pub(crate) fn evaluate_on(
+    model: FittedModel,
+    lineage: Lineage,
+    d: &DiagnoseData,
+    w: usize,
+    decision: Option<(Residuals, f64)>,
+) -> Result<Evaluated, DiagnoseError> {
+    let (select, sd_s) = match decision {
+        Some(x) => x,
+        None => (
+            residuals_on(&model, &d.train, &d.select, w)?,
+            metrics::std(&d.train.output[d.select_scored(w)]),
+        ),
+    };
     let report = residuals_on(&model, &d.report, &d.report_range, w)?;
-    let sd_s = metrics::std(&d.train.output[d.select_scored(w)]);
     let sd_r = metrics::std(&d.report.output[d.report_scored(w)]);
     let scores = Scores {
         nrmse_select: metrics::rms(&select.e) / sd_s,
@@ -157,5 +180,6 @@ pub fn evaluate(
         scores,
         select,
         report,
+        folds: vec![],
     })
 }

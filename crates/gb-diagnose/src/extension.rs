@@ -55,6 +55,7 @@ pub struct Proposal {
 }
 
 /// What an extension sees of the diagnosis.
+#[derive(Clone, Copy)]
 pub struct Context<'a> {
     /// The data.
     pub data: &'a DiagnoseData,
@@ -72,6 +73,27 @@ pub struct Context<'a> {
     pub simulated_fit: Option<&'a [f64]>,
     /// Progress of long fits.
     pub observer: &'a dyn Observer,
+    /// How models are fitted and judged.
+    pub(crate) plan: &'a crate::plan::Plan,
+    /// Free-run simulations of the current model's fold refits on their fit
+    /// records (cross-validation).
+    pub(crate) fold_sims: &'a [Option<Vec<f64>>],
+}
+
+impl<'a> Context<'a> {
+    /// The context of a fit for fold `t` (`None`: this context): the fold's
+    /// fit record and the current structure refitted on it.
+    pub(crate) fn at(&self, t: Option<usize>) -> Context<'a> {
+        match t {
+            Some(k) if k < self.current.folds.len() => Context {
+                fit: self.plan.fit_of(Some(k)),
+                current: &self.current.folds[k],
+                simulated_fit: self.fold_sims.get(k).and_then(|s| s.as_deref()),
+                ..*self
+            },
+            _ => *self,
+        }
+    }
 }
 
 impl Context<'_> {

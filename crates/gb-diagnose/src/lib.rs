@@ -25,6 +25,7 @@
 // Index loops mirror the subscripts of the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod baseline;
 mod cause;
 pub mod curves;
 mod data;
@@ -36,13 +37,17 @@ mod extension;
 pub mod extensions;
 pub mod generator;
 pub mod html;
+mod long;
+mod plan;
 mod policy;
 mod report;
 pub mod stats;
+mod structure;
 pub mod sweep;
 pub mod systems;
 mod verdict;
 
+pub use baseline::StructureChoice;
 pub use cause::Cause;
 pub use data::DiagnoseData;
 pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, OrderChoice};

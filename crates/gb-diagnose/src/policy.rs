@@ -22,10 +22,22 @@ use crate::DiagnoseError;
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
 /// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
 /// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
-/// | `init_window` | 50 | leading samples of every evaluated record that set the initial state and are not scored (the benchmark convention) |
-/// | `min_block` | 100 | fewest samples of the select and report blocks |
+/// | `init_window_max`, `init_window_min`, `init_window_divisor` | 50, 10, 8 | leading samples of every evaluated record (report block, cross-validation fold) that set the initial state and are not scored: `clamp(shortest such block / 8, 10, 50)`, the benchmark's 50 on long records, 12 of a 100-sample block |
+/// | `min_block` | 40 | fewest samples of the select and report blocks |
 /// | `min_fit` | 60 | fewest samples of the fit block |
-/// | `max_order` | 8 | highest linear order the dynamics extension proposes |
+/// | `max_order` | 30 | highest linear order the dynamics extension and `--order auto` reach (in the ladder 1…6, 8, 10, 12, 16, 20, 24, 30, and by doubling: n → n+1, n+2, 2n) |
+/// | `max_delay`, `max_delay_divisor` | 20, 6 | input delays scanned for the baseline: 0 ..= min(20, fit samples / 6) |
+/// | `delay_tolerance` | 1.01 | among the delay candidates confirmed by the output-error fit, the one with fewer parameters (strictly proper rather than feedthrough) is kept when within 1 % of the best decision NRMSE |
+/// | `structure_scan_samples` | 50 000 | most fit samples of the ARX delay / integrator scan |
+/// | `delay_scan_samples` | 4000 | most fit samples of the output-error delay scan (one fit per delay and input at the reference order) |
+/// | `integrator_pole` | 0.02 | an integrator is suspected when the ARX model has a real pole within 0.02 of 1 … |
+/// | `integrator_gain` | 0.05 | … and kept when the increments model lowers the decision NRMSE of the baseline by ≥ 5 % |
+/// | `bootstrap_min_samples` | 300 | with fewer select samples the bootstrap of the select block is not trusted (fewer than 12 blocks of 25): decisions use blocked cross-validation over the training record instead |
+/// | `cv_folds` | 4 | contiguous folds of the cross-validation; each fold is scored by the structure refitted on the longer contiguous rest of the record (no regressor spans a gap), the pooled held-out residuals take the select block's place in every decision rule |
+/// | `long_record` | 100 000 | training records this long are searched on a subsample … |
+/// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
+/// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search (the structure found so far is refitted and reported) |
+/// | `refit_iterations` | 10 | Levenberg–Marquardt iterations of the refit on the whole record (started from the subsample's model) |
 /// | `verdict_level` | 0.01 | overall level of the final residual tests (Bonferroni over the tests): "adequate" only when none rejects |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
@@ -65,14 +77,44 @@ pub struct DecisionPolicy {
     pub nonlinear_fit_samples: usize,
     /// Most fit samples of the tree and Wiener–Hammerstein networks.
     pub expensive_fit_samples: usize,
-    /// Init window of every evaluated record (not scored).
-    pub init_window: usize,
+    /// Longest init window of an evaluated record (not scored).
+    pub init_window_max: usize,
+    /// Shortest init window.
+    pub init_window_min: usize,
+    /// Init window = shortest evaluated block / this (clamped).
+    pub init_window_divisor: usize,
     /// Fewest samples of the select and report blocks.
     pub min_block: usize,
     /// Fewest samples of the fit block.
     pub min_fit: usize,
     /// Highest linear order proposed.
     pub max_order: usize,
+    /// Longest input delay scanned.
+    pub max_delay: usize,
+    /// Delays scanned up to fit samples / this.
+    pub max_delay_divisor: usize,
+    /// Parsimony tolerance of the delay choice.
+    pub delay_tolerance: f64,
+    /// Most fit samples of the ARX structure scan.
+    pub structure_scan_samples: usize,
+    /// Most fit samples of the output-error delay scan.
+    pub delay_scan_samples: usize,
+    /// Distance of a real ARX pole from 1 that suggests an integrator.
+    pub integrator_pole: f64,
+    /// Smallest relative decision-NRMSE gain of the increments model.
+    pub integrator_gain: f64,
+    /// Fewest select samples for the bootstrap (else cross-validation).
+    pub bootstrap_min_samples: usize,
+    /// Folds of the blocked cross-validation.
+    pub cv_folds: usize,
+    /// Training samples from which the structure is searched on a subsample.
+    pub long_record: usize,
+    /// Training samples of that subsample.
+    pub search_samples: usize,
+    /// Seconds of search after which no new step starts.
+    pub search_budget_s: f64,
+    /// LM iterations of the refit on the whole record.
+    pub refit_iterations: usize,
     /// Overall level of the final residual tests.
     pub verdict_level: f64,
 }
@@ -98,10 +140,25 @@ impl Default for DecisionPolicy {
             hidden_state_fit_samples: 4000,
             nonlinear_fit_samples: 20_000,
             expensive_fit_samples: 8000,
-            init_window: 50,
-            min_block: 100,
+            init_window_max: 50,
+            init_window_min: 10,
+            init_window_divisor: 8,
+            min_block: 40,
             min_fit: 60,
-            max_order: 8,
+            max_order: 30,
+            max_delay: 20,
+            max_delay_divisor: 6,
+            delay_tolerance: 1.01,
+            structure_scan_samples: 50_000,
+            delay_scan_samples: 4000,
+            integrator_pole: 0.02,
+            integrator_gain: 0.05,
+            bootstrap_min_samples: 300,
+            cv_folds: 4,
+            long_record: 100_000,
+            search_samples: 20_000,
+            search_budget_s: 300.0,
+            refit_iterations: 10,
             verdict_level: 0.01,
         }
     }
@@ -143,7 +200,43 @@ impl DecisionPolicy {
         if self.max_order == 0 || self.max_order > gb_lmn::MAX_IO_ORDER {
             return bad("max_order in 1..=30");
         }
+        if self.init_window_min == 0
+            || self.init_window_min > self.init_window_max
+            || self.init_window_divisor == 0
+        {
+            return bad("1 <= init_window_min <= init_window_max, init_window_divisor >= 1");
+        }
+        if self.max_delay > 64 || self.max_delay_divisor == 0 || self.delay_tolerance < 1.0 {
+            return bad("max_delay <= 64, max_delay_divisor >= 1, delay_tolerance >= 1");
+        }
+        let open_unit = |x: f64| x > 0.0 && x < 1.0;
+        if !open_unit(self.integrator_pole) || !(0.0..1.0).contains(&self.integrator_gain) {
+            return bad("integrator_pole in (0,1), integrator_gain in [0,1)");
+        }
+        if !(2..=20).contains(&self.cv_folds) || self.structure_scan_samples < 100 {
+            return bad("cv_folds in 2..=20, structure_scan_samples >= 100");
+        }
+        if self.search_samples < 1000
+            || self.long_record < self.search_samples
+            || self.search_budget_s.is_nan()
+            || self.search_budget_s <= 0.0
+        {
+            return bad(
+                "search_samples >= 1000, long_record >= search_samples, search_budget_s > 0",
+            );
+        }
         Ok(())
+    }
+
+    /// Init window of evaluated records whose shortest block has `block`
+    /// samples.
+    pub fn init_window_for(&self, block: usize) -> usize {
+        (block / self.init_window_divisor).clamp(self.init_window_min, self.init_window_max)
+    }
+
+    /// Longest input delay scanned for a fit block of `fit` samples.
+    pub fn delay_bound(&self, fit: usize) -> usize {
+        self.max_delay.min(fit / self.max_delay_divisor)
     }
 
     /// Bootstrap block length for `n` samples.
@@ -163,6 +256,11 @@ mod tests {
         assert_eq!(p.block(8000), 200);
         assert_eq!(p.block(2000), 50);
         assert_eq!(p.block(100), 25);
+        assert_eq!(p.init_window_for(4000), 50);
+        assert_eq!(p.init_window_for(100), 12);
+        assert_eq!(p.init_window_for(40), 10);
+        assert_eq!(p.delay_bound(300), 20);
+        assert_eq!(p.delay_bound(90), 15);
         for bad in [
             DecisionPolicy {
                 min_gain: 1.5,
@@ -182,6 +280,18 @@ mod tests {
             },
             DecisionPolicy {
                 block_min: 300,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                init_window_min: 60,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                cv_folds: 1,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                max_order: 31,
                 ..p.clone()
             },
         ] {

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 use std::fmt::Write as _;
 
 /// Version of the report format.
-pub const REPORT_VERSION: u32 = 2;
+pub const REPORT_VERSION: u32 = 3;
 
 /// One row of the diagnosis: a candidate extension and whether it paid.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -59,6 +59,13 @@ pub struct ModelSummary {
     pub nrmse_select: f64,
     /// Parameters.
     pub parameters: usize,
+    /// Input delay per input in samples (0: direct feedthrough; empty for
+    /// the hidden-state model).
+    #[serde(default)]
+    pub delay: Vec<usize>,
+    /// The model integrates its output (models the increments, a pole at 1).
+    #[serde(default)]
+    pub integrating: bool,
 }
 
 impl ModelSummary {
@@ -72,6 +79,18 @@ impl ModelSummary {
             nll: e.scores.nll,
             nrmse_select: e.scores.nrmse_select,
             parameters: e.model.dynamics.n_parameters(),
+            delay: e
+                .lineage
+                .io()
+                .map(|p| {
+                    if p.delay.is_empty() {
+                        vec![1; e.model.input_names.len()]
+                    } else {
+                        p.delay.clone()
+                    }
+                })
+                .unwrap_or_default(),
+            integrating: e.model.dynamics.class() == gb_model::INTEGRATING_CLASS,
         }
     }
 }
@@ -91,6 +110,13 @@ pub struct DataSummary {
     pub samples_validate: usize,
     /// How the data were split.
     pub split: String,
+    /// Init window of the evaluated records (not scored).
+    #[serde(default)]
+    pub init_window: usize,
+    /// How decisions are made (select-block bootstrap or blocked
+    /// cross-validation).
+    #[serde(default)]
+    pub decision: String,
 }
 
 /// The diagnosis (the `--json` report).
@@ -102,6 +128,9 @@ pub struct Report {
     pub data: DataSummary,
     /// The engineer's model.
     pub baseline: ModelSummary,
+    /// How the baseline's structure (delay, integrator, order) was chosen.
+    #[serde(default)]
+    pub structure: crate::StructureChoice,
     /// Candidate extensions, per iteration.
     pub steps: Vec<Step>,
     /// Accepted causes in order (`[]`: no extension paid).
@@ -137,11 +166,13 @@ impl Report {
             r.data.samples_select,
             r.data.samples_validate
         );
+        let _ = writeln!(s, "decisions: {}", r.data.decision);
         let _ = writeln!(
             s,
-            "baseline: {}  NRMSE {:.4}  nll {:.3}\n",
+            "baseline: {}  NRMSE {:.4}  nll {:.3}",
             r.baseline.model, r.baseline.nrmse, r.baseline.nll
         );
+        let _ = writeln!(s, "          {}\n", r.structure.text());
         let _ = writeln!(
             s,
             "{:<4} {:<14} {:>8} {:>8} {:>8} {:>25} {:<8} extension / evidence",

@@ -16,7 +16,7 @@
 //! | `two-mass` | a second, hidden mass coupled to the first | dynamics |
 //! | `student-t` | Student-t (ν = 3) output noise | noise |
 //! | `shock-absorber` | hysteretic (Bouc-Wen) damper of a wheel mass | hysteresis |
-use gb_core::{rng, CoreError, DataSet};
+use gb_core::{rng, CoreError, Record};
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal, StudentT};
 use serde::{Deserialize, Serialize};
@@ -57,9 +57,9 @@ pub struct Generated {
     /// Seed used.
     pub seed: u64,
     /// Training data.
-    pub train: DataSet,
+    pub train: Record,
     /// Validation data (independent input realisation).
-    pub validate: DataSet,
+    pub validate: Record,
     /// Standard deviation of the added output noise.
     pub noise_std: f64,
     /// NRMSE a perfect model reaches on the validation data: noise std / std(y).
@@ -394,8 +394,8 @@ pub fn generate(
     Ok(Generated {
         system: system.to_string(),
         seed,
-        train: DataSet::new(names.clone(), "y".into(), vec![u_tr], ytr)?,
-        validate: DataSet::new(names, "y".into(), vec![u_va], yva)?,
+        train: Record::new(names.clone(), "y".into(), vec![u_tr], ytr)?,
+        validate: Record::new(names, "y".into(), vec![u_va], yva)?,
         noise_std,
         noise_floor_nrmse: floor,
         snr_db,

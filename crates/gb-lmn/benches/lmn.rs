@@ -8,13 +8,20 @@
 //!   network (x: y(k−1), y(k−2), u(k−1), u(k−2); z: y(k−1), u(k−1)),
 //!   target ≥ 10 M samples/s.
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use gb_lmn::{Criterion as Crit, Experiment, Focus, LmnParams, RegressorSpec, WeightKind};
+use gb_core::{Record, Records};
+use gb_lmn::{Criterion as Crit, Focus, LmnParams, RegressorSpec, WeightKind};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::hint::black_box;
 
+/// A record of input signals u1, u2, … and output y.
+fn record(inputs: Vec<Vec<f64>>, y: Vec<f64>) -> Record {
+    let names = (1..=inputs.len()).map(|j| format!("u{j}")).collect();
+    Record::new(names, "y".into(), inputs, y).expect("finite signals of one length")
+}
+
 /// 100 000 samples of 8 inputs, y = a smooth nonlinear function + noise.
-fn static_data(n: usize) -> Experiment {
+fn static_data(n: usize) -> Records {
     let mut r = Xoshiro256PlusPlus::seed_from_u64(2026);
     let u: Vec<Vec<f64>> = (0..8)
         .map(|_| (0..n).map(|_| r.random_range(-1.0..1.0)).collect())
@@ -27,10 +34,10 @@ fn static_data(n: usize) -> Experiment {
                 + 0.01 * r.random_range(-1.0..1.0)
         })
         .collect();
-    Experiment::new(u, y)
+    Records::single(record(u, y))
 }
 
-fn dynamic_data(n: usize) -> Experiment {
+fn dynamic_data(n: usize) -> Records {
     let mut r = Xoshiro256PlusPlus::seed_from_u64(7);
     let u: Vec<f64> = (0..n).map(|_| r.random_range(-1.0..1.0)).collect();
     let mut y = vec![0.0; n];
@@ -40,7 +47,7 @@ fn dynamic_data(n: usize) -> Experiment {
             + 0.6 * (1.5 * u[k - 1]).tanh()
             + 0.2 * (2.0 * y[k - 1]).tanh() * u[k - 2];
     }
-    Experiment::new(vec![u], y)
+    Records::single(record(vec![u], y))
 }
 
 fn bench(c: &mut Criterion) {
@@ -58,7 +65,7 @@ fn bench(c: &mut Criterion) {
             .patience(100)
             .criterion(Crit::Aicc)
             .lm_iterations(0);
-        let m = p.fit(std::slice::from_ref(&d)).unwrap();
+        let m = p.fit(&d).unwrap();
         assert_eq!(
             m.summary.history.len(),
             20,
@@ -66,7 +73,7 @@ fn bench(c: &mut Criterion) {
             m.summary.history.len()
         );
         g.bench_function(BenchmarkId::new(name, "20_leaves_100000x8"), |b| {
-            b.iter(|| black_box(p.fit(std::slice::from_ref(&d)).unwrap()))
+            b.iter(|| black_box(p.fit(&d).unwrap()))
         });
     }
     g.finish();
@@ -81,10 +88,7 @@ fn bench(c: &mut Criterion) {
         .lm_iterations(0)
         .check()
         .unwrap()
-        .fit(
-            std::slice::from_ref(&train),
-            Some(std::slice::from_ref(&train)),
-        )
+        .fit(&train, Some(&train))
         .unwrap();
     assert_eq!(m.n_leaves(), 20);
     let n = 1_000_000;
@@ -93,7 +97,7 @@ fn bench(c: &mut Criterion) {
     g.throughput(Throughput::Elements(n as u64));
     g.sample_size(10);
     g.bench_function(BenchmarkId::new("20_leaves", n), |b| {
-        b.iter(|| black_box(m.simulate(&test, 2).unwrap()))
+        b.iter(|| black_box(m.simulate(test.first(), 2).unwrap()))
     });
     g.finish();
 }

@@ -19,8 +19,8 @@
 //! `smooth`, `crit` (aicc|bic|val), `prune` (0|1), `focus` (sim|pred),
 //! `noe` (0|1: output-error construction), `patience`, `guard` (0|1:
 //! stability guard of the NOE training).
-use gb_core::CsvTable;
-use gb_lmn::{Criterion, Experiment, Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
+use gb_core::{CsvTable, Record, Records};
+use gb_lmn::{Criterion, Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
 use std::collections::HashMap;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -32,11 +32,15 @@ fn data_dir() -> Option<PathBuf> {
     d.is_dir().then_some(d)
 }
 
-fn load(p: PathBuf) -> Result<Experiment, String> {
+fn load(p: PathBuf) -> Result<Record, String> {
     let t = CsvTable::read(&p).map_err(|e| e.to_string())?;
-    let u = t.column("u").map_err(|e| e.to_string())?.to_vec();
-    let y = t.column("y").map_err(|e| e.to_string())?.to_vec();
-    Ok(Experiment::new(vec![u], y))
+    Record::from_table(&t, &["u".into()], Some("y")).map_err(|e| e.to_string())
+}
+
+/// A record of input signals u1, u2, … and output y.
+fn record(inputs: Vec<Vec<f64>>, y: Vec<f64>) -> Records {
+    let names = (1..=inputs.len()).map(|j| format!("u{j}")).collect();
+    Records::single(Record::new(names, "y".into(), inputs, y).expect("finite signals"))
 }
 
 struct Setup {
@@ -191,9 +195,9 @@ fn run(dir: &std::path::Path, s: &Setup, over: &HashMap<String, String>) -> Resu
         params
             .check()
             .map_err(|e| e.to_string())?
-            .fit(&[fit], Some(&[val]))
+            .fit(&Records::single(fit), Some(&Records::single(val)))
     } else {
-        params.fit(std::slice::from_ref(&train))
+        params.fit(&Records::single(train.clone()))
     }
     .map_err(|e| e.to_string())?;
     let secs = t0.elapsed().as_secs_f64();
@@ -261,7 +265,7 @@ fn static_2d(smooth: f64) {
         u2.push(b);
         y.push(f(a, b) + noise * e);
     }
-    let train = Experiment::new(vec![u1, u2], y);
+    let train = record(vec![u1, u2], y);
     let (mut g1, mut g2, mut gy) = (vec![], vec![], vec![]);
     for i in 0..100 {
         for j in 0..100 {
@@ -272,7 +276,7 @@ fn static_2d(smooth: f64) {
             gy.push(f(a, b));
         }
     }
-    let grid = Experiment::new(vec![g1, g2], gy);
+    let grid = record(vec![g1, g2], gy);
     println!("2-D static test (4 Gaussian bumps, {n} points, noise sd {noise}): RMSE vs the true function on a 100x100 grid");
     println!("  leaves | axis LOLIMOT (Gaussian) | axis tree | oblique tree (HILOMOT) | Gauss+LM | oblique+LM");
     for leaves in [4, 8, 12, 16, 24] {
@@ -290,17 +294,14 @@ fn static_2d(smooth: f64) {
                 .check()
                 .and_then(|p| {
                     // grow to exactly `leaves` (validation on the training data never stops early)
-                    p.fit(
-                        std::slice::from_ref(&train),
-                        Some(std::slice::from_ref(&train)),
-                    )
+                    p.fit(&train, Some(&train))
                 });
             let _ = t0;
             match m {
                 Ok(m) if m.n_leaves() == leaves => m
-                    .predict(&grid)
+                    .predict(grid.first())
                     .ok()
-                    .and_then(|p| gb_core::metrics::rmse(&grid.output, &p).ok())
+                    .and_then(|p| gb_core::metrics::rmse(&grid.first().output, &p).ok())
                     .unwrap_or(f64::NAN),
                 _ => f64::NAN,
             }
@@ -359,7 +360,7 @@ fn speed() {
                 + 0.01 * r.random_range(-1.0..1.0)
         })
         .collect();
-    let d = Experiment::new(u, y);
+    let d = record(u, y);
     let fits = std::env::var_os("SPEED_NO_FIT").is_none();
     for (name, w) in [("tree", WeightKind::Tree), ("gauss", WeightKind::Gaussian)] {
         let p = LmnParams::new(RegressorSpec::arx(0, &[1; 8], &[0; 8]))
@@ -371,7 +372,7 @@ fn speed() {
             continue;
         }
         let (t0, c0) = (Instant::now(), process_cpu_s());
-        let m = p.fit(std::slice::from_ref(&d));
+        let m = p.fit(&d);
         let (wall, cpu) = (t0.elapsed().as_secs_f64(), process_cpu_s() - c0);
         println!(
             "lolimot fit ({name} weights, axis) 100000 x 8 to {} leaves: wall {wall:.2} s, CPU {cpu:.2} s (threads {})",
@@ -389,7 +390,7 @@ fn speed() {
                 + 0.6 * (1.5 * u[k - 1]).tanh()
                 + 0.2 * (2.0 * y[k - 1]).tanh() * u[k - 2];
         }
-        Experiment::new(vec![u], y)
+        record(vec![u], y)
     };
     let train = gen(20_000, 7);
     let leaves: usize = std::env::var("SPEED_LEAVES")
@@ -403,19 +404,14 @@ fn speed() {
         .focus(Focus::Prediction)
         .lm_iterations(0)
         .check()
-        .and_then(|p| {
-            p.fit(
-                std::slice::from_ref(&train),
-                Some(std::slice::from_ref(&train)),
-            )
-        });
+        .and_then(|p| p.fit(&train, Some(&train)));
     let Ok(m) = m else { return };
     let test = gen(1_000_000, 8);
     let mut best_wall = f64::INFINITY;
     let mut best_cpu = f64::INFINITY;
     for _ in 0..5 {
         let (t0, c0) = (Instant::now(), thread_cpu_ns());
-        let s = m.simulate(&test, 2);
+        let s = m.simulate(test.first(), 2);
         let (wall, cpu) = (t0.elapsed().as_secs_f64(), (thread_cpu_ns() - c0) * 1e-9);
         if s.is_ok() {
             best_wall = best_wall.min(wall);
@@ -447,7 +443,7 @@ fn tanks_ss(dir: &std::path::Path, over: &HashMap<String, String>) -> Result<(),
             .collect()
     };
     let p = SsLmnParams {
-        n_states: get("nx", "2").parse().map_err(|e| format!("nx: {e}"))?,
+        n_states: vec![get("nx", "2").parse().map_err(|e| format!("nx: {e}"))?],
         leaves: list("leaves", "1,2")?.iter().map(|&v| v as usize).collect(),
         scheduling: match get("sched", "x0").as_str() {
             "x1" => Scheduling::State(1),

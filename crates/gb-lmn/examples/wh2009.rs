@@ -28,7 +28,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .and_then(|s| s.parse().ok())
             .unwrap_or(v)
     };
+    // the WH2009 set-up: a 6-pole / 6-zero BLA (two third-order filters),
+    // a 200-sample transient and a scan on the first 30 000 samples
     let mut p = WhParams::new()
+        .skip(200)
+        .scan_samples(30_000)
         .knots(env("WH_KNOTS", 15))
         .extra_g1(env("WH_EXTRA", 3))
         .candidates(env("WH_CAND", 2))

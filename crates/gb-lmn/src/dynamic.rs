@@ -2,10 +2,13 @@
 //! ([`LocalModelNetwork`]: linear OE, LOLIMOT, play-operator hysteresis),
 //! the tree network ([`LmnModel`]), the Wiener–Hammerstein network and the
 //! state-space network ([`SsLmnModel`]).
-use crate::{
-    Experiment, LmnError, LmnModel, LocalModelNetwork, SsLmnModel, WienerHammersteinNetwork,
-};
-use gb_core::{check_inputs, CoreError, DynamicModel, Init, ModelView, Workspace};
+use crate::lmn::LmnStepper;
+use crate::noe::NetworkStepper;
+use crate::regressors::Experiment;
+use crate::ssnet::SsStepper;
+use crate::wiener_hammerstein::WhStepper;
+use crate::{LmnError, LmnModel, LocalModelNetwork, SsLmnModel, WienerHammersteinNetwork};
+use gb_core::{check_inputs, CoreError, DynamicModel, Init, ModelView, Stepper, Workspace};
 use std::any::Any;
 
 /// Encode a serde value with postcard for a model file.
@@ -18,6 +21,61 @@ fn padded(y: &[f64], n: usize) -> Vec<f64> {
     let mut v = y[..y.len().min(n)].to_vec();
     v.resize(n, 0.0);
     v
+}
+
+/// The one output slot of a single-output stepper.
+fn one_output(y: &mut [f64]) -> Result<&mut f64, CoreError> {
+    match y {
+        [v] => Ok(v),
+        _ => Err(CoreError::Dimension(format!(
+            "one output per step, a buffer of {} was given",
+            y.len()
+        ))),
+    }
+}
+
+fn unsupported(class: &str, init: &Init<'_>) -> CoreError {
+    CoreError::Unsupported(format!(
+        "{class}: stepping starts at rest or from an explicit state/history, not {init:?}"
+    ))
+}
+
+impl Stepper for NetworkStepper<'_> {
+    fn step(&mut self, u: &[f64], y: &mut [f64]) -> Result<(), CoreError> {
+        let out = one_output(y)?;
+        *out = NetworkStepper::step(self, u)?;
+        Ok(())
+    }
+}
+
+impl Stepper for LmnStepper<'_> {
+    fn step(&mut self, u: &[f64], y: &mut [f64]) -> Result<(), CoreError> {
+        let out = one_output(y)?;
+        *out = LmnStepper::step(self, u)?;
+        Ok(())
+    }
+}
+
+impl Stepper for SsStepper<'_> {
+    fn step(&mut self, u: &[f64], y: &mut [f64]) -> Result<(), CoreError> {
+        let out = one_output(y)?;
+        *out = SsStepper::step(self, u)?;
+        Ok(())
+    }
+}
+
+impl Stepper for WhStepper<'_> {
+    fn step(&mut self, u: &[f64], y: &mut [f64]) -> Result<(), CoreError> {
+        let out = one_output(y)?;
+        let [uk] = u else {
+            return Err(CoreError::Dimension(format!(
+                "the network has one input, {} values were given",
+                u.len()
+            )));
+        };
+        *out = WhStepper::step(self, *uk);
+        Ok(())
+    }
 }
 
 fn copy_out(src: &[f64], y: &mut [f64]) -> Result<(), CoreError> {
@@ -67,6 +125,18 @@ impl DynamicModel for LocalModelNetwork {
         };
         copy_out(&sim, y)
     }
+    /// From [`Init::Rest`] (a zero output history) or the measured output
+    /// history ([`Init::History`] / [`Init::State`], as in
+    /// [`LocalModelNetwork::simulate_signals`]).
+    fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
+        let zeros = vec![0.0; self.spec.max_lag()];
+        let h = match init {
+            Init::Rest => &zeros[..],
+            Init::History(h) | Init::State(h) => h,
+            other => return Err(unsupported(self.class(), &other)),
+        };
+        Ok(Box::new(NetworkStepper::new(self, h)?))
+    }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         encode(self)
     }
@@ -85,8 +155,9 @@ impl DynamicModel for LmnModel {
     fn class(&self) -> &'static str {
         "lmn-tree"
     }
+    /// The inputs, then the user columns (the last input signals).
     fn n_inputs(&self) -> usize {
-        self.regressors.n_inputs()
+        self.regressors.n_signals()
     }
     fn n_states(&self) -> usize {
         self.max_lag()
@@ -108,19 +179,29 @@ impl DynamicModel for LmnModel {
         _ws: &mut Workspace,
     ) -> Result<(), CoreError> {
         check_inputs(self.n_inputs(), u)?;
-        if self.regressors.n_extra > 0 {
-            return Err(CoreError::Unsupported(
-                "a network with user regressor columns needs them to simulate".into(),
-            ));
-        }
         let n = u.first().map_or(0, Vec::len);
         let (history, used) = match init {
             Init::Window(h) | Init::History(h) | Init::State(h) => (padded(h, n), h.len().min(n)),
             Init::Stored => (vec![], 0),
             _ => (vec![0.0; n], 0),
         };
-        let sim = self.simulate(&Experiment::new(u.to_vec(), history), used)?;
+        let r = &self.regressors;
+        let e = Experiment::split(u, &history, r.n_inputs(), r.n_extra)?;
+        let sim = self.simulate_experiment(&e, used)?;
         copy_out(&sim, y)
+    }
+    /// From [`Init::Rest`] (a zero output history) or the output history
+    /// ([`Init::History`] / [`Init::State`]; padded with zeros to `max_lag`
+    /// samples, as [`simulate`](DynamicModel::simulate) does).
+    fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
+        let h = match init {
+            Init::Rest => &[][..],
+            Init::History(h) | Init::State(h) => h,
+            other => return Err(unsupported(self.class(), &other)),
+        };
+        let mut history = h.to_vec();
+        history.resize(h.len().max(self.max_lag()), 0.0);
+        Ok(Box::new(LmnStepper::new(self, &history)?))
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         encode(self)
@@ -160,6 +241,15 @@ impl DynamicModel for WienerHammersteinNetwork {
     ) -> Result<(), CoreError> {
         check_inputs(1, u)?;
         copy_out(&self.simulate(&u[0]), y)
+    }
+    /// From the zero state ([`Init::Rest`], or an all-zero [`Init::State`]).
+    fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
+        match init {
+            Init::Rest => {}
+            Init::State(x) if x.iter().all(|v| *v == 0.0) => {}
+            other => return Err(unsupported(self.class(), &other)),
+        }
+        Ok(Box::new(WhStepper::new(self)))
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         encode(self)
@@ -206,6 +296,16 @@ impl DynamicModel for SsLmnModel {
             _ => self.simulate_from(u, &vec![0.0; nx])?,
         };
         copy_out(&sim, y)
+    }
+    /// From [`Init::Rest`] (the zero state) or [`Init::State`].
+    fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
+        let zeros = vec![0.0; SsLmnModel::n_states(self)];
+        let x0 = match init {
+            Init::Rest => &zeros[..],
+            Init::State(x) => x,
+            other => return Err(unsupported(self.class(), &other)),
+        };
+        Ok(Box::new(self.step_from(x0)?))
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         encode(self)
@@ -280,5 +380,255 @@ impl SsLmnModel {
         decode_checked("lmn-state-space", version, body, |m: &Self| {
             m.check_consistency().map_err(|e| e.to_string())
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{
+        fit_lmn_oe, FitOptions, IoNetworkParams, LolimotOptions, NetworkSpec, SsLmnParams,
+        StaticNetwork, WarmStart,
+    };
+    use rand::{Rng, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    /// Step through `u` (one input) from `init`.
+    fn stepped(m: &dyn DynamicModel, u: &[f64], init: Init<'_>) -> Vec<f64> {
+        let mut s = m.stepper(init).unwrap();
+        let mut y = [0.0];
+        u.iter()
+            .map(|&v| {
+                s.step(&[v], &mut y).unwrap();
+                y[0]
+            })
+            .collect()
+    }
+
+    fn hysteretic(n: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut r = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let u: Vec<f64> = (0..n)
+            .map(|k| (k as f64 * 0.01).sin() + 0.3 * r.random_range(-1.0..1.0))
+            .collect();
+        let mut y = vec![0.0; n];
+        let mut p = 0.0f64;
+        for k in 1..n {
+            p = p.max(u[k - 1] - 0.3).min(u[k - 1] + 0.3);
+            y[k] = 0.7 * y[k - 1]
+                + 0.3 * p
+                + 0.3 * (2.0 * y[k - 1]).tanh()
+                + 0.01 * r.random_range(-1.0..1.0);
+        }
+        (u, y)
+    }
+
+    #[test]
+    fn stepping_an_io_network_is_bit_identical_to_simulate() {
+        let (u, y) = hysteretic(2500, 1);
+        let rec =
+            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y.clone()).unwrap();
+        // play operators and relays on the output and the input, lags 1..3
+        let hyst = IoNetworkParams {
+            hysteresis: true,
+            ..IoNetworkParams::linear(2)
+        }
+        .check()
+        .unwrap()
+        .fit(&rec, WarmStart::default())
+        .unwrap();
+        // a LOLIMOT network (several leaves)
+        let spec = NetworkSpec::order(2, 1);
+        let lopts = LolimotOptions {
+            max_leaves: 4,
+            ..LolimotOptions::default()
+        };
+        let net = fit_lmn_oe(
+            &spec,
+            std::slice::from_ref(&u),
+            &y,
+            None,
+            &lopts,
+            &FitOptions::default(),
+        )
+        .unwrap();
+        assert!(net.n_leaves() > 1);
+        for m in [&hyst, &net] {
+            let uu = [u.clone()];
+            for init in [Init::Rest, Init::History(&y[..3]), Init::History(&y[..1])] {
+                let sim = DynamicModel::simulate(m, &uu, init).unwrap();
+                assert_eq!(stepped(m, &u, init), sim, "{init:?}");
+            }
+        }
+        assert!(hyst.stepper(Init::Window(&y[..50])).is_err());
+    }
+
+    #[test]
+    fn stepping_a_state_space_network_is_bit_identical_to_simulate() {
+        let mut r = Xoshiro256PlusPlus::seed_from_u64(3);
+        let n = 400;
+        let u: Vec<f64> = (0..n)
+            .map(|k| 3.0 + 2.0 * ((k / 40) as f64 * 1.7).sin())
+            .collect();
+        let mut x = [4.0f64, 4.0];
+        let y: Vec<f64> = u
+            .iter()
+            .map(|&uk| {
+                let yk = x[1] + 0.02 * r.random_range(-1.0..1.0);
+                let x1 = (x[0] + 0.2 * uk - 0.25 * x[0].max(0.0).sqrt()).min(9.0);
+                x[1] += 0.25 * x[0].max(0.0).sqrt() - 0.22 * x[1].max(0.0).sqrt();
+                x[0] = x1;
+                yk
+            })
+            .collect();
+        let p = SsLmnParams {
+            n_states: vec![2],
+            leaves: vec![2],
+            max_iter: 10,
+            init_window: 20,
+            ..SsLmnParams::default()
+        };
+        let m = crate::fit_ss_lmn(&p, std::slice::from_ref(&u), &y)
+            .unwrap()
+            .model;
+        let uu = [u.clone()];
+        for init in [Init::Rest, Init::State(&[3.5, 4.2])] {
+            let sim = DynamicModel::simulate(&m, &uu, init).unwrap();
+            assert_eq!(stepped(&m, &u, init), sim, "{init:?}");
+        }
+        assert!(m.stepper(Init::State(&[1.0])).is_err());
+    }
+
+    #[test]
+    fn stepping_a_wiener_hammerstein_network_is_bit_identical_to_simulate() {
+        let m = WienerHammersteinNetwork {
+            b1: vec![0.3, 0.2, -0.05],
+            a1: vec![1.0, -0.9, 0.4],
+            b2: vec![0.0, 0.4, -0.1],
+            a2: vec![1.0, -1.3, 0.55],
+            nonlinearity: StaticNetwork {
+                knots: vec![-0.5, 0.0, 0.5],
+                width: 0.1,
+                coefficients: vec![0.1, 0.5, 0.0, 1.0, 0.2, 0.8, -0.1, 0.3],
+            },
+        };
+        let mut r = Xoshiro256PlusPlus::seed_from_u64(5);
+        let u: Vec<f64> = (0..500).map(|_| r.random_range(-1.0..1.0)).collect();
+        let sim = DynamicModel::simulate(&m, std::slice::from_ref(&u), Init::Rest).unwrap();
+        assert_eq!(stepped(&m, &u, Init::Rest), sim);
+        assert_eq!(stepped(&m, &u, Init::State(&[0.0; 4])), sim);
+        assert!(m.stepper(Init::State(&[1.0, 0.0, 0.0, 0.0])).is_err());
+        let mut s = m.stepper(Init::Rest).unwrap();
+        assert!(s.step(&[1.0, 2.0], &mut [0.0]).is_err());
+        assert!(s.step(&[1.0], &mut [0.0, 0.0]).is_err());
+    }
+
+    #[test]
+    fn stepping_a_tree_network_is_bit_identical_to_simulate() {
+        use crate::{Focus, LmnParams, RegressorSpec, SplitKind, WeightKind};
+        let (u, y) = hysteretic(1500, 2);
+        let sq: Vec<f64> = u.iter().map(|v| v * v).collect();
+        let rec = |inputs: Vec<Vec<f64>>| {
+            let names = (0..inputs.len()).map(|j| format!("u{j}")).collect();
+            gb_core::Records::single(
+                gb_core::Record::new(names, "y".into(), inputs, y.clone()).unwrap(),
+            )
+        };
+        let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
+        let cases = [
+            (reg.clone(), WeightKind::Tree, SplitKind::Axis, false),
+            (reg.clone(), WeightKind::Tree, SplitKind::Oblique, false),
+            (reg.clone(), WeightKind::Gaussian, SplitKind::Axis, false),
+            (
+                reg.clone().with_degree(2),
+                WeightKind::Tree,
+                SplitKind::Axis,
+                false,
+            ),
+            (
+                reg.clone().with_extra(1),
+                WeightKind::Tree,
+                SplitKind::Axis,
+                true,
+            ),
+        ];
+        for (r, w, sp, extra) in cases {
+            let inputs = if extra {
+                vec![u.clone(), sq.clone()]
+            } else {
+                vec![u.clone()]
+            };
+            let m = LmnParams::new(r)
+                .weights(w)
+                .splits(sp)
+                .max_leaves(4)
+                .focus(Focus::Simulation)
+                .lm_iterations(3)
+                .fit(&rec(inputs.clone()))
+                .unwrap();
+            for init in [Init::Rest, Init::History(&y[..2]), Init::History(&y[..7])] {
+                let sim = DynamicModel::simulate(&m, &inputs, init).unwrap();
+                let mut s = m.stepper(init).unwrap();
+                let mut out = [0.0];
+                let stepped: Vec<f64> = (0..y.len())
+                    .map(|k| {
+                        let uk: Vec<f64> = inputs.iter().map(|c| c[k]).collect();
+                        s.step(&uk, &mut out).unwrap();
+                        out[0]
+                    })
+                    .collect();
+                assert_eq!(stepped, sim, "{w:?} {sp:?} extra {extra} {init:?}");
+            }
+        }
+    }
+
+    /// Counts the observer calls.
+    #[derive(Default)]
+    struct Count {
+        progress: std::sync::atomic::AtomicUsize,
+        iterations: std::sync::atomic::AtomicUsize,
+    }
+    impl gb_core::Observer for Count {
+        fn progress(&self, _: usize, _: usize, _: &str) {
+            self.progress
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+        fn iteration(&self, _: &gb_core::IterationInfo) {
+            self.iterations
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
+    }
+
+    #[test]
+    fn identify_reports_to_the_observer() {
+        use crate::{LmnParams, RegressorSpec};
+        use gb_core::Identify;
+        use std::sync::atomic::Ordering::Relaxed;
+        let (u, y) = hysteretic(1500, 4);
+        let recs = gb_core::Records::single(
+            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap(),
+        );
+        let c = Count::default();
+        let m = IoNetworkParams::linear(2)
+            .check()
+            .unwrap()
+            .identify(&recs, &c)
+            .unwrap();
+        assert!(c.iterations.load(Relaxed) > 0);
+        // the same model as without an observer
+        let quiet = IoNetworkParams::linear(2)
+            .check()
+            .unwrap()
+            .identify(&recs, &gb_core::Silent)
+            .unwrap();
+        assert_eq!(m, quiet);
+        let c = Count::default();
+        LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
+            .max_leaves(3)
+            .lm_iterations(5)
+            .check()
+            .unwrap()
+            .identify(&recs, &c)
+            .unwrap();
+        assert!(c.progress.load(Relaxed) > 0 && c.iterations.load(Relaxed) > 0);
     }
 }

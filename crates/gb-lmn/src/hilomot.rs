@@ -14,9 +14,12 @@
 //! split is the start of a Levenberg–Marquardt search over (w, w0) of
 //! ψ = σ(wᵀz + w0), alternating with re-estimating the two local models.
 use crate::lmn::{split_params, Criterion, Eval, FitSummary, Focus, LmnModel};
+use crate::regressors::Experiment;
 use crate::regressors::{Layout, NormExp};
 use crate::tree::{Node, Partition, Split, WeightKind, TINY};
-use crate::{Experiment, LmnError, RegressorSpec, Scaling};
+use crate::{LmnError, RegressorSpec, Scaling};
+use gb_core::solver::{LeastSquaresProblem, LmParams, LmWorkspace};
+use gb_core::{Identify, Observer, Records, Silent, SubTask};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
@@ -196,8 +199,9 @@ impl LmnParams {
         Ok(ValidLmnParams(self.clone()))
     }
 
-    /// Check and fit on training experiments (criterion AICc or BIC).
-    pub fn fit(&self, train: &[Experiment]) -> Result<LmnModel, LmnError> {
+    /// Check and fit on training records, each a separate experiment
+    /// (criterion AICc or BIC).
+    pub fn fit(&self, train: &Records) -> Result<LmnModel, LmnError> {
         self.check()?.fit(train, None)
     }
 }
@@ -427,8 +431,94 @@ fn fit_children(
     Some((tl, tr))
 }
 
+/// The split parameters v = (w, w0) of HILOMOT as a least-squares problem
+/// on the local SSE of the leaf, the two children's local models fixed:
+/// residual e = base − w((1−ψ)L_l + ψ L_r), ∂e/∂a = −w ψ(1−ψ)(L_r − L_l),
+/// a = wᵀz + w0. Trial points are projected onto ‖w‖ ≤ cap (steepness cap).
+struct ObliqueProblem<'a> {
+    rows: &'a Rows,
+    st: &'a LeafSt,
+    base: &'a [f64],
+    tl: &'a [f64],
+    tr: &'a [f64],
+    ll: &'a [f64],
+    lr: &'a [f64],
+    cap: f64,
+    psi: Vec<f64>,
+    /// The last point evaluated and its SSE (the accepted point is
+    /// linearised next).
+    last: Option<(Vec<f64>, f64)>,
+}
+
+impl ObliqueProblem<'_> {
+    fn sse(&mut self, v: &[f64]) -> f64 {
+        let nz = self.rows.nz;
+        psi_of(self.rows, self.st, &v[..nz], v[nz], &mut self.psi);
+        let s = split_sse(self.rows, self.st, self.base, &self.psi, self.tl, self.tr);
+        self.last = Some((v.to_vec(), s));
+        s
+    }
+}
+
+impl LeastSquaresProblem for ObliqueProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.rows.nz + 1
+    }
+    fn cost(&mut self, v: &[f64]) -> Option<f64> {
+        Some(self.sse(v))
+    }
+    fn linearize(&mut self, v: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let nz = self.rows.nz;
+        let nv = nz + 1;
+        let cost = match &self.last {
+            Some((lv, s)) if lv.as_slice() == v => *s,
+            _ => self.sse(v),
+        };
+        gram.fill(0.0);
+        let mut jte = vec![0.0; nv];
+        let mut jrow = vec![0.0; nv];
+        for (i, &r) in self.st.idx.iter().enumerate() {
+            let zr = self.rows.zrow(r as usize);
+            let p = self.psi[i];
+            let (wi, ll, lr) = (self.st.w[i], self.ll[i], self.lr[i]);
+            let e = self.base[i] - wi * ((1.0 - p) * ll + p * lr);
+            let g = -wi * p * (1.0 - p) * (lr - ll);
+            if g == 0.0 {
+                continue;
+            }
+            jrow[..nz].iter_mut().zip(zr).for_each(|(j, z)| *j = g * z);
+            jrow[nz] = g;
+            for a in 0..nv {
+                jte[a] += jrow[a] * e;
+                for b in a..nv {
+                    gram[a * nv + b] += jrow[a] * jrow[b];
+                }
+            }
+        }
+        for a in 0..nv {
+            for b in 0..a {
+                gram[a * nv + b] = gram[b * nv + a];
+            }
+            // jrow is ∂e/∂v = −∂ŷ/∂v: the gradient Jᵀe is −jte
+            grad[a] = -jte[a];
+        }
+        Some(cost)
+    }
+    fn project(&mut self, v: &mut [f64]) {
+        let nz = self.rows.nz;
+        let norm = v[..nz].iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm > self.cap {
+            let s = self.cap / norm;
+            v.iter_mut().for_each(|x| *x *= s);
+        }
+    }
+}
+
 /// HILOMOT: optimise (w, w0) of a split by Levenberg–Marquardt on the local
-/// SSE, alternating with weighted least squares of the two children.
+/// SSE, alternating with weighted least squares of the two children. Each of
+/// at most 6 rounds runs at most 4 solver iterations (8 trials, λ ×4 / ÷3,
+/// floor 1e-9, damping λ·max(Gᵢᵢ, 1e-12) + 1e-12); λ carries over between
+/// rounds.
 #[allow(clippy::too_many_arguments)]
 fn optimise_oblique(
     rows: &Rows,
@@ -441,7 +531,6 @@ fn optimise_oblique(
     cap: f64,
 ) -> Option<Trial> {
     let nz = rows.nz;
-    let nv = nz + 1;
     let m = st.idx.len();
     let mut v: Vec<f64> = start.w.clone();
     v.push(start.w0);
@@ -449,76 +538,53 @@ fn optimise_oblique(
     let mut psi = vec![0.0; m];
     psi_of(rows, st, &v[..nz], v[nz], &mut psi);
     let mut best = split_sse(rows, st, base, &psi, &tl, &tr);
-    let mut lambda = 1e-2;
+    let lm = LmParams {
+        max_iter: 4,
+        tol: 0.0,
+        lambda_init: 1e-2,
+        lambda_up: 4.0,
+        lambda_up_singular: 10.0,
+        lambda_down: 1.0 / 3.0,
+        lambda_min: 1e-9,
+        lambda_max: 1e300,
+        max_trials: 8,
+        diag_floor: 0.0,
+        diag_floor_abs: 1e-12,
+        diag_add: 0.0,
+        jitter: 0.0,
+        jitter_abs: 1e-12,
+    }
+    .check()
+    .ok()?;
+    let mut lambda = lm.params().lambda_init;
     let mut ll = vec![0.0; m];
     let mut lr = vec![0.0; m];
+    let mut ws = LmWorkspace::new(nz + 1);
     for _outer in 0..6 {
         let before = best;
         for (i, &r) in st.idx.iter().enumerate() {
             ll[i] = rows.local(r as usize, &tl);
             lr[i] = rows.local(r as usize, &tr);
         }
-        for _ in 0..4 {
-            // residual e = base − w((1−ψ)L_l + ψ L_r); ∂e/∂a = −w ψ(1−ψ)(L_r − L_l)
-            let mut jtj = DMatrix::<f64>::zeros(nv, nv);
-            let mut jte = DVector::<f64>::zeros(nv);
-            let mut jrow = vec![0.0; nv];
-            for (i, &r) in st.idx.iter().enumerate() {
-                let zr = rows.zrow(r as usize);
-                let p = psi[i];
-                let e = base[i] - st.w[i] * ((1.0 - p) * ll[i] + p * lr[i]);
-                let g = -st.w[i] * p * (1.0 - p) * (lr[i] - ll[i]);
-                if g == 0.0 {
-                    continue;
-                }
-                jrow[..nz].iter_mut().zip(zr).for_each(|(j, z)| *j = g * z);
-                jrow[nz] = g;
-                for a in 0..nv {
-                    jte[a] += jrow[a] * e;
-                    for b in a..nv {
-                        jtj[(a, b)] += jrow[a] * jrow[b];
-                    }
-                }
-            }
-            for a in 0..nv {
-                for b in 0..a {
-                    jtj[(a, b)] = jtj[(b, a)];
-                }
-            }
-            let mut improved = false;
-            for _ in 0..8 {
-                let mut aa = jtj.clone();
-                for a in 0..nv {
-                    aa[(a, a)] += lambda * jtj[(a, a)].max(1e-12) + 1e-12;
-                }
-                let Some(ch) = aa.cholesky() else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let d = ch.solve(&(-&jte));
-                let mut vt: Vec<f64> = v.iter().zip(d.iter()).map(|(a, b)| a + b).collect();
-                let norm = vt[..nz].iter().map(|x| x * x).sum::<f64>().sqrt();
-                if norm > cap {
-                    let s = cap / norm;
-                    vt.iter_mut().for_each(|x| *x *= s);
-                }
-                let mut pt = vec![0.0; m];
-                psi_of(rows, st, &vt[..nz], vt[nz], &mut pt);
-                let s = split_sse(rows, st, base, &pt, &tl, &tr);
-                if s < best {
-                    best = s;
-                    v = vt;
-                    psi = pt;
-                    lambda = (lambda / 3.0).max(1e-9);
-                    improved = true;
-                    break;
-                }
-                lambda *= 4.0;
-            }
-            if !improved {
-                break;
-            }
-        }
+        let mut problem = ObliqueProblem {
+            rows,
+            st,
+            base,
+            tl: &tl,
+            tr: &tr,
+            ll: &ll,
+            lr: &lr,
+            cap,
+            psi: vec![0.0; m],
+            last: None,
+        };
+        let mut state = lm.init(&mut problem, &v).ok()?;
+        state.lambda = lambda;
+        lm.run(&mut problem, &mut state, &mut ws, &Silent);
+        lambda = state.lambda;
+        v = state.theta;
+        best = state.cost;
+        psi_of(rows, st, &v[..nz], v[nz], &mut psi);
         // re-estimate the two local models under the new split
         let (a, b) = fit_children(rows, st, &psi, ridge, min_eff)?;
         let s = split_sse(rows, st, base, &psi, &a, &b);
@@ -957,14 +1023,39 @@ impl ValidLmnParams {
         &self.0
     }
 
-    /// Fit on training experiments; `val` (needed for
+    /// Fit on training records (each a separate experiment: no regressor
+    /// spans two records; the user columns are the last
+    /// [`RegressorSpec::n_extra`] input signals); `val` (needed for
     /// [`Criterion::Validation`]) chooses the number of leaves and the
     /// pruning by its simulation (focus Simulation) or one-step (Prediction)
     /// error.
-    pub fn fit(
+    pub fn fit(&self, train: &Records, val: Option<&Records>) -> Result<LmnModel, LmnError> {
+        self.fit_with_observer(train, val, &Silent)
+    }
+
+    /// [`fit`](Self::fit), reporting progress (the growth of the network,
+    /// then the global optimisation) and every Levenberg–Marquardt iteration
+    /// to `observer`.
+    pub fn fit_with_observer(
+        &self,
+        train: &Records,
+        val: Option<&Records>,
+        observer: &dyn Observer,
+    ) -> Result<LmnModel, LmnError> {
+        let r = &self.0.regressors;
+        fn split<'a>(rs: &'a Records, r: &RegressorSpec) -> Result<Vec<Experiment<'a>>, LmnError> {
+            rs.iter().map(|d| Experiment::of_record(d, r)).collect()
+        }
+        let t = split(train, r)?;
+        let v = val.map(|v| split(v, r)).transpose()?;
+        self.fit_experiments(&t, v.as_deref(), observer)
+    }
+
+    fn fit_experiments(
         &self,
         train: &[Experiment],
         val: Option<&[Experiment]>,
+        observer: &dyn Observer,
     ) -> Result<LmnModel, LmnError> {
         let o = &self.0;
         let r = &o.regressors;
@@ -977,14 +1068,15 @@ impl ValidLmnParams {
             ));
         }
         // scalings over all training experiments
-        let cat = |f: &dyn Fn(&Experiment) -> Option<&Vec<f64>>| -> Vec<f64> {
+        let cat = |f: &dyn for<'e> Fn(&Experiment<'e>) -> Option<&'e [f64]>| -> Vec<f64> {
             train.iter().filter_map(f).flatten().copied().collect()
         };
         for e in train.iter().chain(val.unwrap_or(&[])) {
             if e.inputs
                 .iter()
-                .chain(&e.extra)
-                .chain(std::iter::once(&e.output))
+                .chain(e.extra)
+                .map(Vec::as_slice)
+                .chain(std::iter::once(e.output))
                 .flatten()
                 .any(|v| !v.is_finite())
             {
@@ -1005,11 +1097,11 @@ impl ValidLmnParams {
         let model = LmnModel {
             regressors: r.clone(),
             input_scaling: (0..r.n_inputs())
-                .map(|j| Scaling::of(&cat(&|e| e.inputs.get(j))))
+                .map(|j| Scaling::of(&cat(&|e| e.inputs.get(j).map(Vec::as_slice))))
                 .collect(),
-            output_scaling: Scaling::of(&cat(&|e| Some(&e.output))),
+            output_scaling: Scaling::of(&cat(&|e| Some(e.output))),
             extra_scaling: (0..r.n_extra)
-                .map(|j| Scaling::of(&cat(&|e| e.extra.get(j))))
+                .map(|j| Scaling::of(&cat(&|e| e.extra.get(j).map(Vec::as_slice))))
                 .collect(),
             partition: Partition::root(o.weights, vec![], vec![], r.n_local()),
             summary: FitSummary {
@@ -1043,12 +1135,18 @@ impl ValidLmnParams {
                 got: train.iter().map(Experiment::len).max().unwrap_or(0),
             });
         }
-        let first = self.build(&model, &rows, &nexps, &nval)?;
-        if !(o.noe_construction
+        let twice = o.noe_construction
             && o.focus == Focus::Simulation
             && r.max_output_lag() > 0
-            && o.lm_iterations > 0)
-        {
+            && o.lm_iterations > 0;
+        let part = |i: usize| SubTask {
+            outer: observer,
+            offset: i,
+            span: 1,
+            total: if twice { 2 } else { 1 },
+        };
+        let first = self.build(&model, &rows, &nexps, &nval, &part(0))?;
+        if !twice {
             return Ok(first);
         }
         // NOE construction: grow again with output lags from the first
@@ -1070,21 +1168,25 @@ impl ValidLmnParams {
                 Focus::Simulation,
             )
         };
-        match self.build(&model, &rows2, &nexps, &nval) {
+        match self.build(&model, &rows2, &nexps, &nval, &part(1)) {
             Ok(second) if judge(&second) < judge(&first) => Ok(second),
             _ => Ok(first),
         }
     }
 
-    /// Grow, choose, prune and train one network on `rows`.
+    /// Grow, choose, prune and train one network on `rows`; progress in
+    /// units of leaves grown (of `max_leaves`), then one for the global
+    /// optimisation.
     fn build(
         &self,
         template: &LmnModel,
         rows: &Rows,
         nexps: &[NormExp],
         nval: &[NormExp],
+        observer: &dyn Observer,
     ) -> Result<LmnModel, LmnError> {
         let o = &self.0;
+        let units = o.max_leaves + 1;
         let mut model = template.clone();
         // score of a partition: information criterion or validation error
         let score = |part: &Partition, sse: f64, neff: f64| -> f64 {
@@ -1101,6 +1203,7 @@ impl ValidLmnParams {
         let mut best = f64::INFINITY;
         let mut worse = 0;
         let mut keep = |part: &Partition, sse: f64, neff: f64| -> bool {
+            observer.progress(part.n_leaves(), units, "growing the local model network");
             let s = score(part, sse, neff);
             history.push((part.n_leaves(), s));
             if s < best {
@@ -1147,6 +1250,14 @@ impl ValidLmnParams {
             let mut order: Vec<usize> = (0..history.len()).collect();
             order.sort_by(|a, b| history[*a].1.total_cmp(&history[*b].1));
             let mut tries = order.into_iter().filter(|&i| i != bi).take(3);
+            observer.progress(
+                o.max_leaves,
+                units,
+                match o.focus {
+                    Focus::Simulation => "Levenberg-Marquardt on the simulation error",
+                    _ => "Levenberg-Marquardt on the one-step error",
+                },
+            );
             loop {
                 match crate::narx::optimise(
                     &mut model,
@@ -1155,6 +1266,7 @@ impl ValidLmnParams {
                     o.lm_iterations,
                     o.stability_guard,
                     o.optimise_splits,
+                    observer,
                 ) {
                     Ok(rep) => {
                         model.summary.lm_iterations = rep.0;
@@ -1176,7 +1288,18 @@ impl ValidLmnParams {
                 }
             }
         }
+        observer.progress(units, units, "local model network fitted");
         Ok(model)
+    }
+}
+
+impl Identify for ValidLmnParams {
+    type Model = LmnModel;
+    type Error = LmnError;
+    /// Every record a separate experiment; [`Criterion::Validation`] needs
+    /// validation records ([`ValidLmnParams::fit`]) and is an error here.
+    fn identify(&self, data: &Records, observer: &dyn Observer) -> Result<LmnModel, LmnError> {
+        self.fit_with_observer(data, None, observer)
     }
 }
 

@@ -6,18 +6,17 @@
 //! | field | default | meaning |
 //! |---|---|---|
 //! | `order` | 2 | n = n_a = n_b per input |
-//! | `delay` | 1 per input | dead time n_k (0: direct feedthrough) |
+//! | `delay` | 1 per input | dead time n_k per input; 0 = direct feedthrough, and then the input enters with lags 0..n (n + 1 coefficients: the biproper transfer function of order n) |
 //! | `network` | false | LOLIMOT local model network instead of one linear model |
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
 //! | `lolimot` | [`LolimotOptions::default`] | LOLIMOT settings |
-use crate::{
-    fit_linear_oe_warm, fit_lmn_oe, FitOptions, LmnError, LocalModelNetwork, LolimotOptions,
-    NetworkSpec,
-};
-use gb_core::{Identify, Observer, Record, Records};
+use crate::lolimot::fit_lmn_oe_obs;
+use crate::noe::fit_linear_oe_warm_obs;
+use crate::{FitOptions, LmnError, LocalModelNetwork, LolimotOptions, NetworkSpec};
+use gb_core::{Identify, Observer, Record, Records, Silent};
 
 /// Largest order of an input–output network.
 pub const MAX_IO_ORDER: usize = 30;
@@ -80,6 +79,12 @@ impl IoNetworkParams {
         let mut spec = NetworkSpec::order(self.order, n_inputs);
         if self.delay.len() == n_inputs {
             spec.nk = self.delay.clone();
+            // direct feedthrough: b₀ u(k) + … + b_n u(k−n), order n biproper
+            for (b, &d) in spec.nb.iter_mut().zip(&self.delay) {
+                if d == 0 {
+                    *b = self.order + 1;
+                }
+            }
         }
         if self.hysteresis {
             // thresholds in normalised (unit-variance) output units
@@ -137,6 +142,17 @@ impl ValidIoNetworkParams {
 
     /// Fit on one record by output-error identification.
     pub fn fit(&self, data: &Record, warm: WarmStart<'_>) -> Result<LocalModelNetwork, LmnError> {
+        self.fit_with_observer(data, warm, &Silent)
+    }
+
+    /// [`fit`](Self::fit), reporting every Levenberg–Marquardt iteration of
+    /// the output-error training to `observer`.
+    pub fn fit_with_observer(
+        &self,
+        data: &Record,
+        warm: WarmStart<'_>,
+        observer: &dyn Observer,
+    ) -> Result<LocalModelNetwork, LmnError> {
         let p = &self.0;
         if !p.delay.is_empty() && p.delay.len() != data.n_inputs() {
             return Err(LmnError::InvalidArgument(format!(
@@ -151,16 +167,24 @@ impl ValidIoNetworkParams {
         if p.network {
             let mut lopts = p.lolimot.clone();
             lopts.max_leaves = lopts.max_leaves.max(p.max_leaves());
-            fit_lmn_oe(
+            fit_lmn_oe_obs(
                 &spec,
                 &data.inputs,
                 &data.output,
                 warm.simulated_output,
                 &lopts,
                 &fopts,
+                observer,
             )
         } else {
-            fit_linear_oe_warm(&spec, &data.inputs, &data.output, &fopts, warm.network)
+            fit_linear_oe_warm_obs(
+                &spec,
+                &data.inputs,
+                &data.output,
+                &fopts,
+                warm.network,
+                observer,
+            )
         }
     }
 }
@@ -172,13 +196,13 @@ impl Identify for ValidIoNetworkParams {
     fn identify(
         &self,
         data: &Records,
-        _observer: &dyn Observer,
+        observer: &dyn Observer,
     ) -> Result<LocalModelNetwork, LmnError> {
         if data.len() != 1 {
             return Err(LmnError::InvalidArgument(
                 "an input-output network is fitted on one record; use the tree network (lmn with tree weights) for several".into(),
             ));
         }
-        self.fit(data.first(), WarmStart::default())
+        self.fit_with_observer(data.first(), WarmStart::default(), observer)
     }
 }

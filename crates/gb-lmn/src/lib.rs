@@ -14,7 +14,10 @@
 //! A single leaf gives the linear output-error model (OE / ARX structure with
 //! offset). Training: least squares initialisation, then Levenberg–Marquardt on
 //! the simulation error with analytic sensitivities propagated through time
-//! ([`noe`]), rejecting unstable parameter sets.
+//! ([`noe`]), rejecting unstable parameter sets. Every Levenberg–Marquardt
+//! fit of the crate is a [`gb_core::solver::LeastSquaresProblem`] driven by
+//! the workspace's one solver, [`gb_core::solver::LevenbergMarquardt`];
+//! long fits report to a [`gb_core::Observer`].
 //!
 //! The full network of issue 3 is [`LmnModel`], built by [`LmnParams`]:
 //! separate local-model space x and partition space z from per-signal tapped
@@ -23,11 +26,21 @@
 //! ([`WeightKind`]), axis or oblique (HILOMOT) splits ([`SplitKind`]),
 //! termination by AICc/BIC/validation ([`Criterion`]), pruning, and global
 //! Levenberg–Marquardt for one-step or simulation error ([`Focus`]); several
-//! experiments per fit ([`Experiment`]). See docs/lmn.md.
+//! experiments per fit (every [`gb_core::Record`] of a [`gb_core::Records`]
+//! is one). See docs/lmn.md.
 //!
 //! [`ssnet`] is the state-space counterpart with hidden states, a √ basis and
 //! state saturation, x⁺ = min(Σᵢ Φᵢ(z)[Aᵢx + Gᵢ√x₊ + Bᵢu + cᵢ], x̄),
-//! ŷ = min(Cᵀx + d, ȳ) ([`fit_ss_lmn`], [`SsLmnParams`], [`SsLmnModel`]).
+//! ŷ = min(Cᵀx + d, ȳ) ([`fit_ss_lmn`], [`SsLmnParams`], [`SsLmnModel`]);
+//! [`WienerHammersteinNetwork`] puts a one-dimensional network between two
+//! linear filters ([`WhParams`]).
+//!
+//! Every model class implements [`gb_core::DynamicModel`] (simulation from
+//! an [`gb_core::Init`], stepping one sample at a time, encoding); the
+//! validated parameters of the tree network ([`ValidLmnParams`]), the
+//! input–output network ([`ValidIoNetworkParams`]), the Wiener–Hammerstein
+//! network ([`WhFitter`]) and the state-space network ([`ValidSsLmnParams`])
+//! implement [`gb_core::Identify`] on [`gb_core::Records`].
 //!
 //! ```
 //! use gb_lmn::{NetworkSpec, fit_linear_oe, FitOptions};
@@ -56,7 +69,6 @@ pub mod noe;
 pub mod poly;
 mod prune;
 mod regressors;
-mod relay;
 mod scaling;
 mod spec;
 pub mod ssnet;
@@ -72,15 +84,18 @@ pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion}
 pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
-    embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, refine_output_error,
-    zero_linear_network, FitOptions, TrainReport,
+    embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_warm, fixed_pole_start,
+    refine_output_error, refine_output_error_with_observer, zero_linear_network, FitOptions,
+    TrainReport,
 };
 pub use poly::{PolyNarx, PolyParams, ValidPolyParams};
-pub use regressors::{Experiment, RegressorSpec, Signal, Tap};
-pub use relay::RelayGrid;
+pub use regressors::{RegressorSpec, Signal, Tap};
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;
-pub use ssnet::{fit_ss_lmn, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams};
+pub use ssnet::{
+    fit_ss_lmn, fit_ss_lmn_with_observer, Scheduling, SsLmnFit, SsLmnModel, SsLmnParams,
+    ValidSsLmnParams,
+};
 pub use tree::{Partition, WeightKind};
 pub use wiener_hammerstein::{
     StaticNetwork, WhFitter, WhParams, WhReport, WienerHammersteinNetwork,

@@ -5,9 +5,11 @@
 //!
 //! All signals are normalised (mean 0, standard deviation 1 over the training
 //! experiments); parameters live in those units.
+use crate::regressors::Experiment;
 use crate::regressors::{Layout, NormExp};
 use crate::tree::{Partition, WScratch, WeightKind};
-use crate::{Experiment, LmnError, RegressorSpec, Scaling};
+use crate::{LmnError, RegressorSpec, Scaling};
+use gb_core::Record;
 use serde::{Deserialize, Serialize};
 
 /// Bound on |ŷ| (normalised units) beyond which a simulation counts as diverged.
@@ -59,13 +61,15 @@ pub struct FitSummary {
 /// A fitted local model network.
 ///
 /// ```
-/// use gb_lmn::{Experiment, LmnParams, RegressorSpec};
+/// use gb_core::{Record, Records};
+/// use gb_lmn::{LmnParams, RegressorSpec};
 /// // static function of one input: y = |u|
 /// let u: Vec<f64> = (0..400).map(|k| -1.0 + 2.0 * k as f64 / 399.0).collect();
 /// let y: Vec<f64> = u.iter().map(|v| v.abs()).collect();
+/// let data = Record::new(vec!["u".into()], "y".into(), vec![u], y.clone()).unwrap();
 /// let reg = RegressorSpec::arx(0, &[1], &[0]);
-/// let m = LmnParams::new(reg).max_leaves(4).fit(&[Experiment::new(vec![u.clone()], y.clone())]).unwrap();
-/// let p = m.predict(&Experiment::new(vec![u], y.clone())).unwrap();
+/// let m = LmnParams::new(reg).max_leaves(4).fit(&Records::single(data.clone())).unwrap();
+/// let p = m.predict(&data).unwrap();
 /// assert!(gb_core::metrics::rmse(&y, &p).unwrap() < 0.02);
 /// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -242,7 +246,7 @@ impl LmnModel {
             )));
         }
         let n = e.inputs.first().map_or(e.output.len(), Vec::len);
-        if e.inputs.iter().chain(&e.extra).any(|u| u.len() != n) {
+        if e.inputs.iter().chain(e.extra).any(|u| u.len() != n) {
             return Err(LmnError::Dimension("signals of different lengths".into()));
         }
         Ok(NormExp {
@@ -456,6 +460,9 @@ impl LmnModel {
         self.simulate_tree_body::<true>(ne, k0, ev, out)
     }
 
+    /// The hot loop itself (kept inline here for speed; [`TreeSim::step`]
+    /// is the same arithmetic for one sample, for the stepper — the
+    /// stepping test checks that they agree bit for bit).
     #[inline(always)]
     fn simulate_tree_body<const FMA: bool>(
         &self,
@@ -579,10 +586,33 @@ impl LmnModel {
         true
     }
 
-    /// Free-run simulation (physical units). The first `init_window` samples
-    /// of `e.output` initialise the output lags (at least `max_lag` samples
-    /// are taken from the record; inputs and user columns drive the rest).
-    pub fn simulate(&self, e: &Experiment, init_window: usize) -> Result<Vec<f64>, LmnError> {
+    /// Free-run simulation (physical units) of a record. The first
+    /// `init_window` samples of its output initialise the output lags (at
+    /// least `max_lag` samples are taken from the record; the inputs and
+    /// user columns drive the rest).
+    pub fn simulate(&self, data: &Record, init_window: usize) -> Result<Vec<f64>, LmnError> {
+        self.simulate_experiment(&Experiment::of_record(data, &self.regressors)?, init_window)
+    }
+
+    /// Free-run simulation (physical units) of input signals (the inputs,
+    /// then any user columns). The output lags start from the measured
+    /// outputs `y_init` — the first `max(y_init.len(), max_lag)` samples;
+    /// samples missing from `y_init` start at the training mean.
+    pub fn simulate_signals(
+        &self,
+        inputs: &[Vec<f64>],
+        y_init: &[f64],
+    ) -> Result<Vec<f64>, LmnError> {
+        let r = &self.regressors;
+        let e = Experiment::split(inputs, y_init, r.n_inputs(), r.n_extra)?;
+        self.simulate_experiment(&e, y_init.len())
+    }
+
+    pub(crate) fn simulate_experiment(
+        &self,
+        e: &Experiment,
+        init_window: usize,
+    ) -> Result<Vec<f64>, LmnError> {
         let ne = self.normalise(e)?;
         let n = ne.u.first().map_or(e.output.len(), Vec::len);
         let k0 = init_window.max(self.max_lag()).min(n);
@@ -602,12 +632,13 @@ impl LmnModel {
 
     /// One-step-ahead prediction (NARX, measured output lags), physical
     /// units; the first `max_lag` samples are copied from the measurement.
-    pub fn predict(&self, e: &Experiment) -> Result<Vec<f64>, LmnError> {
-        let ne = self.normalise_full(e)?;
+    pub fn predict(&self, data: &Record) -> Result<Vec<f64>, LmnError> {
+        let e = Experiment::of_record(data, &self.regressors)?;
+        let ne = self.normalise_full(&e)?;
         let n = ne.y.len();
         let k0 = self.max_lag().min(n);
         let mut ev = self.eval_scratch();
-        let mut out = e.output.clone();
+        let mut out = e.output.to_vec();
         for k in k0..n {
             ev.lay.fill(k, &ne.y, &ne.u, &mut ev.x, &mut ev.z);
             ev.lay.basis(&ev.x, &ne.e, k, &mut ev.phi);
@@ -636,6 +667,315 @@ impl LmnModel {
             worst = worst.max(crate::network::spectral_radius(&a));
         }
         worst
+    }
+}
+
+/// The tree network's simulation on flat arrays for one sample at a time
+/// (the stepper): all split activations, then all exponentials (branch-free
+/// exp), then the products down the tree and the local models — the
+/// arithmetic of [`LmnModel::simulate_tree_body`], so stepping through a
+/// record gives bit-identical outputs.
+pub(crate) struct TreeSim {
+    nz: usize,
+    w: Vec<f64>,
+    w0: Vec<f64>,
+    kids: Vec<(usize, usize, usize)>,
+    leaves: Vec<usize>,
+    nl: usize,
+    theta_t: Vec<f64>,
+    ea: Vec<f64>,
+    lw: Vec<f64>,
+    loc: Vec<f64>,
+    phi_n: Vec<f64>,
+    xs: Vec<(usize, usize)>,
+    zs: Vec<(usize, usize)>,
+    affine: bool,
+    z: Vec<f64>,
+}
+
+impl TreeSim {
+    /// `None` when an inner node has no split (an inconsistent tree);
+    /// `no_extra`: the data have no user columns.
+    pub(crate) fn new(m: &LmnModel, ev: &Eval, no_extra: bool) -> Option<Self> {
+        let part = &m.partition;
+        let nz = ev.z.len();
+        let p = ev.lay.p;
+        let inner = &ev.w.inner;
+        let ni = inner.len();
+        let mut w = Vec::with_capacity(ni * nz);
+        let mut w0 = Vec::with_capacity(ni);
+        let mut kids = Vec::with_capacity(ni);
+        for &i in inner {
+            if let Some(sp) = &part.nodes[i].split {
+                w.extend_from_slice(&sp.w);
+                w0.push(sp.w0);
+                kids.push((i, sp.left, sp.right));
+            }
+        }
+        if kids.len() != ni {
+            return None;
+        }
+        let leaves = ev.w.leaves.clone();
+        let nl = leaves.len();
+        // local parameters transposed (p × leaves): L = Θᵀφ vectorises over leaves
+        let mut theta_t = vec![0.0; p * nl];
+        for (c, &l) in leaves.iter().enumerate() {
+            for (j, v) in part.nodes[l].theta.iter().enumerate() {
+                theta_t[j * nl + c] = *v;
+            }
+        }
+        // activations padded to a multiple of 4 (whole vectors, no scalar tail)
+        let ni4 = ni.div_ceil(4) * 4;
+        // taps as (signal, delay): signal 0 = output, j + 1 = input j
+        let code = |t: &crate::regressors::Tap| match t.signal {
+            crate::regressors::Signal::Output => (0usize, t.delay),
+            crate::regressors::Signal::Input(j) => (j + 1, t.delay),
+        };
+        Some(Self {
+            nz,
+            w,
+            w0,
+            kids,
+            nl,
+            theta_t,
+            ea: vec![0.0; ni4],
+            lw: vec![0.0; nl],
+            loc: vec![0.0; nl],
+            phi_n: vec![0.0; part.nodes.len()],
+            xs: ev.lay.x.iter().map(code).collect(),
+            zs: ev.lay.z.iter().map(code).collect(),
+            affine: ev.lay.mono.is_empty() && no_extra,
+            z: vec![0.0; nz],
+            leaves,
+        })
+    }
+
+    /// The network output (normalised) at sample k from the outputs
+    /// `out[..k]`, the inputs `u` and user columns `e` (all normalised).
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn step<const FMA: bool>(
+        &mut self,
+        k: usize,
+        out: &[f64],
+        u: &[Vec<f64>],
+        e: &[Vec<f64>],
+        lay: &Layout,
+        x: &mut [f64],
+        phi_b: &mut [f64],
+    ) -> f64 {
+        let Self {
+            nz,
+            w,
+            w0,
+            kids,
+            leaves,
+            nl,
+            theta_t,
+            ea,
+            lw,
+            loc,
+            phi_n,
+            xs,
+            zs,
+            affine,
+            z,
+        } = self;
+        let (nl, nz) = (*nl, *nz);
+        let tap = |sig: usize, d: usize| {
+            if sig == 0 {
+                out[k - d]
+            } else {
+                u[sig - 1][k - d]
+            }
+        };
+        if *affine {
+            phi_b[0] = 1.0;
+            for (f, &(sig, d)) in phi_b[1..].iter_mut().zip(xs.iter()) {
+                *f = tap(sig, d);
+            }
+        } else {
+            for (f, &(sig, d)) in x.iter_mut().zip(xs.iter()) {
+                *f = tap(sig, d);
+            }
+            lay.basis(x, e, k, phi_b);
+        }
+        for (f, &(sig, d)) in z.iter_mut().zip(zs.iter()) {
+            *f = tap(sig, d);
+        }
+        for ((ea, wi), b) in ea.iter_mut().zip(w.chunks_exact(nz.max(1))).zip(w0.iter()) {
+            let mut a = *b;
+            for (wd, zd) in wi.iter().zip(z.iter()) {
+                a += wd * zd;
+            }
+            *ea = -a;
+        }
+        // ψ = 1 / (1 + e^{−a}) for all splits in one pass
+        for ea in ea.iter_mut() {
+            *ea = 1.0 / (1.0 + crate::tree::fast_exp_g::<FMA>(*ea));
+        }
+        // weights down the tree (preorder: parents first)
+        phi_n[0] = 1.0;
+        for (psi, &(i, l, r)) in ea.iter().zip(kids.iter()) {
+            let pn = phi_n[i];
+            let pr = pn * psi;
+            phi_n[r] = pr;
+            phi_n[l] = pn - pr;
+        }
+        for (v, &l) in lw.iter_mut().zip(leaves.iter()) {
+            *v = phi_n[l];
+        }
+        loc.fill(0.0);
+        for (row, f) in theta_t.chunks_exact(nl).zip(phi_b.iter()) {
+            for (o, t) in loc.iter_mut().zip(row) {
+                *o += t * f;
+            }
+        }
+        // four partial sums: a short dependency chain
+        let mut acc = [0.0; 4];
+        let (lw4, lwr) = lw.split_at(nl - nl % 4);
+        let (lo4, lor) = loc.split_at(nl - nl % 4);
+        for (a, b) in lw4.chunks_exact(4).zip(lo4.chunks_exact(4)) {
+            for i in 0..4 {
+                acc[i] += a[i] * b[i];
+            }
+        }
+        for (a, b) in lwr.iter().zip(lor) {
+            acc[0] += a * b;
+        }
+        (acc[0] + acc[1]) + (acc[2] + acc[3])
+    }
+}
+
+/// An [`LmnModel`] running one sample at a time from normalised initial
+/// outputs: the arithmetic of the simulation (the tree's flat-array step or
+/// the generic evaluation) on a sliding history, so stepping through a
+/// record gives bit-identical outputs.
+pub(crate) struct LmnStepper<'a> {
+    m: &'a LmnModel,
+    /// Normalised initial outputs (the first `init.len()` ≥ `max_lag`
+    /// samples).
+    init: Vec<f64>,
+    /// Sliding history of the normalised inputs, user columns and outputs;
+    /// `base` samples have been dropped from their front.
+    u: Vec<Vec<f64>>,
+    e: Vec<Vec<f64>>,
+    out: Vec<f64>,
+    base: usize,
+    k: usize,
+    ev: Eval,
+    tree: Option<TreeSim>,
+    fma: bool,
+    failed: bool,
+}
+
+impl<'a> LmnStepper<'a> {
+    /// Start with the physical output history `init` (at least `max_lag`
+    /// samples; see [`gb_core::DynamicModel::stepper`]).
+    pub(crate) fn new(m: &'a LmnModel, init: &[f64]) -> Result<Self, LmnError> {
+        let ev = m.eval_scratch();
+        let tree = if m.partition.kind == WeightKind::Tree {
+            Some(
+                TreeSim::new(m, &ev, m.regressors.n_extra == 0)
+                    .ok_or_else(|| LmnError::InvalidArgument("inconsistent tree network".into()))?,
+            )
+        } else {
+            None
+        };
+        #[cfg(target_arch = "x86_64")]
+        let fma = std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        let fma = false;
+        Ok(Self {
+            init: init.iter().map(|&v| m.output_scaling.to_norm(v)).collect(),
+            u: vec![vec![]; m.regressors.n_inputs()],
+            e: vec![vec![]; m.regressors.n_extra],
+            out: vec![],
+            base: 0,
+            k: 0,
+            ev,
+            tree,
+            fma,
+            failed: false,
+            m,
+        })
+    }
+
+    /// Advance one sample with the physical inputs (then user columns) `u`;
+    /// the physical output.
+    pub(crate) fn step(&mut self, u: &[f64]) -> Result<f64, LmnError> {
+        let m = self.m;
+        let r = &m.regressors;
+        if u.len() != r.n_signals() {
+            return Err(LmnError::Dimension(format!(
+                "the network has {} input signals, {} values were given",
+                r.n_signals(),
+                u.len()
+            )));
+        }
+        if self.failed {
+            return Err(LmnError::Unstable("the simulation diverged".into()));
+        }
+        let ni = r.n_inputs();
+        for (j, s) in m.input_scaling.iter().enumerate() {
+            self.u[j].push(s.to_norm(u[j]));
+        }
+        for (j, s) in m.extra_scaling.iter().enumerate() {
+            self.e[j].push(s.to_norm(u[ni + j]));
+        }
+        let k0 = self.init.len().max(m.max_lag());
+        let k = self.k;
+        let v = if k < k0 {
+            self.init.get(k).copied().unwrap_or(0.0)
+        } else {
+            let kl = k - self.base;
+            let ev = &mut self.ev;
+            let v = match &mut self.tree {
+                Some(t) if self.fma => t.step::<true>(
+                    kl,
+                    &self.out,
+                    &self.u,
+                    &self.e,
+                    &ev.lay,
+                    &mut ev.x,
+                    &mut ev.phi,
+                ),
+                Some(t) => t.step::<false>(
+                    kl,
+                    &self.out,
+                    &self.u,
+                    &self.e,
+                    &ev.lay,
+                    &mut ev.x,
+                    &mut ev.phi,
+                ),
+                None => {
+                    ev.lay.fill(kl, &self.out, &self.u, &mut ev.x, &mut ev.z);
+                    ev.lay.basis(&ev.x, &self.e, kl, &mut ev.phi);
+                    m.eval(ev, None, false)
+                }
+            };
+            if !v.is_finite() || v.abs() > DIVERGED {
+                self.failed = true;
+                return Err(LmnError::Unstable("the simulation diverged".into()));
+            }
+            v
+        };
+        self.out.push(v);
+        self.k += 1;
+        // drop history no regressor reads any more
+        let keep = m.max_lag() + 1;
+        let len = self.out.len();
+        if len >= 4 * keep + 64 && self.k > k0 {
+            let d = len - keep;
+            self.out.drain(..d);
+            for c in self.u.iter_mut().chain(self.e.iter_mut()) {
+                c.drain(..d);
+            }
+            self.base += d;
+        }
+        Ok(m.output_scaling.from_norm(v))
     }
 }
 

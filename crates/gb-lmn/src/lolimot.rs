@@ -8,7 +8,8 @@
 //! number of leaves is chosen by an information criterion.
 use crate::network::{Leaf, K_SIGMA};
 use crate::noe::{
-    global_ls, linear_network, refine_output_error, regression_matrix, weighted_ls, FitOptions,
+    global_ls, linear_network, refine_output_error_with_observer, regression_matrix, weighted_ls,
+    FitOptions,
 };
 use crate::{LmnError, LocalModelNetwork, NetworkSpec};
 use serde::{Deserialize, Serialize};
@@ -379,6 +380,19 @@ pub fn fit_lmn_oe(
     lopts: &LolimotOptions,
     fopts: &FitOptions,
 ) -> Result<LocalModelNetwork, LmnError> {
+    fit_lmn_oe_obs(spec, inputs, y, yreg, lopts, fopts, &gb_core::Silent)
+}
+
+/// [`fit_lmn_oe`] reporting the solver iterations to `observer`.
+pub(crate) fn fit_lmn_oe_obs(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    yreg: Option<&[f64]>,
+    lopts: &LolimotOptions,
+    fopts: &FitOptions,
+    observer: &dyn gb_core::Observer,
+) -> Result<LocalModelNetwork, LmnError> {
     // Grow with measured output lags (NARX construction) and, if given, with
     // the previous model's simulated lags (output-error construction); train
     // each for simulation and keep the one with the smallest simulation error.
@@ -397,7 +411,7 @@ pub fn fit_lmn_oe(
             }
         };
         for c in cands {
-            match refine_output_error(&c, inputs, y, fopts) {
+            match refine_output_error_with_observer(&c, inputs, y, fopts, observer) {
                 Ok((m, rep)) => {
                     if best.as_ref().is_none_or(|(b, _)| rep.mse_final < *b) {
                         best = Some((rep.mse_final, m));

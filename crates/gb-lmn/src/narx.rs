@@ -13,8 +13,12 @@
 //! simulation stays bounded and (stability guard, affine local models) every
 //! local model's autoregressive part has spectral radius < 0.9995.
 use crate::lmn::{Eval, Focus, LmnModel, DIVERGED};
+use crate::regressors::Experiment;
 use crate::regressors::{NormExp, Signal};
-use crate::{Experiment, LmnError};
+use crate::LmnError;
+use gb_core::solver::{LeastSquaresProblem, LmParams};
+use gb_core::Records;
+use gb_core::{Observer, Silent};
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
@@ -159,7 +163,65 @@ fn total(m: &LmnModel, parts: &[NormExp], focus: Focus, nact: usize, jac: bool) 
     Some((cost, jtj, jte, cnt))
 }
 
+/// The global optimisation as a least-squares problem over the first
+/// `nact` parameters (all, or the local models only): cost and Gram matrix
+/// accumulated over the (chunked) experiments in parallel; with the
+/// stability guard, trial points whose affine local models are unstable are
+/// inadmissible.
+struct GlobalProblem<'a> {
+    /// Scratch copy of the model, its first `nact` parameters set to θ.
+    model: LmnModel,
+    full: Vec<f64>,
+    parts: &'a [NormExp],
+    focus: Focus,
+    nact: usize,
+    guard: Option<f64>,
+}
+
+impl GlobalProblem<'_> {
+    fn set(&mut self, theta: &[f64]) -> bool {
+        self.full[..self.nact].copy_from_slice(theta);
+        self.model.set_parameters(&self.full).is_ok()
+    }
+}
+
+impl LeastSquaresProblem for GlobalProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.nact
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        if !self.set(theta) {
+            return None;
+        }
+        total(&self.model, self.parts, self.focus, self.nact, false).map(|t| t.0)
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        if !self.set(theta) {
+            return None;
+        }
+        let (c, jtj, jte, _) = total(&self.model, self.parts, self.focus, self.nact, true)?;
+        let n = self.nact;
+        for i in 0..n {
+            for j in 0..n {
+                gram[i * n + j] = jtj[(i, j)];
+            }
+        }
+        grad.copy_from_slice(jte.as_slice());
+        Some(c)
+    }
+    fn admissible(&mut self, theta: &[f64]) -> bool {
+        if !self.set(theta) {
+            return false;
+        }
+        self.guard
+            .is_none_or(|start| self.model.max_spectral_radius() < MAX_RADIUS.max(start))
+    }
+}
+
 /// Global LM; returns (iterations, rms before, rms after) in normalised units.
+/// Solver settings: the workspace defaults (λ from 1e-3, ×4 / ÷3, floor
+/// 1e-12, Marquardt scaling with floor 1e-9·max Gᵢᵢ and jitter
+/// 1e-12·max Gᵢᵢ, 12 trials, give up above 1e12), tolerance 1e-8.
 pub(crate) fn optimise(
     m: &mut LmnModel,
     exps: &[NormExp],
@@ -167,6 +229,7 @@ pub(crate) fn optimise(
     max_iter: usize,
     guard: bool,
     splits: bool,
+    observer: &dyn Observer,
 ) -> Result<(usize, f64, f64), LmnError> {
     let np = m.parameters().len();
     let nact = if splits {
@@ -179,72 +242,32 @@ pub(crate) fn optimise(
         && focus == Focus::Simulation
         && m.regressors.degree == 1
         && !m.regressors.x_output.is_empty();
-    let radius_ok = |c: &LmnModel, start: f64| -> bool {
-        !use_guard || c.max_spectral_radius() < MAX_RADIUS.max(start)
+    let full = m.parameters();
+    let cnt: usize = parts
+        .iter()
+        .map(|e| e.y.len().saturating_sub(m.max_lag()))
+        .sum();
+    let mut problem = GlobalProblem {
+        model: m.clone(),
+        full: full.clone(),
+        parts: &parts,
+        focus,
+        nact,
+        guard: use_guard.then(|| m.max_spectral_radius()),
     };
-    let start_radius = if use_guard {
-        m.max_spectral_radius()
-    } else {
-        0.0
-    };
-    let Some((c0, _, _, cnt)) = total(m, &parts, focus, nact, false) else {
-        return Err(LmnError::Unstable(
-            "the grown network diverges in simulation".into(),
-        ));
-    };
-    let rms0 = (c0 / cnt.max(1) as f64).sqrt();
-    let mut cost = c0;
-    let mut lambda = 1e-3;
-    let mut it = 0;
-    while it < max_iter {
-        it += 1;
-        let Some((c, jtj, jte, _)) = total(m, &parts, focus, nact, true) else {
-            break;
-        };
-        cost = c;
-        let theta = m.parameters();
-        let diag: Vec<f64> = (0..nact).map(|i| jtj[(i, i)]).collect();
-        let dmax = diag.iter().copied().fold(0.0, f64::max).max(1e-300);
-        let mut improved = false;
-        let mut converged = false;
-        for _ in 0..12 {
-            let mut a = jtj.clone();
-            for i in 0..nact {
-                a[(i, i)] += lambda * diag[i].max(1e-9 * dmax) + 1e-12 * dmax;
-            }
-            let Some(ch) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let delta = ch.solve(&jte);
-            let mut trial = theta.clone();
-            for (t, d) in trial.iter_mut().zip(delta.iter()) {
-                *t += d;
-            }
-            let mut cand = m.clone();
-            cand.set_parameters(&trial)?;
-            if radius_ok(&cand, start_radius) {
-                if let Some((ct, _, _, _)) = total(&cand, &parts, focus, nact, false) {
-                    if ct < cost {
-                        converged = (cost - ct) / cost.max(1e-300) < 1e-8;
-                        *m = cand;
-                        cost = ct;
-                        lambda = (lambda / 3.0).max(1e-12);
-                        improved = true;
-                        break;
-                    }
-                }
-            }
-            lambda *= 4.0;
-            if lambda > 1e12 {
-                break;
-            }
-        }
-        if !improved || converged {
-            break;
-        }
+    let lm = LmParams::default()
+        .max_iter(max_iter)
+        .tol(1e-8)
+        .check()
+        .map_err(|e| LmnError::InvalidArgument(e.to_string()))?;
+    let state = lm
+        .minimize(&mut problem, &full[..nact], observer)
+        .map_err(|_| LmnError::Unstable("the grown network diverges in simulation".into()))?;
+    if problem.set(&state.theta) {
+        *m = problem.model;
     }
-    Ok((it, rms0, (cost / cnt.max(1) as f64).sqrt()))
+    let rms = |c: f64| (c / cnt.max(1) as f64).sqrt();
+    Ok((state.iterations, rms(state.initial_cost), rms(state.cost)))
 }
 
 /// What [`LmnModel::refine`] did.
@@ -264,16 +287,24 @@ impl LmnModel {
     /// or simulation (`Focus::Simulation`, NOE) error of the experiments.
     pub fn refine(
         &mut self,
-        train: &[Experiment],
+        train: &Records,
         focus: Focus,
         max_iter: usize,
     ) -> Result<RefineReport, LmnError> {
-        let nexps = train
-            .iter()
-            .map(|e| self.normalise_full(e))
-            .collect::<Result<Vec<_>, _>>()?;
+        self.refine_with_observer(train, focus, max_iter, &Silent)
+    }
+
+    /// [`refine`](Self::refine), reporting every iteration to `observer`.
+    pub fn refine_with_observer(
+        &mut self,
+        train: &Records,
+        focus: Focus,
+        max_iter: usize,
+        observer: &dyn Observer,
+    ) -> Result<RefineReport, LmnError> {
+        let nexps = self.normalise_records(train)?;
         let (iterations, rms_before, rms_after) =
-            optimise(self, &nexps, focus, max_iter, true, true)?;
+            optimise(self, &nexps, focus, max_iter, true, true, observer)?;
         self.summary.focus = focus;
         self.summary.lm_iterations += iterations;
         self.summary.rms_after_lm = rms_after;
@@ -289,16 +320,23 @@ impl LmnModel {
     /// differences.
     pub fn cost_gradient(
         &self,
-        train: &[Experiment],
+        train: &Records,
         focus: Focus,
     ) -> Result<(f64, Vec<f64>), LmnError> {
-        let nexps = train
-            .iter()
-            .map(|e| self.normalise_full(e))
-            .collect::<Result<Vec<_>, _>>()?;
+        let nexps = self.normalise_records(train)?;
         let np = self.parameters().len();
         let (c, _, g, _) = total(self, &nexps, focus, np, true)
             .ok_or_else(|| LmnError::Unstable("the simulation diverged".into()))?;
         Ok((c, g.iter().map(|v| -2.0 * v).collect()))
+    }
+}
+
+impl LmnModel {
+    /// Every record split for the regressors and normalised (the output as
+    /// long as the inputs).
+    pub(crate) fn normalise_records(&self, data: &Records) -> Result<Vec<NormExp>, LmnError> {
+        data.iter()
+            .map(|d| self.normalise_full(&Experiment::of_record(d, &self.regressors)?))
+            .collect()
     }
 }

@@ -262,9 +262,10 @@ impl LocalModelNetwork {
     }
 
     /// Relay grid on the output, if any.
-    pub(crate) fn relay_grid(&self) -> Option<crate::relay::RelayGrid> {
+    pub(crate) fn relay_grid(&self) -> Option<gb_preisach::RelayGrid> {
         (self.spec.output_relays > 0)
-            .then(|| crate::relay::RelayGrid::new(self.spec.output_relays, 2.5))
+            .then(|| gb_preisach::RelayGrid::uniform(self.spec.output_relays, 2.5).ok())
+            .flatten()
     }
 
     /// Spectral radius of each leaf's autoregressive part, without and with all
@@ -302,18 +303,18 @@ impl LocalModelNetwork {
     /// The description without the noise model.
     pub fn describe_structure(&self) -> String {
         let nb: Vec<String> = self.spec.nb.iter().map(|b| b.to_string()).collect();
+        let mut lags = format!("nb={}", nb.join("/"));
+        if self.spec.nk.iter().any(|&k| k != 1) {
+            let nk: Vec<String> = self.spec.nk.iter().map(|k| k.to_string()).collect();
+            lags.push_str(&format!(", nk={}", nk.join("/")));
+        }
         let core = if self.leaves.len() == 1 {
-            format!(
-                "linear output-error, order {} (nb={})",
-                self.spec.na,
-                nb.join("/")
-            )
+            format!("linear output-error, order {} ({lags})", self.spec.na)
         } else {
             format!(
-                "local model network, {} local linear models, order {} (nb={})",
+                "local model network, {} local linear models, order {} ({lags})",
                 self.leaves.len(),
-                self.spec.na,
-                nb.join("/")
+                self.spec.na
             )
         };
         let h = self.spec.n_hysteresis();

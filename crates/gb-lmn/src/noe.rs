@@ -13,7 +13,8 @@
 //! radius ≥ 1) or the simulation diverge are rejected.
 use crate::network::{spectral_radius, EvalScratch, Leaf};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
-use gb_core::NoiseModel;
+use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
+use gb_core::{NoiseModel, Observer, Silent};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -221,6 +222,10 @@ fn mirror_upper(g: &mut DMatrix<f64>) {
 pub(crate) struct Prepared {
     pub un: Vec<Vec<f64>>,
     pub yn: Vec<f64>,
+    /// The initial output history (normalised, `max_lag` values) that
+    /// simulations for fitting start from: the measured samples, or their
+    /// least-squares estimate ([`LocalModelNetwork::estimate_init`]).
+    pub init: Vec<f64>,
     /// Input play columns per input (each a list of columns over time).
     pub ucols: Vec<Vec<Vec<f64>>>,
 }
@@ -230,7 +235,7 @@ pub(crate) struct Prepared {
 /// `hysteresis_lags` blocks that `fill_x` reads.
 struct OutputHysteresis {
     bank: Option<gb_preisach::PlayOperatorBank>,
-    grid: Option<crate::relay::RelayGrid>,
+    grid: Option<gb_preisach::RelayGrid>,
     play: Vec<f64>,
     relays: Vec<f64>,
     ring: Vec<f64>,
@@ -264,13 +269,235 @@ impl OutputHysteresis {
             bk.step(&mut self.play, y_prev, &mut self.moving);
         }
         if let Some(g) = &self.grid {
-            g.step(&mut self.relays, y_prev);
+            g.switch(&mut self.relays, y_prev);
         }
         let nop = self.play.len();
         let slot = (k % self.lags) * self.block;
         self.ring[slot..slot + nop].copy_from_slice(&self.play);
         self.ring[slot + nop..slot + self.block].copy_from_slice(&self.relays);
     }
+}
+
+/// A [`LocalModelNetwork`] running one sample at a time: the same
+/// arithmetic as [`LocalModelNetwork::simulate_signals`] (the same
+/// regressor filling and evaluation on a sliding history), so stepping
+/// through a record gives bit-identical outputs.
+pub(crate) struct NetworkStepper<'a> {
+    net: &'a LocalModelNetwork,
+    /// Normalised initial outputs (the first samples; missing ones at the
+    /// training mean, 0).
+    init: Vec<f64>,
+    /// Sliding history: normalised inputs, input play columns, outputs;
+    /// `base` samples have been dropped from their front.
+    p: Prepared,
+    out: Vec<f64>,
+    base: usize,
+    k: usize,
+    banks: Vec<Option<gb_preisach::PlayOperatorBank>>,
+    bank_state: Vec<Vec<f64>>,
+    moving: Vec<bool>,
+    oh: Option<OutputHysteresis>,
+    x: Vec<f64>,
+    s: EvalScratch,
+    failed: bool,
+}
+
+impl<'a> NetworkStepper<'a> {
+    /// Start from the measured outputs `init` (physical; see
+    /// [`LocalModelNetwork::simulate_signals`]).
+    pub fn new(net: &'a LocalModelNetwork, init: &[f64]) -> Result<Self, LmnError> {
+        let k0 = net.spec.max_lag().min(init.len());
+        let banks = net.input_banks()?;
+        let ni = net.input_scaling.len();
+        Ok(Self {
+            net,
+            init: init[..k0]
+                .iter()
+                .map(|&v| net.output_scaling.to_norm(v))
+                .collect(),
+            p: Prepared {
+                un: vec![vec![]; ni],
+                yn: vec![],
+                init: vec![],
+                ucols: banks
+                    .iter()
+                    .map(|b| b.as_ref().map_or_else(Vec::new, |b| vec![vec![]; b.len()]))
+                    .collect(),
+            },
+            out: vec![],
+            base: 0,
+            k: 0,
+            bank_state: vec![vec![]; ni],
+            moving: vec![],
+            banks,
+            oh: None,
+            x: vec![0.0; net.spec.n_dynamic() + net.spec.n_hysteresis()],
+            s: net.scratch(),
+            failed: false,
+        })
+    }
+
+    /// Drop history no regressor reads any more (a multiple of the
+    /// hysteresis lags, so the ring slots `k mod lags` stay put).
+    fn trim(&mut self) {
+        let keep = self.net.spec.max_lag() + 1;
+        let lags = self.net.spec.hysteresis_lags.max(1);
+        let len = self.out.len();
+        if len < 4 * keep + 64 {
+            return;
+        }
+        let d = (len - keep) / lags * lags;
+        if d == 0 {
+            return;
+        }
+        self.out.drain(..d);
+        for u in &mut self.p.un {
+            u.drain(..d);
+        }
+        for cols in &mut self.p.ucols {
+            for c in cols {
+                c.drain(..d);
+            }
+        }
+        self.base += d;
+    }
+
+    /// Advance one sample with the physical inputs `u`; the physical output.
+    pub fn step(&mut self, u: &[f64]) -> Result<f64, LmnError> {
+        let net = self.net;
+        if u.len() != net.input_scaling.len() {
+            return Err(LmnError::Dimension(format!(
+                "the network has {} inputs, {} values were given",
+                net.input_scaling.len(),
+                u.len()
+            )));
+        }
+        if self.failed {
+            return Err(LmnError::Unstable("the simulation diverged".into()));
+        }
+        for (j, (&v, sc)) in u.iter().zip(&net.input_scaling).enumerate() {
+            let un = sc.to_norm(v);
+            self.p.un[j].push(un);
+            if let Some(b) = &self.banks[j] {
+                if self.k == 0 {
+                    self.bank_state[j] = b.initial_state(un);
+                }
+                self.moving.resize(b.len(), false);
+                b.step(&mut self.bank_state[j], un, &mut self.moving);
+                for (c, v) in self.p.ucols[j].iter_mut().zip(&self.bank_state[j]) {
+                    c.push(*v);
+                }
+            }
+        }
+        let k0 = net.spec.max_lag();
+        let k = self.k;
+        let v = if k < k0 {
+            self.init.get(k).copied().unwrap_or(0.0)
+        } else {
+            let kl = k - self.base;
+            let oh = self.oh.get_or_insert_with(|| {
+                let y0 = if k0 > 0 {
+                    self.out[k0 - 1 - self.base]
+                } else {
+                    0.0
+                };
+                OutputHysteresis::new(net, y0)
+            });
+            oh.advance(kl, self.out[kl - 1]);
+            net.fill_x(kl, &self.out, &self.p, &oh.ring, &mut self.x);
+            let v = net.eval(&self.x, &mut self.s, None, None);
+            if !v.is_finite() || v.abs() > DIVERGED {
+                self.failed = true;
+                return Err(LmnError::Unstable("the simulation diverged".into()));
+            }
+            v
+        };
+        self.out.push(v);
+        self.k += 1;
+        self.trim();
+        Ok(net.output_scaling.from_norm(v))
+    }
+}
+
+/// The initial output values (normalised) of a simulation fitted to an
+/// init window of measured outputs: residuals over the window, Jacobian by
+/// forward differences (step 1e-4).
+struct InitWindowProblem<'a> {
+    net: &'a LocalModelNetwork,
+    p: &'a Prepared,
+    yw: &'a [f64],
+    buf: Vec<f64>,
+}
+
+impl InitWindowProblem<'_> {
+    fn residuals(&mut self, init: &[f64]) -> Option<Vec<f64>> {
+        let w = self.yw.len();
+        if !self.net.simulate_norm(self.p, w, init, &mut self.buf) {
+            return None;
+        }
+        Some((0..w).map(|k| self.yw[k] - self.buf[k]).collect())
+    }
+}
+
+impl LeastSquaresProblem for InitWindowProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.net.spec.max_lag()
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        self.residuals(theta).map(|r| r.iter().map(|v| v * v).sum())
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let r0 = self.residuals(theta)?;
+        let (w, k0) = (self.yw.len(), theta.len());
+        // Jacobian of the window residuals w.r.t. the initial values
+        let h = 1e-4;
+        let mut jac = DMatrix::<f64>::zeros(w, k0);
+        let mut ok = true;
+        for i in 0..k0 {
+            let mut t = theta.to_vec();
+            t[i] += h;
+            match self.residuals(&t) {
+                Some(ri) => {
+                    for k in 0..w {
+                        jac[(k, i)] = (ri[k] - r0[k]) / h;
+                    }
+                }
+                None => ok = false,
+            }
+        }
+        if !ok {
+            return None;
+        }
+        let jtj = jac.transpose() * &jac;
+        let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+        for i in 0..k0 {
+            for j in 0..k0 {
+                gram[i * k0 + j] = jtj[(i, j)];
+            }
+            // residual r = y − ŷ has ∂r/∂θ = −J: the gradient Jᵀr is −jacᵀr
+            grad[i] = -jtr[i];
+        }
+        Some(r0.iter().map(|v| v * v).sum())
+    }
+}
+
+/// Gauss–Newton on the initial values: four steps, each kept only if it
+/// lowers the window cost (one trial, no damping beyond a 1e-9 jitter: λ is
+/// pinned at 1e-300, which vanishes next to the jitter).
+fn init_window_solver() -> LevenbergMarquardt {
+    LmParams {
+        max_iter: 4,
+        tol: 0.0,
+        lambda_init: 1e-300,
+        lambda_min: 1e-300,
+        max_trials: 1,
+        diag_floor: 0.0,
+        jitter: 0.0,
+        jitter_abs: 1e-9,
+        ..LmParams::default()
+    }
+    .check()
+    .expect("valid Gauss-Newton settings")
 }
 
 impl LocalModelNetwork {
@@ -300,7 +527,13 @@ impl LocalModelNetwork {
             .zip(&un)
             .map(|(b, u)| b.as_ref().map_or_else(Vec::new, |b| b.apply(u)))
             .collect();
-        Ok(Prepared { un, yn, ucols })
+        let init = smoothed_start(&yn, self.spec.max_lag());
+        Ok(Prepared {
+            un,
+            yn,
+            init,
+            ucols,
+        })
     }
 
     #[inline]
@@ -346,7 +579,7 @@ impl LocalModelNetwork {
             .map_or_else(Vec::new, |b| b.initial_state(y0));
         let relays = self
             .relay_grid()
-            .map_or_else(Vec::new, |g| g.initial_state(y0));
+            .map_or_else(Vec::new, |g| g.relay_states(y0));
         let mut block = oplay.clone();
         block.extend_from_slice(&relays);
         let ring = block.repeat(self.spec.hysteresis_lags);
@@ -445,6 +678,7 @@ impl LocalModelNetwork {
         let p_win = Prepared {
             un: p_full.un.iter().map(|u| u[..w].to_vec()).collect(),
             yn: vec![],
+            init: vec![],
             ucols: p_full
                 .ucols
                 .iter()
@@ -455,48 +689,17 @@ impl LocalModelNetwork {
             .iter()
             .map(|&v| self.output_scaling.to_norm(v))
             .collect();
-        let mut init: Vec<f64> = yw[..k0].to_vec();
-        let mut buf = Vec::with_capacity(w);
-        let cost = |init: &[f64], buf: &mut Vec<f64>| -> Option<Vec<f64>> {
-            if !self.simulate_norm(&p_win, w, init, buf) {
-                return None;
-            }
-            Some((0..w).map(|k| yw[k] - buf[k]).collect())
+        let init: Vec<f64> = yw[..k0].to_vec();
+        let mut problem = InitWindowProblem {
+            net: self,
+            p: &p_win,
+            yw: &yw,
+            buf: Vec::with_capacity(w),
         };
-        for _ in 0..4 {
-            let Some(r0) = cost(&init, &mut buf) else {
-                break;
-            };
-            // Jacobian of the window residuals w.r.t. the initial values (finite differences)
-            let h = 1e-4;
-            let mut jac = DMatrix::<f64>::zeros(w, k0);
-            let mut ok = true;
-            for i in 0..k0 {
-                let mut t = init.clone();
-                t[i] += h;
-                match cost(&t, &mut buf) {
-                    Some(ri) => {
-                        for k in 0..w {
-                            jac[(k, i)] = (ri[k] - r0[k]) / h;
-                        }
-                    }
-                    None => ok = false,
-                }
-            }
-            if !ok {
-                break;
-            }
-            let jtj = jac.transpose() * &jac + DMatrix::<f64>::identity(k0, k0) * 1e-9;
-            let jtr = jac.transpose() * DVector::from_column_slice(&r0);
-            let Some(ch) = jtj.cholesky() else { break };
-            let delta = ch.solve(&jtr);
-            let trial: Vec<f64> = init.iter().zip(delta.iter()).map(|(a, d)| a - d).collect();
-            let c0: f64 = r0.iter().map(|v| v * v).sum();
-            match cost(&trial, &mut buf) {
-                Some(rt) if rt.iter().map(|v| v * v).sum::<f64>() < c0 => init = trial,
-                _ => break,
-            }
-        }
+        let init = match init_window_solver().minimize(&mut problem, &init, &Silent) {
+            Ok(state) => state.theta,
+            Err(_) => init,
+        };
         self.simulate_physical(&p_full, n, &init)
     }
 
@@ -517,7 +720,9 @@ impl LocalModelNetwork {
         jtj.fill(0.0);
         jtr.fill(0.0);
         let mut out = vec![0.0; n];
-        out[..k0].copy_from_slice(&p.yn[..k0]);
+        for k in 0..k0 {
+            out[k] = p.init.get(k).copied().unwrap_or(p.yn[k]);
+        }
         let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
         let mut oh = OutputHysteresis::new(self, y0);
         let nop = oh.play.len();
@@ -623,7 +828,7 @@ impl LocalModelNetwork {
     ) -> Option<f64> {
         let n = p.yn.len();
         let k0 = self.spec.max_lag().min(n);
-        if !self.simulate_norm(p, n, &p.yn[..k0], buf) {
+        if !self.simulate_norm(p, n, &p.init, buf) {
             return None;
         }
         Some(
@@ -667,15 +872,221 @@ impl LocalModelNetwork {
 
     /// Residuals (physical units) of the free-run simulation on a data set,
     /// initialised with the first `max_lag` measured outputs, for k ≥ max_lag.
+    ///
+    /// The `max_lag` starting values are estimated by least squares
+    /// ([`estimate_init`](Self::estimate_init)), not copied: with poles near
+    /// 1 (oversampled records) a noisy starting slope is a long transient
+    /// that would dominate the error. Output-error training projects the
+    /// starting values out the same way.
     pub fn simulation_residuals(
         &self,
         inputs: &[Vec<f64>],
         y: &[f64],
     ) -> Result<Vec<f64>, LmnError> {
-        let sim = self.simulate_signals(inputs, y)?;
-        let k0 = self.spec.max_lag().min(y.len());
-        Ok(y[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b).collect())
+        let mut p = self.prepare(inputs, y)?;
+        self.estimate_init(&mut p);
+        let n = y.len();
+        let mut buf = Vec::with_capacity(n);
+        if !self.simulate_norm(&p, n, &p.init, &mut buf) {
+            return Err(LmnError::Unstable(
+                "the simulation diverged on these inputs".into(),
+            ));
+        }
+        let k0 = self.spec.max_lag().min(n);
+        Ok((k0..n)
+            .map(|k| y[k] - self.output_scaling.from_norm(buf[k]))
+            .collect())
     }
+}
+
+impl LocalModelNetwork {
+    /// Estimate the starting history `p.init` (normalised, `max_lag` values)
+    /// by Gauss–Newton on the simulation error over the first `min(n, 400)`
+    /// samples, the history's own samples included (which keeps it near the
+    /// measurements); started from [`smoothed_start`]. For a linear network
+    /// the simulated output is affine in the starting values, so one step is
+    /// exact (variable projection: output-error training calls this for
+    /// every trial model). Leaves the start when the simulation diverges.
+    pub(crate) fn estimate_init(&self, p: &mut Prepared) {
+        let n = p.yn.len();
+        let k0 = self.spec.max_lag().min(n);
+        let w = n.min(400);
+        p.init = smoothed_start(&p.yn, k0);
+        if k0 == 0 || w <= k0 + 1 {
+            return;
+        }
+        let steps = if self.leaves.len() == 1 && self.spec.n_hysteresis() == 0 {
+            1
+        } else {
+            3
+        };
+        let mut buf = Vec::with_capacity(w);
+        let mut init = p.init.clone();
+        let resid = |init: &[f64], buf: &mut Vec<f64>| -> Option<Vec<f64>> {
+            if !self.simulate_norm(p, w, init, buf) {
+                return None;
+            }
+            Some((0..w).map(|k| p.yn[k] - buf[k]).collect())
+        };
+        let Some(mut r0) = resid(&init, &mut buf) else {
+            return;
+        };
+        let mut c0: f64 = r0.iter().map(|v| v * v).sum();
+        for _ in 0..steps {
+            let h = 1e-3;
+            let mut jac = DMatrix::<f64>::zeros(w, k0);
+            for i in 0..k0 {
+                let mut t = init.clone();
+                t[i] += h;
+                let Some(ri) = resid(&t, &mut buf) else {
+                    return;
+                };
+                for k in 0..w {
+                    jac[(k, i)] = (ri[k] - r0[k]) / h;
+                }
+            }
+            let jtj = jac.transpose() * &jac;
+            let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+            let Some(ch) = (jtj + DMatrix::<f64>::identity(k0, k0) * 1e-9).cholesky() else {
+                break;
+            };
+            let delta = ch.solve(&(-jtr));
+            let t: Vec<f64> = init.iter().zip(delta.iter()).map(|(a, d)| a + d).collect();
+            match resid(&t, &mut buf) {
+                Some(r) => {
+                    let c: f64 = r.iter().map(|v| v * v).sum();
+                    if c >= c0 {
+                        break;
+                    }
+                    init = t;
+                    r0 = r;
+                    c0 = c;
+                }
+                None => break,
+            }
+        }
+        p.init = init;
+    }
+}
+
+/// The first `k0` values of `y` smoothed: a least-squares quadratic through
+/// the first `max(4·k0, 12)` samples, evaluated at 0..k0 (the samples
+/// themselves when there are too few). The starting history of simulations
+/// for fitting: copying noisy samples starts a simulation with a noisy slope,
+/// which poles near 1 turn into a long transient (and output-error fits of
+/// oversampled records into local minima).
+pub(crate) fn smoothed_start(y: &[f64], k0: usize) -> Vec<f64> {
+    let k0 = k0.min(y.len());
+    let m = (4 * k0).max(12);
+    if k0 == 0 || y.len() < m {
+        return y[..k0].to_vec();
+    }
+    // normal equations of [1, t, t²] on t = k/m
+    let mut g = [[0.0f64; 3]; 3];
+    let mut h = [0.0f64; 3];
+    for (k, &v) in y[..m].iter().enumerate() {
+        let t = k as f64 / m as f64;
+        let phi = [1.0, t, t * t];
+        for a in 0..3 {
+            h[a] += phi[a] * v;
+            for b in 0..3 {
+                g[a][b] += phi[a] * phi[b];
+            }
+        }
+    }
+    let gm = DMatrix::from_fn(3, 3, |a, b| g[a][b]);
+    let Some(ch) = gm.cholesky() else {
+        return y[..k0].to_vec();
+    };
+    let c = ch.solve(&DVector::from_column_slice(&h));
+    (0..k0)
+        .map(|k| {
+            let t = k as f64 / m as f64;
+            c[0] + c[1] * t + c[2] * t * t
+        })
+        .collect()
+}
+
+/// The simulation error of a network with fixed structure as a
+/// least-squares problem: θ = [`LocalModelNetwork::parameters`], the Gram
+/// matrix and gradient accumulated by [`LocalModelNetwork::simulate_sens`]
+/// (sensitivity recursion, blocked GEMM), the damped system solved by the
+/// fused left-looking Cholesky [`spd_solve`]; trial points whose local models
+/// are not stable are inadmissible.
+///
+/// The starting history is projected out (variable projection): every
+/// cost and linearisation first estimates `p.init` for the trial θ by
+/// [`LocalModelNetwork::estimate_init`], so the caller re-estimates it for
+/// the final θ.
+struct OutputErrorProblem<'a> {
+    net: LocalModelNetwork,
+    p: &'a mut Prepared,
+    weights: Option<&'a [f64]>,
+    jtj: DMatrix<f64>,
+    jtr: DVector<f64>,
+    buf: Vec<f64>,
+}
+
+impl<'a> OutputErrorProblem<'a> {
+    fn new(net: &LocalModelNetwork, p: &'a mut Prepared, weights: Option<&'a [f64]>) -> Self {
+        let np = net.n_parameters();
+        let n = p.yn.len();
+        Self {
+            net: net.clone(),
+            p,
+            weights,
+            jtj: DMatrix::zeros(np, np),
+            jtr: DVector::zeros(np),
+            buf: Vec::with_capacity(n),
+        }
+    }
+}
+
+impl LeastSquaresProblem for OutputErrorProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.net.n_parameters()
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        self.net.set_parameters(theta);
+        self.net.estimate_init(self.p);
+        self.net.weighted_cost(self.p, self.weights, &mut self.buf)
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        self.net.set_parameters(theta);
+        self.net.estimate_init(self.p);
+        let c = self
+            .net
+            .simulate_sens(self.p, self.weights, &mut self.jtj, &mut self.jtr)?;
+        // JᵀWJ is exactly symmetric (mirrored), so column-major = row-major
+        gram.copy_from_slice(self.jtj.as_slice());
+        grad.copy_from_slice(self.jtr.as_slice());
+        Some(c)
+    }
+    fn admissible(&mut self, theta: &[f64]) -> bool {
+        self.net.set_parameters(theta);
+        self.net.is_acceptably_stable()
+    }
+    fn solve_damped(&mut self, a: &mut [f64], g: &[f64], delta: &mut [f64]) -> bool {
+        match spd_solve(a, g.len(), g) {
+            Some(d) => {
+                delta.copy_from_slice(&d);
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// Levenberg–Marquardt settings of the output-error training: the
+/// workspace defaults (λ from 1e-3, ×4 / ÷3, floor 1e-12, Marquardt scaling
+/// with floor 1e-9·max Gᵢᵢ and jitter 1e-12·max Gᵢᵢ, 12 trials, give up
+/// above λ = 1e12) with `max_iter` iterations and tolerance `tol`.
+fn oe_solver(max_iter: usize, tol: f64) -> Result<LevenbergMarquardt, LmnError> {
+    LmParams::default()
+        .max_iter(max_iter)
+        .tol(tol)
+        .check()
+        .map_err(|e| LmnError::InvalidArgument(e.to_string()))
 }
 
 /// Levenberg–Marquardt on the simulation error, starting from `net`'s
@@ -689,8 +1100,20 @@ pub fn refine_output_error(
     y: &[f64],
     opts: &FitOptions,
 ) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
+    refine_output_error_with_observer(net, inputs, y, opts, &Silent)
+}
+
+/// [`refine_output_error`], reporting every Levenberg–Marquardt iteration to
+/// `observer`.
+pub fn refine_output_error_with_observer(
+    net: &LocalModelNetwork,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    observer: &dyn Observer,
+) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
     opts.check()?;
-    let p = net.prepare(inputs, y)?;
+    let mut p = net.prepare(inputs, y)?;
     let n = y.len();
     let k0 = net.spec.max_lag();
     let np = net.n_parameters();
@@ -706,6 +1129,7 @@ pub fn refine_output_error(
     }
     let mut buf = Vec::with_capacity(n);
     let neff = (n - k0) as f64;
+    cur.estimate_init(&mut p);
     let mse0 = match cur.weighted_cost(&p, None, &mut buf) {
         Some(c) => c / neff,
         None => {
@@ -714,15 +1138,12 @@ pub fn refine_output_error(
             ))
         }
     };
+    // robust: rounds of IRLS around the solver, the Student-t weights
+    // re-estimated from the current residuals before each round
     let rounds = if opts.robust { 4 } else { 1 };
-    let mut weights: Option<Vec<f64>> = None;
     let mut total_iter = 0;
-    let mut jtj = DMatrix::<f64>::zeros(np, np);
-    let mut a = DMatrix::<f64>::zeros(np, np);
-    let mut jtr = DVector::<f64>::zeros(np);
     for round in 0..rounds {
-        if opts.robust {
-            // residuals of the current model → Student-t weights
+        let weights: Option<Vec<f64>> = opts.robust.then(|| {
             cur.weighted_cost(&p, None, &mut buf);
             let res: Vec<f64> = (k0..n).map(|k| p.yn[k] - buf[k]).collect();
             let nf = NoiseModel::student_t(&res);
@@ -730,59 +1151,25 @@ pub fn refine_output_error(
             for k in k0..n {
                 w[k] = nf.weight(p.yn[k] - buf[k]);
             }
-            weights = Some(w);
-        }
+            w
+        });
         let iters = if opts.robust && round + 1 < rounds {
             opts.max_iter / 2
         } else {
             opts.max_iter
         };
-        let mut lambda = 1e-3;
-        for _ in 0..iters {
-            total_iter += 1;
-            let cost = match cur.simulate_sens(&p, weights.as_deref(), &mut jtj, &mut jtr) {
-                Some(c) => c,
-                None => break,
-            };
-            let theta = cur.parameters();
-            let diag: Vec<f64> = (0..np).map(|i| jtj[(i, i)]).collect();
-            let dmax = diag.iter().cloned().fold(0.0, f64::max).max(1e-300);
-            let mut improved = false;
-            for _ in 0..12 {
-                a.copy_from(&jtj);
-                for i in 0..np {
-                    a[(i, i)] += lambda * diag[i].max(1e-9 * dmax) + 1e-12 * dmax;
-                }
-                let Some(delta) = spd_solve(a.as_mut_slice(), np, jtr.as_slice()) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let trial: Vec<f64> = theta.iter().zip(delta.iter()).map(|(t, d)| t + d).collect();
-                let mut cand = cur.clone();
-                cand.set_parameters(&trial);
-                if cand.is_acceptably_stable() {
-                    if let Some(c) = cand.weighted_cost(&p, weights.as_deref(), &mut buf) {
-                        if c < cost {
-                            let rel = (cost - c) / cost.max(1e-300);
-                            cur = cand;
-                            lambda = (lambda / 3.0).max(1e-12);
-                            improved = true;
-                            if rel < opts.tol {
-                                lambda = f64::INFINITY; // converged: leave the loop below
-                            }
-                            break;
-                        }
-                    }
-                }
-                lambda *= 4.0;
-                if lambda > 1e12 {
-                    break;
-                }
+        let lm = oe_solver(iters, opts.tol)?;
+        let mut problem = OutputErrorProblem::new(&cur, &mut p, weights.as_deref());
+        match lm.minimize(&mut problem, &cur.parameters(), observer) {
+            Ok(state) => {
+                total_iter += state.iterations;
+                cur.set_parameters(&state.theta);
             }
-            if !improved || !lambda.is_finite() || lambda > 1e12 {
-                break;
-            }
+            // the start diverges: the round's first iteration fails
+            Err(_) => total_iter += iters.min(1),
         }
+        // the problem left the start of its last trial: back to θ's own
+        cur.estimate_init(&mut p);
     }
     let mse1 = cur
         .weighted_cost(&p, None, &mut buf)
@@ -994,6 +1381,76 @@ pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<Local
     Some(out)
 }
 
+/// A linear start for the structure `spec` (no hysteresis columns) that
+/// keeps the poles of `poles` (a one-leaf network with the same number of
+/// output lags, fitted on any data: its AR coefficients do not depend on
+/// the output's scaling) and estimates the offset and the numerator of every
+/// input by least squares on the inputs filtered by 1/A (a Steiglitz–McBride
+/// step: given the denominator the output-error model is linear in the
+/// numerator, and the regression is unbiased under output noise). A start
+/// for [`refine_output_error`] when a structure differs only in its input
+/// lags (another dead time): output-error costs of oversampled records have
+/// local minima that a cold start falls into. `None` when the structures do
+/// not fit or the regression is singular.
+pub fn fixed_pole_start(
+    poles: &LocalModelNetwork,
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+) -> Option<LocalModelNetwork> {
+    if poles.leaves.len() != 1 || poles.spec.na != spec.na || spec.n_hysteresis() > 0 {
+        return None;
+    }
+    spec.check(inputs.len()).ok()?;
+    let mut net = linear_network(spec, inputs, y);
+    let p = net.prepare(inputs, y).ok()?;
+    let a = &poles.leaves[0].theta[1..=spec.na];
+    let n = y.len();
+    // 1/A applied from rest: v(k) = x(k) + Σ aᵢ v(k−i)
+    let filt = |x: &dyn Fn(usize) -> f64| -> Vec<f64> {
+        let mut v = vec![0.0; n];
+        for k in 0..n {
+            let mut s = x(k);
+            for (i, ai) in a.iter().enumerate() {
+                if k > i {
+                    s += ai * v[k - 1 - i];
+                }
+            }
+            v[k] = s;
+        }
+        v
+    };
+    let ones = filt(&|_| 1.0);
+    let uf: Vec<Vec<f64>> = p.un.iter().map(|u| filt(&|k| u[k])).collect();
+    let k0 = spec.max_lag().max(n / 10);
+    let nbs: usize = spec.nb.iter().sum();
+    let np = 1 + nbs;
+    if n < k0 + 2 * np + 10 {
+        return None;
+    }
+    let rows = n - k0;
+    let mut m = vec![0.0; rows * np];
+    for (r, k) in (k0..n).enumerate() {
+        let row = &mut m[r * np..(r + 1) * np];
+        row[0] = ones[k];
+        let mut c = 1;
+        for (j, u) in uf.iter().enumerate() {
+            for l in 0..spec.nb[j] {
+                let d = spec.nk[j] + l;
+                row[c] = if k >= d { u[k - d] } else { 0.0 };
+                c += 1;
+            }
+        }
+    }
+    let th = weighted_ls(&m, &p.yn[k0..], None, np, 1e-9).ok()?;
+    let mut theta = vec![0.0; 1 + spec.n_dynamic()];
+    theta[0] = th[0];
+    theta[1..=spec.na].copy_from_slice(a);
+    theta[1 + spec.na..].copy_from_slice(&th[1..]);
+    net.leaves[0].theta = theta;
+    net.is_acceptably_stable().then_some(net)
+}
+
 /// Add the hysteresis columns of `spec` (with zero weights) to a network
 /// whose dynamic structure equals `spec`'s: the result simulates exactly like
 /// `net` and can be trained further. `None` if the dynamic structures differ.
@@ -1023,7 +1480,18 @@ pub fn fit_linear_oe(
     y: &[f64],
     opts: &FitOptions,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe_cold(spec, inputs, y, opts);
+    fit_linear_oe_obs(spec, inputs, y, opts, &Silent)
+}
+
+/// [`fit_linear_oe`] reporting the solver iterations to `observer`.
+pub(crate) fn fit_linear_oe_obs(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    observer: &dyn Observer,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_cold(spec, inputs, y, opts, observer);
     if spec.na < 2 || spec.n_hysteresis() > 0 {
         return cold;
     }
@@ -1035,10 +1503,10 @@ pub fn fit_linear_oe(
         *b = b.saturating_sub(1).max(1);
     }
     lower.hysteresis_lags = lower.hysteresis_lags.saturating_sub(1).max(1);
-    let staged = fit_linear_oe(&lower, inputs, y, opts)
+    let staged = fit_linear_oe_obs(&lower, inputs, y, opts, observer)
         .ok()
         .and_then(|w| embed_linear(&w, spec))
-        .and_then(|start| refine_output_error(&start, inputs, y, opts).ok())
+        .and_then(|start| refine_output_error_with_observer(&start, inputs, y, opts, observer).ok())
         .map(|(m, _)| m);
     match (cold, staged) {
         (Ok(c), Some(s)) => {
@@ -1061,6 +1529,7 @@ fn fit_linear_oe_cold(
     inputs: &[Vec<f64>],
     y: &[f64],
     opts: &FitOptions,
+    observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
     spec.check(inputs.len())?;
     opts.check()?;
@@ -1073,19 +1542,21 @@ fn fit_linear_oe_cold(
             got: y.len(),
         });
     }
-    let p = net.prepare(inputs, y)?;
+    let mut p = net.prepare(inputs, y)?;
     global_ls(&mut net, &p, &p.yn, opts.ridge)?;
     net.stabilise(0.995);
     let n = y.len();
-    let k0 = spec.max_lag();
     let mut buf = Vec::with_capacity(n);
     let mut best = net.clone();
+    best.estimate_init(&mut p);
+    let mut best_init = p.init.clone();
     let mut best_cost = net
         .weighted_cost(&p, None, &mut buf)
         .unwrap_or(f64::INFINITY);
     for _ in 0..3 {
         let mut cand = best.clone();
-        if !cand.simulate_norm(&p, n, &p.yn[..k0], &mut buf) {
+        p.init.clone_from(&best_init);
+        if !cand.simulate_norm(&p, n, &p.init, &mut buf) {
             break;
         }
         let yreg = buf.clone();
@@ -1093,10 +1564,12 @@ fn fit_linear_oe_cold(
             break;
         }
         cand.stabilise(0.995);
+        cand.estimate_init(&mut p);
         match cand.weighted_cost(&p, None, &mut buf) {
             Some(c) if c < best_cost => {
                 best_cost = c;
                 best = cand;
+                best_init.clone_from(&p.init);
             }
             _ => break,
         }
@@ -1105,7 +1578,7 @@ fn fit_linear_oe_cold(
         // fall back to a heavily damped start
         best.stabilise(0.5);
     }
-    refine_output_error(&best, inputs, y, opts).map(|(m, _)| m)
+    refine_output_error_with_observer(&best, inputs, y, opts, observer).map(|(m, _)| m)
 }
 
 /// [`fit_linear_oe`], and also Levenberg–Marquardt started from `warm`
@@ -1119,11 +1592,24 @@ pub fn fit_linear_oe_warm(
     opts: &FitOptions,
     warm: Option<&LocalModelNetwork>,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe(spec, inputs, y, opts);
+    fit_linear_oe_warm_obs(spec, inputs, y, opts, warm, &Silent)
+}
+
+/// [`fit_linear_oe_warm`] reporting the solver iterations to `observer`.
+pub(crate) fn fit_linear_oe_warm_obs(
+    spec: &NetworkSpec,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    opts: &FitOptions,
+    warm: Option<&LocalModelNetwork>,
+    observer: &dyn Observer,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_obs(spec, inputs, y, opts, observer);
     let Some(start) = warm.and_then(|w| embed_linear(w, spec)) else {
         return cold;
     };
-    let warm_fit = refine_output_error(&start, inputs, y, opts).map(|(m, _)| m);
+    let warm_fit =
+        refine_output_error_with_observer(&start, inputs, y, opts, observer).map(|(m, _)| m);
     match (cold, warm_fit) {
         (Ok(c), Ok(w)) => {
             let ec = gb_core::metrics::rms(&c.simulation_residuals(inputs, y)?);
@@ -1279,6 +1765,28 @@ mod tests {
                 "param {q}: fd {fd} analytic {an}"
             );
         }
+    }
+
+    #[test]
+    fn a_fixed_pole_start_recovers_the_numerator_of_another_dead_time() {
+        // y0(k) = 1.5 y0(k-1) - 0.7 y0(k-2) + 0.5 u(k-1) + 0.3 u(k-2), shifted by 3 more samples
+        let mut r = rand::rngs::SmallRng::seed_from_u64(5);
+        let u: Vec<f64> = (0..3000).map(|_| StandardNormal.sample(&mut r)).collect();
+        let y1 = simulate_true(&u, 0.0, 1);
+        let mut y4 = vec![0.0; u.len()];
+        y4[3..].copy_from_slice(&y1[..u.len() - 3]);
+        let inputs = vec![u];
+        let s1 = NetworkSpec::order(2, 1);
+        let poles = fit_linear_oe(&s1, &inputs, &y1, &FitOptions::default()).unwrap();
+        let mut s4 = s1.clone();
+        s4.nk = vec![4];
+        let start = fixed_pole_start(&poles, &s4, &inputs, &y4).unwrap();
+        let e = start.simulation_residuals(&inputs, &y4).unwrap();
+        let rms = gb_core::metrics::rms(&e[100..]) / gb_core::metrics::std(&y4);
+        assert!(rms < 1e-3, "{rms}");
+        let mut bad = s4.clone();
+        bad.na = 3;
+        assert!(fixed_pole_start(&poles, &bad, &inputs, &y4).is_none());
     }
 
     #[test]

@@ -10,7 +10,8 @@ use crate::hilomot::{dense_weights, info_criterion, refit_all, wls, Rows};
 use crate::lmn::{split_params, Criterion, LmnModel};
 use crate::regressors::Layout;
 use crate::tree::{Partition, WeightKind, TINY};
-use crate::{Experiment, LmnError};
+use crate::LmnError;
+use gb_core::Records;
 
 /// SSE of a partition on the rows.
 pub(crate) fn sse_of(part: &Partition, rows: &Rows) -> f64 {
@@ -117,23 +118,21 @@ impl LmnModel {
     /// merged leaves is lost; run [`LmnModel::refine`] afterwards).
     ///
     /// ```
-    /// use gb_lmn::{Criterion, Experiment, LmnParams, RegressorSpec};
+    /// use gb_core::{Record, Records};
+    /// use gb_lmn::{Criterion, LmnParams, RegressorSpec};
     /// let u: Vec<f64> = (0..300).map(|k| (k as f64 * 0.37).sin()).collect();
     /// let y: Vec<f64> = u.iter().map(|v| 2.0 * v + 1.0).collect();
-    /// let e = [Experiment::new(vec![u], y)];
+    /// let e = Records::single(Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap());
     /// let mut m = LmnParams::new(RegressorSpec::arx(0, &[1], &[0])).max_leaves(1).fit(&e).unwrap();
     /// assert_eq!(m.prune(&e, Criterion::Aicc).unwrap(), 0);
     /// ```
-    pub fn prune(&mut self, train: &[Experiment], criterion: Criterion) -> Result<usize, LmnError> {
+    pub fn prune(&mut self, train: &Records, criterion: Criterion) -> Result<usize, LmnError> {
         if criterion == Criterion::Validation {
             return Err(LmnError::InvalidArgument(
                 "pruning by validation data: use LmnParams with Criterion::Validation".into(),
             ));
         }
-        let nexps = train
-            .iter()
-            .map(|e| self.normalise_full(e))
-            .collect::<Result<Vec<_>, _>>()?;
+        let nexps = self.normalise_records(train)?;
         let lay = Layout::new(&self.regressors);
         let rows = Rows::build(&lay, &nexps, self.regressors.nx());
         let ridge = 1e-8;

@@ -17,57 +17,49 @@
 use crate::LmnError;
 use serde::{Deserialize, Serialize};
 
-/// One experiment: input signals, the output and optional user columns, all of
-/// equal length. Regressors never span two experiments.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Experiment {
+/// One record split for the regressors: the dynamic inputs, the output and
+/// the user columns (the last `n_extra` input signals of a record). Internal:
+/// the public API takes [`gb_core::Record`] / [`gb_core::Records`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Experiment<'a> {
     /// `inputs[j][k]`: input j at sample k.
-    pub inputs: Vec<Vec<f64>>,
-    /// Measured output.
-    pub output: Vec<f64>,
+    pub inputs: &'a [Vec<f64>],
+    /// Measured output (for simulation, possibly only an init window).
+    pub output: &'a [f64],
     /// User-supplied columns (at time k) entering the local models linearly.
-    pub extra: Vec<Vec<f64>>,
+    pub extra: &'a [Vec<f64>],
 }
 
-impl Experiment {
-    /// An experiment without user columns.
-    pub fn new(inputs: Vec<Vec<f64>>, output: Vec<f64>) -> Self {
-        Self {
-            inputs,
-            output,
-            extra: vec![],
+impl<'a> Experiment<'a> {
+    /// Split `signals` into `n_inputs` dynamic inputs and the user columns
+    /// after them (borrowed, no copy).
+    pub fn split(
+        signals: &'a [Vec<f64>],
+        output: &'a [f64],
+        n_inputs: usize,
+        n_extra: usize,
+    ) -> Result<Self, LmnError> {
+        if signals.len() != n_inputs + n_extra {
+            return Err(LmnError::Dimension(format!(
+                "the structure has {n_inputs} inputs and {n_extra} user columns (the last input signals), the data has {} input signals",
+                signals.len()
+            )));
         }
+        Ok(Self {
+            inputs: &signals[..n_inputs],
+            output,
+            extra: &signals[n_inputs..],
+        })
     }
 
-    /// Add user columns (each as long as the output).
-    pub fn with_extra(mut self, extra: Vec<Vec<f64>>) -> Self {
-        self.extra = extra;
-        self
+    /// A record split for `spec`.
+    pub fn of_record(r: &'a gb_core::Record, spec: &RegressorSpec) -> Result<Self, LmnError> {
+        Self::split(&r.inputs, &r.output, spec.n_inputs(), spec.n_extra)
     }
 
     /// Number of samples.
     pub fn len(&self) -> usize {
         self.output.len()
-    }
-
-    /// True if there are no samples.
-    pub fn is_empty(&self) -> bool {
-        self.output.is_empty()
-    }
-
-    /// A sub-range of the samples.
-    pub fn slice(&self, r: std::ops::Range<usize>) -> Self {
-        Self {
-            inputs: self.inputs.iter().map(|u| u[r.clone()].to_vec()).collect(),
-            output: self.output[r.clone()].to_vec(),
-            extra: self.extra.iter().map(|e| e[r.clone()].to_vec()).collect(),
-        }
-    }
-}
-
-impl From<&gb_core::DataSet> for Experiment {
-    fn from(d: &gb_core::DataSet) -> Self {
-        Self::new(d.inputs.clone(), d.output.clone())
     }
 }
 
@@ -151,15 +143,24 @@ impl RegressorSpec {
         self
     }
 
-    /// Set the number of user columns.
+    /// Set the number of user columns: the last `n_extra` input signals of
+    /// every record enter the local models linearly at time k (not as
+    /// tapped delays), e.g. Preisach or other basis terms computed by other
+    /// crates.
     pub fn with_extra(mut self, n_extra: usize) -> Self {
         self.n_extra = n_extra;
         self
     }
 
-    /// Number of inputs.
+    /// Number of (dynamic) inputs.
     pub fn n_inputs(&self) -> usize {
         self.x_inputs.len()
+    }
+
+    /// Number of input signals a record needs: the inputs, then the user
+    /// columns.
+    pub fn n_signals(&self) -> usize {
+        self.n_inputs() + self.n_extra
     }
 
     /// Taps of x in order.

@@ -32,6 +32,8 @@
 //! two-tank Torricelli model.
 
 use crate::LmnError;
+use gb_core::solver::{LeastSquaresProblem, LmParams};
+use gb_core::{Identify, Observer, Records, Silent, SubTask};
 use nalgebra::{DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -44,13 +46,31 @@ pub enum Scheduling {
     Input(usize),
 }
 
-/// Options of [`fit_ss_lmn`].
+/// Options of [`fit_ss_lmn`]. The defaults are generic: 1, 2 or 3 hidden
+/// states and 1 or 2 leaves, chosen by the simulation error on the last
+/// 20 % of the training record; the √ basis and the learned state bounds of
+/// the class; no output limit. Benchmark set-ups (the cascaded tanks: two
+/// states, a 10 V sensor limit) belong to the code that runs them.
+///
+/// | field | default |
+/// |---|---|
+/// | `n_states` | `[1, 2, 3]` (chosen on the validation tail) |
+/// | `leaves` | `[1, 2]` (chosen on the validation tail) |
+/// | `scheduling` | `State(0)` |
+/// | `sqrt_basis`, `state_saturation` | true |
+/// | `output_upper` | none |
+/// | `nonnegative_states` | false |
+/// | `init_rates` | `[0.1, 0.2, 0.4]` |
+/// | `max_iter` | 200 |
+/// | `validation_fraction` | 0.2 |
+/// | `init_window` | 50 |
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SsLmnParams {
-    /// Number of hidden states n (≥ 1).
-    pub n_states: usize,
-    /// Candidate numbers of leaves (each ≥ 1); the one with the smallest
-    /// validation simulation error is refitted on all data.
+    /// Candidate numbers of hidden states n (each in 1..=8).
+    pub n_states: Vec<usize>,
+    /// Candidate numbers of leaves (each in 1..=8). With several
+    /// (states, leaves) pairs, the one with the smallest validation
+    /// simulation error is refitted on all data.
     pub leaves: Vec<usize>,
     /// Scheduling variable of the splits (ignored for one leaf).
     pub scheduling: Scheduling,
@@ -78,7 +98,7 @@ pub struct SsLmnParams {
 impl Default for SsLmnParams {
     fn default() -> Self {
         Self {
-            n_states: 2,
+            n_states: vec![1, 2, 3],
             leaves: vec![1, 2],
             scheduling: Scheduling::State(0),
             sqrt_basis: true,
@@ -94,12 +114,24 @@ impl Default for SsLmnParams {
 }
 
 impl SsLmnParams {
-    /// Validate the options against `n_inputs` inputs.
-    pub fn check(&self, n_inputs: usize) -> Result<(), LmnError> {
+    /// The (states, leaves) candidates in the order they are tried.
+    pub fn candidates(&self) -> Vec<(usize, usize)> {
+        self.n_states
+            .iter()
+            .flat_map(|&n| self.leaves.iter().map(move |&l| (n, l)))
+            .collect()
+    }
+
+    /// Validate the options against `n_inputs` inputs; the result fits.
+    pub fn check(&self, n_inputs: usize) -> Result<ValidSsLmnParams, LmnError> {
         let bad = |m: &str| Err(LmnError::InvalidArgument(m.to_string()));
-        if self.n_states == 0 || self.n_states > 8 {
-            return bad("n_states must be in 1..=8");
+        if self.n_states.is_empty() || self.n_states.iter().any(|&n| n == 0 || n > 8) {
+            return bad("n_states: candidates in 1..=8 are needed");
         }
+        let (min_n, max_n) = (
+            self.n_states.iter().copied().min().unwrap_or(1),
+            self.n_states.iter().copied().max().unwrap_or(1),
+        );
         if n_inputs == 0 {
             return bad("at least one input is needed");
         }
@@ -107,8 +139,8 @@ impl SsLmnParams {
             return bad("leaves: candidates in 1..=8 are needed");
         }
         match self.scheduling {
-            Scheduling::State(j) if j >= self.n_states => {
-                return bad("scheduling state out of range")
+            Scheduling::State(j) if j >= min_n => {
+                return bad("scheduling state out of range (for the smallest n_states)")
             }
             Scheduling::Input(j) if j >= n_inputs => return bad("scheduling input out of range"),
             _ => {}
@@ -124,7 +156,7 @@ impl SsLmnParams {
         if !(self.validation_fraction > 0.0 && self.validation_fraction < 0.5) {
             return bad("validation_fraction must be in (0, 0.5)");
         }
-        if self.init_window < self.n_states {
+        if self.init_window < max_n {
             return bad("init_window must be ≥ n_states");
         }
         if let Some(v) = self.output_upper {
@@ -132,7 +164,60 @@ impl SsLmnParams {
                 return bad("output_upper must be finite");
             }
         }
-        Ok(())
+        Ok(ValidSsLmnParams {
+            p: self.clone(),
+            n_inputs,
+        })
+    }
+}
+
+/// [`SsLmnParams`] validated for a number of inputs; fits with
+/// [`fit`](Self::fit) or [`Identify`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ValidSsLmnParams {
+    p: SsLmnParams,
+    n_inputs: usize,
+}
+
+impl ValidSsLmnParams {
+    /// The options.
+    pub fn params(&self) -> &SsLmnParams {
+        &self.p
+    }
+
+    /// Fit to one experiment (inputs `u[j]`, output `y`), reporting progress
+    /// (one unit per structure fitted) and every Levenberg–Marquardt
+    /// iteration to `observer`.
+    pub fn fit(
+        &self,
+        u: &[Vec<f64>],
+        y: &[f64],
+        observer: &dyn Observer,
+    ) -> Result<SsLmnFit, LmnError> {
+        if u.len() != self.n_inputs {
+            return Err(LmnError::Dimension(format!(
+                "the parameters were checked for {} inputs, the data has {}",
+                self.n_inputs,
+                u.len()
+            )));
+        }
+        fit_checked(&self.p, u, y, observer)
+    }
+}
+
+impl Identify for ValidSsLmnParams {
+    type Model = SsLmnModel;
+    type Error = LmnError;
+    /// One record (the training state x(0) is a parameter of one record).
+    fn identify(&self, data: &Records, observer: &dyn Observer) -> Result<SsLmnModel, LmnError> {
+        if data.len() != 1 {
+            return Err(LmnError::InvalidArgument(format!(
+                "a state-space network is fitted on one record, got {}",
+                data.len()
+            )));
+        }
+        let r = data.first();
+        self.fit(&r.inputs, &r.output, observer).map(|f| f.model)
     }
 }
 
@@ -151,14 +236,46 @@ pub struct SsLmnModel {
     theta: Vec<f64>,
 }
 
+/// A [`SsLmnModel`] running one sample at a time.
+pub(crate) struct SsStepper<'a> {
+    m: &'a SsLmnModel,
+    x: [f64; 8],
+    failed: bool,
+}
+
+impl SsStepper<'_> {
+    /// Advance one sample with the inputs `u`; the output.
+    pub fn step(&mut self, u: &[f64]) -> Result<f64, LmnError> {
+        if u.len() != self.m.n_inputs {
+            return Err(LmnError::Dimension(format!(
+                "{} inputs expected, got {}",
+                self.m.n_inputs,
+                u.len()
+            )));
+        }
+        if self.failed || u.iter().any(|v| !v.is_finite()) {
+            return Err(LmnError::InvalidArgument(
+                "non-finite input or a diverged state".into(),
+            ));
+        }
+        match self.m.step_state(&self.m.theta, &mut self.x, |j| u[j]) {
+            Some(y) => Ok(y),
+            None => {
+                self.failed = true;
+                Err(LmnError::Unstable("simulation diverged".into()))
+            }
+        }
+    }
+}
+
 /// Result of [`fit_ss_lmn`].
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SsLmnFit {
     /// The model refitted on the whole training record.
     pub model: SsLmnModel,
-    /// Validation simulation RMSE per candidate number of leaves (empty when
-    /// only one candidate was given).
-    pub validation: Vec<(usize, f64)>,
+    /// Validation simulation RMSE per candidate (states, leaves, RMSE);
+    /// empty when only one candidate was given.
+    pub validation: Vec<(usize, usize, f64)>,
     /// Training simulation RMSE of the final model.
     pub train_rmse: f64,
 }
@@ -275,6 +392,25 @@ impl SsLmnModel {
         out: &mut [f64],
     ) -> Option<Vec<f64>> {
         let n = self.n_states;
+        let mut x = [0.0f64; 8];
+        x[..n].copy_from_slice(x0);
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = self.step_state(theta, &mut x, |j| u[j][k])?;
+        }
+        Some(x[..n].to_vec())
+    }
+
+    /// One sample: the output ŷ(k) from the state x(k), then x(k+1) in
+    /// place; `uk(j)` is input j at sample k. `None` when the output or the
+    /// state leaves the finite range.
+    #[inline(always)]
+    fn step_state(
+        &self,
+        theta: &[f64],
+        x: &mut [f64; 8],
+        uk: impl Fn(usize) -> f64,
+    ) -> Option<f64> {
+        let n = self.n_states;
         let m = self.n_inputs;
         let ll = self.leaf_len();
         let l = self.n_leaves;
@@ -283,86 +419,100 @@ impl SsLmnModel {
         let d = theta[o_c + n];
         let o_up = o_c + n + 1;
         let o_split = o_up + if self.state_saturation { n } else { 0 };
-        let mut x = [0.0f64; 8];
         let mut s = [0.0f64; 8];
         let mut xn = [0.0f64; 8];
         let mut w = [0.0f64; 8];
-        x[..n].copy_from_slice(x0);
-        for k in 0..out.len() {
-            let mut yk = d;
-            for i in 0..n {
-                yk += cvec[i] * x[i];
+        let mut yk = d;
+        for i in 0..n {
+            yk += cvec[i] * x[i];
+        }
+        if let Some(v) = self.output_upper {
+            yk = yk.min(v);
+        }
+        if !yk.is_finite() {
+            return None;
+        }
+        // weights
+        if l == 1 {
+            w[0] = 1.0;
+        } else {
+            let z = match self.scheduling {
+                Scheduling::State(j) => x[j],
+                Scheduling::Input(j) => uk(j),
+            };
+            let mut rem = 1.0;
+            for j in 0..l - 1 {
+                let t = theta[o_split + j];
+                let st = theta[o_split + l - 1 + j].clamp(-30.0, 30.0).exp();
+                let a = (st * (z - t)).clamp(-50.0, 50.0);
+                let sig = 1.0 / (1.0 + (-a).exp());
+                w[j] = rem * (1.0 - sig);
+                rem *= sig;
             }
-            if let Some(v) = self.output_upper {
-                yk = yk.min(v);
-            }
-            if !yk.is_finite() {
-                return None;
-            }
-            out[k] = yk;
-            // weights
-            if l == 1 {
-                w[0] = 1.0;
+            w[l - 1] = rem;
+        }
+        for i in 0..n {
+            s[i] = x[i].max(0.0).sqrt();
+            xn[i] = 0.0;
+        }
+        for leaf in 0..l {
+            let p = &theta[leaf * ll..(leaf + 1) * ll];
+            let (a, rest) = p.split_at(n * n);
+            let (g, rest) = if self.sqrt_basis {
+                rest.split_at(n * n)
             } else {
-                let z = match self.scheduling {
-                    Scheduling::State(j) => x[j],
-                    Scheduling::Input(j) => u[j][k],
-                };
-                let mut rem = 1.0;
-                for j in 0..l - 1 {
-                    let t = theta[o_split + j];
-                    let st = theta[o_split + l - 1 + j].clamp(-30.0, 30.0).exp();
-                    let a = (st * (z - t)).clamp(-50.0, 50.0);
-                    let sig = 1.0 / (1.0 + (-a).exp());
-                    w[j] = rem * (1.0 - sig);
-                    rem *= sig;
-                }
-                w[l - 1] = rem;
-            }
+                rest.split_at(0)
+            };
+            let (b, c) = rest.split_at(n * m);
             for i in 0..n {
-                s[i] = x[i].max(0.0).sqrt();
-                xn[i] = 0.0;
-            }
-            for leaf in 0..l {
-                let p = &theta[leaf * ll..(leaf + 1) * ll];
-                let (a, rest) = p.split_at(n * n);
-                let (g, rest) = if self.sqrt_basis {
-                    rest.split_at(n * n)
-                } else {
-                    rest.split_at(0)
-                };
-                let (b, c) = rest.split_at(n * m);
-                for i in 0..n {
-                    let mut v = c[i];
+                let mut v = c[i];
+                for j in 0..n {
+                    v += a[i * n + j] * x[j];
+                }
+                if self.sqrt_basis {
                     for j in 0..n {
-                        v += a[i * n + j] * x[j];
+                        v += g[i * n + j] * s[j];
                     }
-                    if self.sqrt_basis {
-                        for j in 0..n {
-                            v += g[i * n + j] * s[j];
-                        }
-                    }
-                    for j in 0..m {
-                        v += b[i * m + j] * u[j][k];
-                    }
-                    xn[i] += w[leaf] * v;
                 }
-            }
-            for i in 0..n {
-                let mut v = xn[i];
-                if self.state_saturation {
-                    v = v.min(theta[o_up + i]);
+                for j in 0..m {
+                    v += b[i * m + j] * uk(j);
                 }
-                if self.nonnegative_states {
-                    v = v.max(0.0);
-                }
-                if !v.is_finite() || v.abs() > 1e6 {
-                    return None;
-                }
-                x[i] = v;
+                xn[i] += w[leaf] * v;
             }
         }
-        Some(x[..n].to_vec())
+        for i in 0..n {
+            let mut v = xn[i];
+            if self.state_saturation {
+                v = v.min(theta[o_up + i]);
+            }
+            if self.nonnegative_states {
+                v = v.max(0.0);
+            }
+            if !v.is_finite() || v.abs() > 1e6 {
+                return None;
+            }
+            x[i] = v;
+        }
+        Some(yk)
+    }
+
+    /// One sample at a time from the state `x0` (see
+    /// [`gb_core::DynamicModel::stepper`]): the same arithmetic as
+    /// [`simulate_from`](Self::simulate_from).
+    pub(crate) fn step_from(&self, x0: &[f64]) -> Result<SsStepper<'_>, LmnError> {
+        if x0.len() != self.n_states {
+            return Err(LmnError::Dimension(format!(
+                "x0 needs {} states",
+                self.n_states
+            )));
+        }
+        let mut x = [0.0; 8];
+        x[..self.n_states].copy_from_slice(x0);
+        Ok(SsStepper {
+            m: self,
+            x,
+            failed: false,
+        })
     }
 
     fn check_inputs(&self, u: &[Vec<f64>], len: usize) -> Result<(), LmnError> {
@@ -430,7 +580,7 @@ impl SsLmnModel {
                 }
                 true
             };
-            if let Some((x0, c)) = lm_fd(&f, &start, window, 60) {
+            if let Some((x0, c)) = lm_fd(&f, &start, window, 60, &Silent) {
                 if best.as_ref().is_none_or(|b| c < b.0) {
                     best = Some((c, x0));
                 }
@@ -506,86 +656,117 @@ impl SsLmnModel {
     }
 }
 
+/// A residual function `f(p, r)` (false where the model is not simulable)
+/// as a least-squares problem with a forward-difference Jacobian (step
+/// 1e-6·max(|pⱼ|, 1), backward where the forward point is not simulable).
+struct FdProblem<'a> {
+    f: &'a dyn Fn(&[f64], &mut [f64]) -> bool,
+    np: usize,
+    /// The last point evaluated and its residuals (the accepted point is
+    /// linearised next).
+    p: Vec<f64>,
+    r: Vec<f64>,
+    valid: bool,
+    rq: Vec<f64>,
+    q: Vec<f64>,
+    jac: DMatrix<f64>,
+}
+
+impl FdProblem<'_> {
+    fn eval(&mut self, p: &[f64]) -> Option<f64> {
+        self.valid = (self.f)(p, &mut self.r);
+        self.p.copy_from_slice(p);
+        self.valid.then(|| self.r.iter().map(|v| v * v).sum())
+    }
+}
+
+impl LeastSquaresProblem for FdProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.np
+    }
+    fn cost(&mut self, p: &[f64]) -> Option<f64> {
+        self.eval(p)
+    }
+    fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        if !(self.valid && self.p.as_slice() == p) {
+            self.eval(p)?;
+        }
+        let (np, n_res) = (self.np, self.r.len());
+        for j in 0..np {
+            let h = 1e-6 * p[j].abs().max(1.0);
+            self.q.copy_from_slice(p);
+            self.q[j] += h;
+            if !(self.f)(&self.q, &mut self.rq) {
+                self.q[j] = p[j] - h;
+                if !(self.f)(&self.q, &mut self.rq) {
+                    self.rq.copy_from_slice(&self.r);
+                }
+                for i in 0..n_res {
+                    self.jac[(i, j)] = (self.r[i] - self.rq[i]) / h;
+                }
+                continue;
+            }
+            for i in 0..n_res {
+                self.jac[(i, j)] = (self.rq[i] - self.r[i]) / h;
+            }
+        }
+        let jt = self.jac.transpose();
+        let a = &jt * &self.jac;
+        let g = &jt * DVector::from_column_slice(&self.r);
+        for i in 0..np {
+            for j in 0..np {
+                gram[i * np + j] = a[(i, j)];
+            }
+            // r = ŷ − y: the gradient Jᵀ(y − ŷ) is −Jᵀr
+            grad[i] = -g[i];
+        }
+        Some(self.r.iter().map(|v| v * v).sum())
+    }
+}
+
 /// Levenberg–Marquardt with a forward-difference Jacobian on the residual
-/// function `f(p, r)` (returns false where the model is not simulable).
+/// function `f(p, r)` (returns false where the model is not simulable):
+/// λ from 1e-2, ×10 after a rejected step, ÷3 after an accepted one (floor
+/// 1e-9), damping λ·(Gᵢᵢ + 1e-9), 12 trials, relative tolerance 1e-8.
 /// Returns the parameters and the final cost Σ r².
 fn lm_fd(
     f: &dyn Fn(&[f64], &mut [f64]) -> bool,
     p0: &[f64],
     n_res: usize,
     iters: usize,
+    observer: &dyn Observer,
 ) -> Option<(Vec<f64>, f64)> {
     let np = p0.len();
-    let mut p = p0.to_vec();
-    let mut r = vec![0.0; n_res];
-    if !f(&p, &mut r) {
-        return None;
+    let lm = LmParams {
+        max_iter: iters,
+        tol: 1e-8,
+        lambda_init: 1e-2,
+        lambda_up: 10.0,
+        lambda_up_singular: 10.0,
+        lambda_down: 1.0 / 3.0,
+        lambda_min: 1e-9,
+        lambda_max: 1e300,
+        max_trials: 12,
+        diag_floor: 0.0,
+        diag_floor_abs: 0.0,
+        diag_add: 1e-9,
+        jitter: 0.0,
+        jitter_abs: 0.0,
     }
-    let mut cost: f64 = r.iter().map(|v| v * v).sum();
-    let mut lam = 1e-2;
-    let mut jac = DMatrix::<f64>::zeros(n_res, np);
-    let mut rq = vec![0.0; n_res];
-    let mut q = p.clone();
-    for _ in 0..iters {
-        for j in 0..np {
-            let h = 1e-6 * p[j].abs().max(1.0);
-            q.copy_from_slice(&p);
-            q[j] += h;
-            if !f(&q, &mut rq) {
-                q[j] = p[j] - h;
-                if !f(&q, &mut rq) {
-                    rq.copy_from_slice(&r);
-                }
-                for i in 0..n_res {
-                    jac[(i, j)] = (r[i] - rq[i]) / h;
-                }
-                continue;
-            }
-            for i in 0..n_res {
-                jac[(i, j)] = (rq[i] - r[i]) / h;
-            }
-        }
-        let jt = jac.transpose();
-        let a = &jt * &jac;
-        let g = &jt * DVector::from_column_slice(&r);
-        let mut improved = None;
-        for _ in 0..12 {
-            let mut m = a.clone();
-            for i in 0..np {
-                m[(i, i)] += lam * (a[(i, i)] + 1e-9);
-            }
-            let Some(ch) = m.cholesky() else {
-                lam *= 10.0;
-                continue;
-            };
-            let dp = ch.solve(&(-&g));
-            for i in 0..np {
-                q[i] = p[i] + dp[i];
-            }
-            if f(&q, &mut rq) {
-                let c2: f64 = rq.iter().map(|v| v * v).sum();
-                if c2.is_finite() && c2 < cost {
-                    improved = Some(c2);
-                    break;
-                }
-            }
-            lam *= 10.0;
-        }
-        match improved {
-            Some(c2) => {
-                let rel = (cost - c2) / cost.max(f64::MIN_POSITIVE);
-                p.copy_from_slice(&q);
-                r.copy_from_slice(&rq);
-                cost = c2;
-                lam = (lam / 3.0).max(1e-9);
-                if rel < 1e-8 {
-                    break;
-                }
-            }
-            None => break,
-        }
-    }
-    Some((p, cost))
+    .check()
+    .ok()?;
+    let mut problem = FdProblem {
+        f,
+        np,
+        p: vec![0.0; np],
+        r: vec![0.0; n_res],
+        valid: false,
+        rq: vec![0.0; n_res],
+        q: vec![0.0; np],
+        jac: DMatrix::zeros(n_res, np),
+    };
+    let state = lm.minimize(&mut problem, p0, observer).ok()?;
+    Some((state.theta, state.cost))
 }
 
 fn rmse(a: &[f64], b: &[f64]) -> f64 {
@@ -597,11 +778,11 @@ fn rmse(a: &[f64], b: &[f64]) -> f64 {
 /// init rate; returns the best model and its training RMSE.
 fn fit_structure(
     p: &SsLmnParams,
-    n_leaves: usize,
+    (n, n_leaves): (usize, usize),
     u: &[Vec<f64>],
     y: &[f64],
+    observer: &dyn Observer,
 ) -> Result<(SsLmnModel, f64), LmnError> {
-    let n = p.n_states;
     let m = u.len();
     let len = y.len();
     let proto = SsLmnModel {
@@ -631,7 +812,12 @@ fn fit_structure(
     };
     let zr = (zhi - zlo).max(1e-9);
     let mut best: Option<(SsLmnModel, f64)> = None;
-    for &rate in &p.init_rates {
+    for (i, &rate) in p.init_rates.iter().enumerate() {
+        observer.progress(
+            i,
+            p.init_rates.len(),
+            &format!("state-space network, {n} states, {n_leaves} leaves"),
+        );
         let mut th = Vec::with_capacity(proto.n_model_params() + n);
         // chain of leaky tanks at steady state x ≈ ȳ: b ū = r √ȳ
         let lvl = ybar.abs().max(1e-3);
@@ -709,7 +895,7 @@ fn fit_structure(
             }
             true
         };
-        if let Some((q, c)) = lm_fd(&f, &th, len, p.max_iter) {
+        if let Some((q, c)) = lm_fd(&f, &th, len, p.max_iter, observer) {
             let rm = (c / len as f64).sqrt();
             if best.as_ref().is_none_or(|b| rm < b.1) {
                 let mut model = proto.clone();
@@ -722,10 +908,30 @@ fn fit_structure(
 }
 
 /// Fit a local-model state-space network to one experiment (inputs `u[j]`,
-/// output `y`), choosing the number of leaves among `params.leaves` by the
-/// free-run simulation RMSE on the last `validation_fraction` of the record.
+/// output `y`), choosing the number of states and leaves among
+/// [`SsLmnParams::candidates`] by the free-run simulation RMSE on the last
+/// `validation_fraction` of the record.
 pub fn fit_ss_lmn(params: &SsLmnParams, u: &[Vec<f64>], y: &[f64]) -> Result<SsLmnFit, LmnError> {
-    params.check(u.len())?;
+    fit_ss_lmn_with_observer(params, u, y, &Silent)
+}
+
+/// [`fit_ss_lmn`], reporting progress (one unit per structure fitted) and
+/// every Levenberg–Marquardt iteration to `observer`.
+pub fn fit_ss_lmn_with_observer(
+    params: &SsLmnParams,
+    u: &[Vec<f64>],
+    y: &[f64],
+    observer: &dyn Observer,
+) -> Result<SsLmnFit, LmnError> {
+    params.check(u.len())?.fit(u, y, observer)
+}
+
+fn fit_checked(
+    params: &SsLmnParams,
+    u: &[Vec<f64>],
+    y: &[f64],
+    observer: &dyn Observer,
+) -> Result<SsLmnFit, LmnError> {
     let len = y.len();
     let needed = 4 * params.init_window.max(10);
     if len < needed {
@@ -739,9 +945,17 @@ pub fn fit_ss_lmn(params: &SsLmnParams, u: &[Vec<f64>], y: &[f64]) -> Result<SsL
     if y.iter().chain(u.iter().flatten()).any(|v| !v.is_finite()) {
         return Err(LmnError::InvalidArgument("non-finite sample".into()));
     }
+    let cands = params.candidates();
+    let total = if cands.len() == 1 { 1 } else { cands.len() + 1 };
+    let sub = |i: usize| SubTask {
+        outer: observer,
+        offset: i,
+        span: 1,
+        total,
+    };
     let mut validation = Vec::new();
-    let leaves = if params.leaves.len() == 1 {
-        params.leaves[0]
+    let chosen = if cands.len() == 1 {
+        cands[0]
     } else {
         let n_val = ((len as f64) * params.validation_fraction) as usize;
         let n_tr = len - n_val;
@@ -753,20 +967,21 @@ pub fn fit_ss_lmn(params: &SsLmnParams, u: &[Vec<f64>], y: &[f64]) -> Result<SsL
         let v0 = n_tr - params.init_window;
         let uv: Vec<Vec<f64>> = u.iter().map(|c| c[v0..].to_vec()).collect();
         let yv = &y[v0..];
-        let mut best = (params.leaves[0], f64::INFINITY);
-        for &l in &params.leaves {
-            let score = fit_structure(params, l, &ut, &y[..n_tr])
+        let mut best = (cands[0], f64::INFINITY);
+        for (i, &c) in cands.iter().enumerate() {
+            let score = fit_structure(params, c, &ut, &y[..n_tr], &sub(i))
                 .and_then(|(m, _)| m.simulate_with_init_window(&uv, yv, params.init_window))
                 .map(|s| rmse(&s[params.init_window..], &yv[params.init_window..]))
                 .unwrap_or(f64::INFINITY);
-            validation.push((l, score));
+            validation.push((c.0, c.1, score));
             if score < best.1 {
-                best = (l, score);
+                best = (c, score);
             }
         }
         best.0
     };
-    let (model, train_rmse) = fit_structure(params, leaves, u, y)?;
+    let (model, train_rmse) = fit_structure(params, chosen, u, y, &sub(total - 1))?;
+    observer.progress(total, total, "state-space network fitted");
     Ok(SsLmnFit {
         model,
         validation,
@@ -806,7 +1021,9 @@ mod tests {
     #[test]
     fn recovers_two_tanks_in_free_run() {
         let (u, y) = tanks(800, 7);
+        // the two tanks' order, given
         let p = SsLmnParams {
+            n_states: vec![2],
             leaves: vec![1],
             init_window: 30,
             ..Default::default()
@@ -839,6 +1056,11 @@ mod tests {
         };
         assert!(p.check(1).is_err());
         let p = SsLmnParams {
+            n_states: vec![],
+            ..Default::default()
+        };
+        assert!(p.check(1).is_err());
+        let p = SsLmnParams {
             validation_fraction: 0.7,
             ..Default::default()
         };
@@ -864,6 +1086,7 @@ mod tests {
     fn model_round_trips_through_postcard() {
         let (u, y) = tanks(300, 3);
         let p = SsLmnParams {
+            n_states: vec![2],
             leaves: vec![2],
             max_iter: 5,
             init_window: 20,
@@ -879,5 +1102,41 @@ mod tests {
             .unwrap();
         let b = back.simulate_from(&[u], &[4.0, 4.0]).unwrap();
         assert_eq!(a, b);
+    }
+
+    #[test]
+    fn generic_defaults_choose_the_structure_on_the_hold_out() {
+        let (u, y) = tanks(800, 7);
+        let p = SsLmnParams {
+            max_iter: 40,
+            init_window: 30,
+            ..Default::default()
+        };
+        let rec =
+            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y.clone()).unwrap();
+        let v = p.check(1).unwrap();
+        let m = v
+            .identify(&Records::single(rec.clone()), &gb_core::Silent)
+            .unwrap();
+        let fit = v
+            .fit(std::slice::from_ref(&u), &y, &gb_core::Silent)
+            .unwrap();
+        assert_eq!(m, fit.model);
+        // every (states, leaves) pair was scored; the best one was refitted
+        assert_eq!(fit.validation.len(), 6);
+        let best = fit
+            .validation
+            .iter()
+            .min_by(|a, b| a.2.total_cmp(&b.2))
+            .unwrap();
+        assert_eq!((m.n_states(), m.n_leaves()), (best.0, best.1));
+        eprintln!(
+            "ss-LMN generic defaults: {:?} -> {}",
+            fit.validation,
+            m.describe()
+        );
+        // one record only
+        let two = Records::new(vec![rec.clone(), rec]).unwrap();
+        assert!(v.identify(&two, &gb_core::Silent).is_err());
     }
 }

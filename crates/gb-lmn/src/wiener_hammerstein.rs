@@ -28,6 +28,8 @@
 //!    kept inside |z| < 0.999); the one with the smallest error on a
 //!    held-out tail of the training data is kept and trained on all of it.
 use crate::LmnError;
+use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
+use gb_core::{Identify, Observer, Records, Silent};
 use nalgebra::{Complex, DMatrix, DVector};
 use serde::{Deserialize, Serialize};
 
@@ -92,6 +94,17 @@ pub fn poly_from_roots(r: &[Complex<f64>]) -> Vec<f64> {
 
 fn max_root_modulus(a: &[f64]) -> f64 {
     roots(a).iter().map(|z| z.norm()).fold(0.0, f64::max)
+}
+
+/// Samples until the slowest mode of the denominator `a` has decayed to
+/// 10⁻³ (its zero-state transient).
+fn settling_samples(a: &[f64]) -> usize {
+    let r = max_root_modulus(a);
+    if r > 1e-6 && r < 1.0 {
+        ((1e-3f64).ln() / r.ln()).ceil() as usize
+    } else {
+        a.len()
+    }
 }
 
 /// Groups of roots that go together: a real root, or a complex pair.
@@ -268,13 +281,105 @@ impl WienerHammersteinNetwork {
     }
 }
 
-/// Options of the Wiener–Hammerstein identification (validated by [`WhParams::check`]).
+/// One filter `b/a` in direct form run one sample at a time from the zero
+/// state, with the arithmetic of [`filter`] (terms in the same order, none
+/// before the first sample).
+#[derive(Debug, Clone)]
+struct FilterStep<'a> {
+    b: &'a [f64],
+    a: &'a [f64],
+    /// Past inputs and outputs, most recent first.
+    x: Vec<f64>,
+    y: Vec<f64>,
+    k: usize,
+}
+
+impl<'a> FilterStep<'a> {
+    fn new(b: &'a [f64], a: &'a [f64]) -> Self {
+        Self {
+            b,
+            a,
+            x: vec![0.0; b.len()],
+            y: vec![0.0; a.len()],
+            k: 0,
+        }
+    }
+
+    fn step(&mut self, xk: f64) -> f64 {
+        if !self.x.is_empty() {
+            self.x.rotate_right(1);
+            self.x[0] = xk;
+        }
+        let k = self.k;
+        let mut acc = 0.0;
+        for (j, bj) in self.b.iter().enumerate().take(k + 1) {
+            acc += bj * self.x[j];
+        }
+        for (i, ai) in self.a.iter().enumerate().skip(1).take(k) {
+            acc -= ai * self.y[i - 1];
+        }
+        if !self.y.is_empty() {
+            self.y.rotate_right(1);
+            self.y[0] = acc;
+        }
+        self.k += 1;
+        acc
+    }
+}
+
+/// A [`WienerHammersteinNetwork`] running one sample at a time from the
+/// zero state: bit-identical to [`WienerHammersteinNetwork::simulate`].
+#[derive(Debug, Clone)]
+pub(crate) struct WhStepper<'a> {
+    m: &'a WienerHammersteinNetwork,
+    g1: FilterStep<'a>,
+    g2: FilterStep<'a>,
+}
+
+impl<'a> WhStepper<'a> {
+    pub fn new(m: &'a WienerHammersteinNetwork) -> Self {
+        Self {
+            m,
+            g1: FilterStep::new(&m.b1, &m.a1),
+            g2: FilterStep::new(&m.b2, &m.a2),
+        }
+    }
+
+    /// Advance one sample with the input `u`; the output.
+    pub fn step(&mut self, u: f64) -> f64 {
+        let v = self.g1.step(u);
+        self.g2.step(self.m.nonlinearity.eval(v))
+    }
+}
+
+/// Options of the Wiener–Hammerstein identification (validated by
+/// [`WhParams::check`]). The defaults are generic — what depends on the data
+/// is derived from it: the order of the best linear approximation is chosen
+/// on the hold-out tail, the transient left out of the costs follows from its
+/// slowest pole, the scan uses every sample. Benchmark set-ups (WH2009: a
+/// 6/6 BLA, a 200-sample transient, a 30 000-sample scan) belong to the code
+/// that runs them.
+///
+/// | field | default |
+/// |---|---|
+/// | `bla_orders` | none: n poles and n zeros, n ≤ `max_bla_order`, chosen on the hold-out |
+/// | `max_bla_order` | 6 |
+/// | `knots` | 15 (16 local models) |
+/// | `smoothness` | 0.25 |
+/// | `extra_g1` | 3 (1, 2, 3 tried, the hold-out chooses) |
+/// | `candidates` | 2 |
+/// | `max_iter` | 60 |
+/// | `scan_samples` | all |
+/// | `holdout` | 0.2 |
+/// | `skip` | none: until the BLA start's slowest mode decayed to 10⁻³ |
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct WhParams {
-    /// Poles of the best linear approximation.
-    pub bla_poles: usize,
-    /// Zeros of the best linear approximation (its numerator has this + 1 taps).
-    pub bla_zeros: usize,
+    /// Poles and zeros of the best linear approximation (its numerator has
+    /// zeros + 1 taps); `None`: n poles and n zeros with n in
+    /// 1..=`max_bla_order` chosen by the simulation error on the hold-out.
+    pub bla_orders: Option<(usize, usize)>,
+    /// Largest BLA order tried when `bla_orders` is `None`.
+    pub max_bla_order: usize,
     /// Knots of the static network (local models = knots + 1), spread over
     /// ±2.5 standard deviations of the start's internal signal.
     pub knots: usize,
@@ -288,33 +393,37 @@ pub struct WhParams {
     pub candidates: usize,
     /// Levenberg–Marquardt iterations of each refinement.
     pub max_iter: usize,
-    /// Samples of the training record used by the split scan.
+    /// Samples of the training record used by the split scan (at most;
+    /// `usize::MAX`: all).
     pub scan_samples: usize,
-    /// Fraction of the training record held out to choose among the refined splits.
+    /// Fraction of the training record held out to choose among the refined
+    /// splits (and the BLA order).
     pub holdout: f64,
-    /// Leading samples left out of every cost (transient of the zero state).
-    pub skip: usize,
+    /// Leading samples left out of every cost (transient of the zero state;
+    /// at most a quarter of the record); `None`: until the slowest pole of
+    /// the BLA's least-squares start has decayed to 10⁻³.
+    pub skip: Option<usize>,
 }
 
 impl Default for WhParams {
     fn default() -> Self {
         Self {
-            bla_poles: 6,
-            bla_zeros: 6,
+            bla_orders: None,
+            max_bla_order: 6,
             knots: 15,
             smoothness: 0.25,
             extra_g1: 3,
             candidates: 2,
             max_iter: 60,
-            scan_samples: 30_000,
+            scan_samples: usize::MAX,
             holdout: 0.2,
-            skip: 200,
+            skip: None,
         }
     }
 }
 
 impl WhParams {
-    /// The defaults (BLA 6 poles / 6 zeros, 15 knots, 1–3 extra G₁ poles and zeros).
+    /// The defaults (see the table of [`WhParams`]).
     pub fn new() -> Self {
         Self::default()
     }
@@ -333,11 +442,25 @@ impl WhParams {
         self.extra_g1 = n;
         self
     }
-    /// Sets the BLA orders.
+    /// Fixes the BLA orders.
     pub fn bla(mut self, poles: usize, zeros: usize) -> Self {
-        self.bla_poles = poles;
-        self.bla_zeros = zeros;
+        self.bla_orders = Some((poles, zeros));
         self
+    }
+    /// Fixes the transient left out of every cost.
+    pub fn skip(mut self, samples: usize) -> Self {
+        self.skip = Some(samples);
+        self
+    }
+    /// Sets the most samples of the split scan.
+    pub fn scan_samples(mut self, n: usize) -> Self {
+        self.scan_samples = n;
+        self
+    }
+    /// Poles plus zeros of the largest BLA fitted.
+    fn bla_size(&self) -> usize {
+        self.bla_orders
+            .map_or(2 * self.max_bla_order, |(p, z)| p + z)
     }
     /// Sets the number of refined splits.
     pub fn candidates(mut self, n: usize) -> Self {
@@ -347,8 +470,14 @@ impl WhParams {
     /// Validates the options once.
     pub fn check(self) -> Result<WhFitter> {
         let bad = |m: &str| Err(LmnError::InvalidArgument(m.to_string()));
-        if !(1..=12).contains(&self.bla_poles) || self.bla_zeros > 12 {
-            return bad("BLA orders must be 1..=12 poles and at most 12 zeros");
+        match self.bla_orders {
+            Some((p, z)) if !(1..=12).contains(&p) || z > 12 => {
+                return bad("BLA orders must be 1..=12 poles and at most 12 zeros")
+            }
+            None if !(1..=12).contains(&self.max_bla_order) || self.holdout <= 0.0 => {
+                return bad("choosing the BLA order needs max_bla_order in 1..=12 and holdout > 0")
+            }
+            _ => {}
         }
         if self.knots > 60 || !(self.smoothness > 0.0 && self.smoothness.is_finite()) {
             return bad("knots must be at most 60 and smoothness > 0");
@@ -369,9 +498,37 @@ pub struct WhFitter {
     p: WhParams,
 }
 
+impl Identify for WhFitter {
+    type Model = WienerHammersteinNetwork;
+    type Error = LmnError;
+    /// One record with one input (the filters run over one record).
+    fn identify(
+        &self,
+        data: &Records,
+        observer: &dyn Observer,
+    ) -> Result<WienerHammersteinNetwork> {
+        let r = data.first();
+        if data.len() != 1 || r.n_inputs() != 1 {
+            return Err(LmnError::InvalidArgument(format!(
+                "a Wiener-Hammerstein network is fitted on one record with one input, got {} record(s) with {} input(s)",
+                data.len(),
+                r.n_inputs()
+            )));
+        }
+        self.fit_with_observer(&r.inputs[0], &r.output, observer)
+            .map(|(m, _)| m)
+    }
+}
+
 /// What the identification did.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct WhReport {
+    /// Poles and zeros of the best linear approximation.
+    pub bla_orders: (usize, usize),
+    /// Hold-out RMSE per BLA order tried (empty when the orders were given).
+    pub bla_holdout_rmse: Vec<(usize, f64)>,
+    /// Leading samples left out of the costs.
+    pub skip: usize,
     /// RMSE of the best linear approximation (training record).
     pub bla_rmse: f64,
     /// Pole/zero splits scored.
@@ -489,6 +646,17 @@ impl WhFitter {
 
     /// Identify the network from input `u` and output `y`.
     pub fn fit(&self, u: &[f64], y: &[f64]) -> Result<(WienerHammersteinNetwork, WhReport)> {
+        self.fit_with_observer(u, y, &Silent)
+    }
+
+    /// [`fit`](Self::fit), reporting progress (the BLA, the split scan, each
+    /// refinement) and every Levenberg–Marquardt iteration to `observer`.
+    pub fn fit_with_observer(
+        &self,
+        u: &[f64],
+        y: &[f64],
+        observer: &dyn Observer,
+    ) -> Result<(WienerHammersteinNetwork, WhReport)> {
         let p = &self.p;
         let n = u.len();
         if y.len() != n {
@@ -497,7 +665,7 @@ impl WhFitter {
                 y.len()
             )));
         }
-        let needed = 20 * (p.bla_poles + p.bla_zeros + 2 * p.knots + 8) + p.skip;
+        let needed = 20 * (p.bla_size() + 2 * p.knots + 8) + p.skip.unwrap_or(0);
         if n < needed.max(500) {
             return Err(LmnError::TooShort {
                 needed: needed.max(500),
@@ -507,9 +675,42 @@ impl WhFitter {
         if !u.iter().chain(y).all(|v| v.is_finite()) {
             return Err(LmnError::InvalidArgument("non-finite samples".into()));
         }
-        // 1. best linear approximation
-        let (bb, ab, bla_rmse) = self.bla(u, y)?;
+        let n_fit = n - (p.holdout * n as f64) as usize;
+        let extras: Vec<usize> = if p.extra_g1 == 0 {
+            vec![0]
+        } else {
+            (1..=p.extra_g1).collect()
+        };
+        let total = 3 + p.candidates * extras.len();
+        // 1. best linear approximation (its order chosen on the hold-out)
+        observer.progress(0, total, "Wiener-Hammerstein: best linear approximation");
+        let mut bla_holdout_rmse = vec![];
+        let orders = match p.bla_orders {
+            Some(o) => o,
+            None => {
+                let mut best = (1, f64::INFINITY);
+                for k in 1..=p.max_bla_order {
+                    let Ok((b, a, _, _)) = self.bla(&u[..n_fit], &y[..n_fit], (k, k), &Silent)
+                    else {
+                        continue;
+                    };
+                    let sim = filtered(&b, &a, u);
+                    let e = rms(&sim[n_fit..]
+                        .iter()
+                        .zip(&y[n_fit..])
+                        .map(|(a, b)| a - b)
+                        .collect::<Vec<_>>());
+                    bla_holdout_rmse.push((k, e));
+                    if e < best.1 {
+                        best = (k, e);
+                    }
+                }
+                (best.0, best.0)
+            }
+        };
+        let (bb, ab, bla_rmse, skip) = self.bla(u, y, orders, observer)?;
         // 2. split scan
+        observer.progress(1, total, "Wiener-Hammerstein: pole/zero split scan");
         let ns = p.scan_samples.min(n);
         let (us, ys) = (&u[..ns], &y[..ns]);
         let pg = root_groups(&roots(&ab));
@@ -542,7 +743,7 @@ impl WhFitter {
                     *v *= g1 * lead;
                 }
                 tried += 1;
-                let Some((e, m)) = self.start_network(b1, a1, b2, a2, us, ys) else {
+                let Some((e, m)) = self.start_network(b1, a1, b2, a2, us, ys, skip) else {
                     continue;
                 };
                 scored.push((e, m));
@@ -556,24 +757,24 @@ impl WhFitter {
             ));
         }
         // 3. refine the best splits with extra G₁ freedom; choose on the hold-out tail
-        let n_fit = n - (p.holdout * n as f64) as usize;
         let mut refined = vec![];
         let mut holdout_rmse = vec![];
-        let extras: Vec<usize> = if p.extra_g1 == 0 {
-            vec![0]
-        } else {
-            (1..=p.extra_g1).collect()
-        };
         let starts: Vec<WienerHammersteinNetwork> =
             scored.into_iter().take(p.candidates).map(|s| s.1).collect();
         for m0 in &starts {
             for &extra in &extras {
+                observer.progress(
+                    2 + refined.len(),
+                    total,
+                    "Wiener-Hammerstein: joint Levenberg-Marquardt of a split",
+                );
                 let mut m = m0.clone();
                 for _ in 0..extra {
                     m.b1.push(0.0);
                     m.a1.push(0.0);
                 }
-                let (m, _, _) = self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter)?;
+                let (m, _, _) =
+                    self.refine(m, &u[..n_fit], &y[..n_fit], p.max_iter, skip, observer)?;
                 let e = if n_fit < n {
                     let sim = m.simulate(u);
                     rms(&sim[n_fit..]
@@ -590,11 +791,20 @@ impl WhFitter {
         }
         refined.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (_, m) = refined.swap_remove(0);
-        let (m, rmse, iterations) = self.refine(m, u, y, p.max_iter.div_ceil(3))?;
+        observer.progress(
+            total - 1,
+            total,
+            "Wiener-Hammerstein: final Levenberg-Marquardt",
+        );
+        let (m, rmse, iterations) = self.refine(m, u, y, p.max_iter.div_ceil(3), skip, observer)?;
         m.check()?;
+        observer.progress(total, total, "Wiener-Hammerstein network fitted");
         Ok((
             m,
             WhReport {
+                bla_orders: orders,
+                bla_holdout_rmse,
+                skip,
                 bla_rmse,
                 splits_tried: tried,
                 best_split_rmse,
@@ -605,9 +815,17 @@ impl WhFitter {
         ))
     }
 
-    /// OE best linear approximation: ARX start, then LM on the simulation error.
-    fn bla(&self, u: &[f64], y: &[f64]) -> Result<(Vec<f64>, Vec<f64>, f64)> {
-        let (na, nb) = (self.p.bla_poles, self.p.bla_zeros + 1);
+    /// OE best linear approximation with `(poles, zeros)`: ARX start, then
+    /// LM on the simulation error. Returns (b, a, RMSE, the transient left
+    /// out of the costs).
+    fn bla(
+        &self,
+        u: &[f64],
+        y: &[f64],
+        (poles, zeros): (usize, usize),
+        observer: &dyn Observer,
+    ) -> Result<(Vec<f64>, Vec<f64>, f64, usize)> {
+        let (na, nb) = (poles, zeros + 1);
         let n0 = na.max(nb);
         let n = u.len();
         let q = na + nb;
@@ -649,8 +867,13 @@ impl WhFitter {
                 .collect();
             a = poly_from_roots(&r0);
         }
-        // OE LM over (b, a[1..]) with a finite-difference Jacobian
-        let skip = self.p.skip.min(n / 4);
+        // OE LM over (b, a[1..]) with a finite-difference Jacobian; the
+        // transient: given, or until the start's slowest mode decayed to 1e-3
+        let skip = self
+            .p
+            .skip
+            .unwrap_or_else(|| settling_samples(&a).max(n0))
+            .min(n / 4);
         let resid = |p: &[f64]| -> Option<Vec<f64>> {
             let b = &p[..nb];
             let mut a = vec![1.0];
@@ -669,15 +892,16 @@ impl WhFitter {
         };
         let mut p0 = b.clone();
         p0.extend_from_slice(&a[1..]);
-        let (p, e) = lm_fd(&p0, &resid, 60)?;
+        let (p, e) = lm_fd(&p0, &resid, 60, observer)?;
         b = p[..nb].to_vec();
         a = vec![1.0];
         a.extend_from_slice(&p[nb..]);
-        Ok((b, a, e))
+        Ok((b, a, e, skip))
     }
 
     /// The network for fixed filters, coefficients by least squares; returns
     /// the scan RMSE.
+    #[allow(clippy::too_many_arguments)]
     fn start_network(
         &self,
         b1: Vec<f64>,
@@ -686,6 +910,7 @@ impl WhFitter {
         a2: Vec<f64>,
         u: &[f64],
         y: &[f64],
+        skip: usize,
     ) -> Option<(f64, WienerHammersteinNetwork)> {
         let v = filtered(&b1, &a1, u);
         if !v.iter().all(|x| x.is_finite()) {
@@ -713,7 +938,7 @@ impl WhFitter {
             },
         };
         let cols = network_columns(&m, u);
-        let skip = self.p.skip.min(u.len() / 4);
+        let skip = skip.min(u.len() / 4);
         let c = solve_columns(&cols, y, skip)?;
         let e: Vec<f64> = (skip..u.len())
             .map(|t| y[t] - cols.iter().zip(&c).map(|(col, c)| col[t] * c).sum::<f64>())
@@ -724,157 +949,244 @@ impl WhFitter {
     }
 
     /// Joint LM over filter coefficients (finite differences) and network
-    /// coefficients (exact columns).
+    /// coefficients (exact columns); see [`JointProblem`] and [`wh_solver`].
     fn refine(
         &self,
-        mut m: WienerHammersteinNetwork,
+        m: WienerHammersteinNetwork,
         u: &[f64],
         y: &[f64],
         iters: usize,
+        skip: usize,
+        observer: &dyn Observer,
     ) -> Result<(WienerHammersteinNetwork, f64, usize)> {
         let lay = Layout::of(&m);
-        let skip = self.p.skip.min(u.len() / 4);
+        let skip = skip.min(u.len() / 4);
         let nf = lay.n_filter();
         let np = nf + lay.nc;
         let ns = u.len() - skip;
-        let stable = |m: &WienerHammersteinNetwork| {
-            max_root_modulus(&m.a1) < 0.999 && max_root_modulus(&m.a2) < 0.999
+        let p0 = lay.pack(&m);
+        let mut problem = JointProblem {
+            lay,
+            model: m,
+            u,
+            y,
+            skip,
+            p: vec![],
+            e: vec![],
+            jac: DMatrix::<f64>::zeros(ns, np),
         };
-        let resid = |m: &WienerHammersteinNetwork| -> Vec<f64> {
-            let s = m.simulate(u);
-            y[skip..]
-                .iter()
-                .zip(&s[skip..])
-                .map(|(y, s)| y - s)
-                .collect()
+        let Ok(state) = wh_solver(iters, 1e-7).minimize(&mut problem, &p0, observer) else {
+            // the start's simulation error is not finite: nothing to refine
+            let mut m = problem.model;
+            problem.lay.unpack(&p0, &mut m);
+            let c = problem.e.iter().map(|v| v * v).sum::<f64>();
+            return Ok((m, (c / ns as f64).sqrt(), 0));
         };
-        let mut p = lay.pack(&m);
-        let mut e = resid(&m);
-        let mut cost = e.iter().map(|v| v * v).sum::<f64>();
-        let mut lambda = 1e-3;
-        let mut it = 0;
-        let mut jac = DMatrix::<f64>::zeros(ns, np);
-        while it < iters {
-            it += 1;
-            // Jacobian of ŷ: filters by central-free forward differences
-            for j in 0..nf {
-                let h = 1e-6 * (1.0 + p[j].abs());
-                let mut pj = p.clone();
-                pj[j] += h;
-                let mut mj = m.clone();
-                lay.unpack(&pj, &mut mj);
-                let s = mj.simulate(u);
-                let s0: Vec<f64> = y[skip..].iter().zip(&e).map(|(y, e)| y - e).collect();
-                for t in 0..ns {
-                    jac[(t, j)] = (s[skip + t] - s0[t]) / h;
-                }
-            }
-            let cols = network_columns(&m, u);
-            for (k, c) in cols.iter().enumerate() {
-                for t in 0..ns {
-                    jac[(t, nf + k)] = c[skip + t];
-                }
-            }
-            let jtj = jac.tr_mul(&jac);
-            let jte = jac.tr_mul(&DVector::from_column_slice(&e));
-            let mut accepted = false;
-            for _ in 0..10 {
-                let mut a = jtj.clone();
-                for i in 0..np {
-                    a[(i, i)] += lambda * (jtj[(i, i)] + 1e-12);
-                }
-                let Some(ch) = a.cholesky() else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let dp = ch.solve(&jte);
-                let pn: Vec<f64> = p.iter().zip(dp.iter()).map(|(a, b)| a + b).collect();
-                let mut mn = m.clone();
-                lay.unpack(&pn, &mut mn);
-                if stable(&mn) {
-                    let en = resid(&mn);
-                    let cn = en.iter().map(|v| v * v).sum::<f64>();
-                    if cn.is_finite() && cn < cost {
-                        let rel = (cost - cn) / cost.max(1e-300);
-                        p = pn;
-                        m = mn;
-                        e = en;
-                        cost = cn;
-                        lambda = (lambda * 0.3).max(1e-10);
-                        accepted = rel > 1e-7;
-                        break;
-                    }
-                }
-                lambda *= 10.0;
-            }
-            if !accepted {
-                break;
-            }
-        }
-        Ok((m, (cost / ns as f64).sqrt(), it))
+        let mut m = problem.model;
+        problem.lay.unpack(&state.theta, &mut m);
+        Ok((m, (state.cost / ns as f64).sqrt(), state.iterations))
     }
 }
 
-/// Levenberg–Marquardt with a forward-difference Jacobian; `resid` returns
-/// `None` for an inadmissible (unstable) parameter vector.
+/// The joint refinement as a least-squares problem: θ = the packed filter
+/// and network coefficients ([`Layout`]); residuals y − ŷ after `skip`
+/// samples; Jacobian columns of the filter coefficients by forward
+/// differences (step 1e-6·(1 + |θⱼ|)), of the network coefficients exact
+/// (G₂ of the basis functions); trial points with a pole at |z| ≥ 0.999 are
+/// inadmissible.
+struct JointProblem<'a> {
+    lay: Layout,
+    /// Scratch model, its coefficients set to the point evaluated last.
+    model: WienerHammersteinNetwork,
+    u: &'a [f64],
+    y: &'a [f64],
+    skip: usize,
+    /// The last point evaluated and its residuals (the accepted point is
+    /// linearised next).
+    p: Vec<f64>,
+    e: Vec<f64>,
+    jac: DMatrix<f64>,
+}
+
+impl JointProblem<'_> {
+    fn residuals(&self, m: &WienerHammersteinNetwork) -> Vec<f64> {
+        let s = m.simulate(self.u);
+        self.y[self.skip..]
+            .iter()
+            .zip(&s[self.skip..])
+            .map(|(y, s)| y - s)
+            .collect()
+    }
+    fn eval(&mut self, p: &[f64]) -> f64 {
+        self.lay.unpack(p, &mut self.model);
+        self.e = self.residuals(&self.model);
+        self.p = p.to_vec();
+        self.e.iter().map(|v| v * v).sum::<f64>()
+    }
+}
+
+impl LeastSquaresProblem for JointProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.lay.n_filter() + self.lay.nc
+    }
+    fn cost(&mut self, p: &[f64]) -> Option<f64> {
+        Some(self.eval(p))
+    }
+    fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let cost = if self.p.as_slice() == p {
+            self.e.iter().map(|v| v * v).sum::<f64>()
+        } else {
+            self.eval(p)
+        };
+        let (nf, skip) = (self.lay.n_filter(), self.skip);
+        let ns = self.e.len();
+        // Jacobian of ŷ: filters by forward differences
+        for j in 0..nf {
+            let h = 1e-6 * (1.0 + p[j].abs());
+            let mut pj = p.to_vec();
+            pj[j] += h;
+            let mut mj = self.model.clone();
+            self.lay.unpack(&pj, &mut mj);
+            let s = mj.simulate(self.u);
+            let s0: Vec<f64> = self.y[skip..]
+                .iter()
+                .zip(&self.e)
+                .map(|(y, e)| y - e)
+                .collect();
+            for t in 0..ns {
+                self.jac[(t, j)] = (s[skip + t] - s0[t]) / h;
+            }
+        }
+        let cols = network_columns(&self.model, self.u);
+        for (k, c) in cols.iter().enumerate() {
+            for t in 0..ns {
+                self.jac[(t, nf + k)] = c[skip + t];
+            }
+        }
+        let jtj = self.jac.tr_mul(&self.jac);
+        let jte = self.jac.tr_mul(&DVector::from_column_slice(&self.e));
+        let n = jtj.nrows();
+        for i in 0..n {
+            for j in 0..n {
+                gram[i * n + j] = jtj[(i, j)];
+            }
+        }
+        grad.copy_from_slice(jte.as_slice());
+        Some(cost)
+    }
+    fn admissible(&mut self, p: &[f64]) -> bool {
+        let mut m = self.model.clone();
+        self.lay.unpack(p, &mut m);
+        max_root_modulus(&m.a1) < 0.999 && max_root_modulus(&m.a2) < 0.999
+    }
+}
+
+/// The Levenberg–Marquardt settings of the Wiener–Hammerstein fits: λ from
+/// 1e-3, ×10 after a rejected step, ×0.3 after an accepted one (floor
+/// 1e-10), damping λ·(Gᵢᵢ + 1e-12), 10 trials; an accepted step that lowers
+/// the cost by at most `tol` (relative) ends the run.
+fn wh_solver(iters: usize, tol: f64) -> LevenbergMarquardt {
+    LmParams {
+        max_iter: iters,
+        // the run ends when the decrease is ≤ tol: the solver stops below
+        // its tolerance, so take the next number above tol
+        tol: f64::from_bits(tol.to_bits() + 1),
+        lambda_init: 1e-3,
+        lambda_up: 10.0,
+        lambda_up_singular: 10.0,
+        lambda_down: 0.3,
+        lambda_min: 1e-10,
+        lambda_max: 1e300,
+        max_trials: 10,
+        diag_floor: 0.0,
+        diag_floor_abs: 0.0,
+        diag_add: 1e-12,
+        jitter: 0.0,
+        jitter_abs: 0.0,
+    }
+    .check()
+    .expect("valid Wiener-Hammerstein solver settings")
+}
+
+/// A residual function `e(p) = y − ŷ` (`None` for an inadmissible, unstable
+/// parameter vector) with a forward-difference Jacobian (step
+/// 1e-7·(1 + |pⱼ|)); a point whose differences cannot be evaluated ends the
+/// run.
+struct ResidualProblem<'a> {
+    resid: &'a dyn Fn(&[f64]) -> Option<Vec<f64>>,
+    np: usize,
+    /// The last point evaluated and its residuals.
+    p: Vec<f64>,
+    e: Option<Vec<f64>>,
+    /// Number of residuals (0 until one point was evaluated).
+    n_res: usize,
+    jac: DMatrix<f64>,
+}
+
+impl LeastSquaresProblem for ResidualProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.np
+    }
+    fn cost(&mut self, p: &[f64]) -> Option<f64> {
+        self.p = p.to_vec();
+        self.e = (self.resid)(p);
+        let e = self.e.as_ref()?;
+        self.n_res = e.len();
+        Some(e.iter().map(|v| v * v).sum::<f64>())
+    }
+    fn linearize(&mut self, p: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        if !(self.e.is_some() && self.p.as_slice() == p) {
+            self.cost(p)?;
+        }
+        let e = self.e.as_ref()?;
+        let n = e.len();
+        if self.jac.nrows() != n {
+            self.jac = DMatrix::zeros(n, self.np);
+        }
+        for j in 0..self.np {
+            let h = 1e-7 * (1.0 + p[j].abs());
+            let mut pj = p.to_vec();
+            pj[j] += h;
+            let ej = (self.resid)(&pj)?;
+            for t in 0..n {
+                // ŷ = y − e
+                self.jac[(t, j)] = (e[t] - ej[t]) / h;
+            }
+        }
+        let jtj = self.jac.tr_mul(&self.jac);
+        let jte = self.jac.tr_mul(&DVector::from_column_slice(e));
+        let np = self.np;
+        for i in 0..np {
+            for j in 0..np {
+                gram[i * np + j] = jtj[(i, j)];
+            }
+        }
+        grad.copy_from_slice(jte.as_slice());
+        Some(e.iter().map(|v| v * v).sum::<f64>())
+    }
+}
+
+/// Levenberg–Marquardt with a forward-difference Jacobian ([`wh_solver`],
+/// tolerance 1e-9); `resid` returns `None` for an inadmissible (unstable)
+/// parameter vector. Returns the parameters and the RMS residual.
 fn lm_fd(
     p0: &[f64],
     resid: &dyn Fn(&[f64]) -> Option<Vec<f64>>,
     iters: usize,
+    observer: &dyn Observer,
 ) -> Result<(Vec<f64>, f64)> {
-    let mut p = p0.to_vec();
-    let mut e = resid(&p).ok_or_else(|| LmnError::Unstable("unstable linear start".into()))?;
-    let mut cost = e.iter().map(|v| v * v).sum::<f64>();
-    let n = e.len();
-    let np = p.len();
-    let mut lambda = 1e-3;
-    let mut jac = DMatrix::<f64>::zeros(n, np);
-    for _ in 0..iters {
-        for j in 0..np {
-            let h = 1e-7 * (1.0 + p[j].abs());
-            let mut pj = p.clone();
-            pj[j] += h;
-            let Some(ej) = resid(&pj) else {
-                return Ok((p, (cost / n as f64).sqrt()));
-            };
-            for t in 0..n {
-                // ŷ = y − e
-                jac[(t, j)] = (e[t] - ej[t]) / h;
-            }
-        }
-        let jtj = jac.tr_mul(&jac);
-        let jte = jac.tr_mul(&DVector::from_column_slice(&e));
-        let mut accepted = false;
-        for _ in 0..10 {
-            let mut a = jtj.clone();
-            for i in 0..np {
-                a[(i, i)] += lambda * (jtj[(i, i)] + 1e-12);
-            }
-            let Some(ch) = a.cholesky() else {
-                lambda *= 10.0;
-                continue;
-            };
-            let dp = ch.solve(&jte);
-            let pn: Vec<f64> = p.iter().zip(dp.iter()).map(|(a, b)| a + b).collect();
-            if let Some(en) = resid(&pn) {
-                let cn = en.iter().map(|v| v * v).sum::<f64>();
-                if cn.is_finite() && cn < cost {
-                    let rel = (cost - cn) / cost.max(1e-300);
-                    p = pn;
-                    e = en;
-                    cost = cn;
-                    lambda = (lambda * 0.3).max(1e-10);
-                    accepted = rel > 1e-9;
-                    break;
-                }
-            }
-            lambda *= 10.0;
-        }
-        if !accepted {
-            break;
-        }
-    }
-    Ok((p, (cost / n as f64).sqrt()))
+    let mut problem = ResidualProblem {
+        resid,
+        np: p0.len(),
+        p: vec![],
+        e: None,
+        n_res: 0,
+        jac: DMatrix::zeros(0, 0),
+    };
+    let state = wh_solver(iters, 1e-9)
+        .minimize(&mut problem, p0, observer)
+        .map_err(|_| LmnError::Unstable("unstable linear start".into()))?;
+    Ok((state.theta, (state.cost / problem.n_res as f64).sqrt()))
 }
 
 #[cfg(test)]
@@ -940,6 +1252,7 @@ mod tests {
             .collect();
         let (m, rep) = WhParams::new()
             .bla(4, 4)
+            .skip(200)
             .knots(9)
             .extra_g1(0)
             .max_iter(40)
@@ -966,5 +1279,54 @@ mod tests {
         let back: WienerHammersteinNetwork = postcard::from_bytes(&bytes).unwrap();
         assert_eq!(back, m);
         assert!(back.check().is_ok());
+    }
+
+    /// The generic defaults on the same kind of system: the BLA order and
+    /// the transient are derived from the data, through `Identify`.
+    #[test]
+    fn generic_defaults_choose_the_bla_order_on_the_hold_out() {
+        let mut rng = rand_xoshiro::Xoshiro256PlusPlus::seed_from_u64(17);
+        let n = 6000;
+        let u: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let v = filtered(&[0.3, 0.2], &[1.0, -0.9, 0.4], &u);
+        let w: Vec<f64> = v.iter().map(|x| (1.5 * x).tanh() + 0.2 * x).collect();
+        let y0 = filtered(&[0.0, 0.4, -0.1], &[1.0, -1.3, 0.55], &w);
+        let y: Vec<f64> = y0
+            .iter()
+            .map(|v| v + 0.01 * rng.random_range(-1.7..1.7))
+            .collect();
+        let f = WhParams::new()
+            .knots(7)
+            .extra_g1(1)
+            .max_iter(15)
+            .check()
+            .unwrap();
+        let (m, rep) = f.fit(&u, &y).unwrap();
+        eprintln!("WH generic defaults: {rep:?}");
+        assert_eq!(
+            rep.bla_holdout_rmse.len(),
+            WhParams::default().max_bla_order
+        );
+        let best = rep
+            .bla_holdout_rmse
+            .iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .unwrap();
+        assert_eq!(rep.bla_orders, (best.0, best.0));
+        // the transient: the slowest pole (|z| ≈ 0.74) decays in ~25 samples
+        assert!(rep.skip > 5 && rep.skip < 200, "skip {}", rep.skip);
+        assert!(rep.rmse < 0.3 * rep.bla_rmse, "{rep:?}");
+        let rec =
+            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y.clone()).unwrap();
+        let via = f.identify(&Records::single(rec), &gb_core::Silent).unwrap();
+        assert_eq!(via, m);
+        let two = gb_core::Record::new(
+            vec!["a".into(), "b".into()],
+            "y".into(),
+            vec![u.clone(), u],
+            y,
+        )
+        .unwrap();
+        assert!(f.identify(&Records::single(two), &gb_core::Silent).is_err());
     }
 }

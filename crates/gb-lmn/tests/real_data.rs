@@ -2,7 +2,8 @@
 //! `$GREYBOX_DATA`); skipped with a notice when the folder is absent. The
 //! full benchmark runs are `cargo run --release -p gb-lmn --example benchmarks`.
 use gb_core::CsvTable;
-use gb_lmn::{Experiment, Focus, LmnParams, RegressorSpec, WeightKind};
+use gb_core::{Record, Records};
+use gb_lmn::{Focus, LmnParams, RegressorSpec, WeightKind};
 use std::path::PathBuf;
 
 fn data_dir() -> Option<PathBuf> {
@@ -10,12 +11,9 @@ fn data_dir() -> Option<PathBuf> {
     gb_core::benchmark_data_dir(&default, "")
 }
 
-fn load(p: PathBuf) -> Experiment {
+fn load(p: PathBuf) -> Record {
     let t = CsvTable::read(&p).expect("read");
-    Experiment::new(
-        vec![t.column("u").expect("u").to_vec()],
-        t.column("y").expect("y").to_vec(),
-    )
+    Record::from_table(&t, &["u".into()], Some("y")).expect("u, y")
 }
 
 /// Silverbox multisine test (init window 50): a 12-leaf affine tree network
@@ -32,7 +30,7 @@ fn silverbox_tree_network_beats_half_a_millivolt() {
         .max_leaves(12)
         .focus(Focus::Simulation)
         .lm_iterations(15)
-        .fit(std::slice::from_ref(&train))
+        .fit(&Records::single(train))
         .unwrap();
     let sim = m.simulate(&test, 50).unwrap();
     let rmse = gb_core::metrics::rmse(&test.output[50..], &sim[50..]).unwrap();

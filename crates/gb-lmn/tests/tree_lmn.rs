@@ -1,17 +1,33 @@
 //! Known-answer tests of the issue-3 network (tree/Gaussian weights, oblique
 //! splits, pruning, NOE gradients, Duffing).
-use gb_lmn::{
-    Criterion, Experiment, Focus, LmnModel, LmnParams, RegressorSpec, SplitKind, WeightKind,
-};
+use gb_core::{Record, Records};
+use gb_lmn::{Criterion, Focus, LmnModel, LmnParams, RegressorSpec, SplitKind, WeightKind};
 use rand::{Rng, SeedableRng};
 use rand_distr::{Distribution, StandardNormal};
+
+/// A record of input signals u1, u2, … and output y (a struct literal, so
+/// that tests can build inconsistent records on purpose).
+fn rec(inputs: Vec<Vec<f64>>, output: Vec<f64>) -> Record {
+    Record {
+        input_names: (1..=inputs.len()).map(|j| format!("u{j}")).collect(),
+        output_name: "y".into(),
+        inputs,
+        output,
+        sample_time: None,
+    }
+}
+
+/// One record as a training set.
+fn one(r: &Record) -> Records {
+    Records::single(r.clone())
+}
 
 fn rng(seed: u64) -> rand::rngs::SmallRng {
     rand::rngs::SmallRng::seed_from_u64(seed)
 }
 
 /// Static experiment with two inputs and output f(u1, u2) + noise.
-fn static_2d(n: usize, noise: f64, seed: u64, f: impl Fn(f64, f64) -> f64) -> Experiment {
+fn static_2d(n: usize, noise: f64, seed: u64, f: impl Fn(f64, f64) -> f64) -> Record {
     let mut r = rng(seed);
     let mut u1 = Vec::with_capacity(n);
     let mut u2 = Vec::with_capacity(n);
@@ -25,7 +41,7 @@ fn static_2d(n: usize, noise: f64, seed: u64, f: impl Fn(f64, f64) -> f64) -> Ex
         u2.push(b);
         y.push(f(a, b) + noise * e);
     }
-    Experiment::new(vec![u1, u2], y)
+    rec(vec![u1, u2], y)
 }
 
 #[test]
@@ -42,7 +58,7 @@ fn piecewise_affine_function_is_recovered_by_the_right_split() {
         .smoothness(1e-4)
         .max_leaves(6)
         .lm_iterations(0)
-        .fit(std::slice::from_ref(&e))
+        .fit(&one(&e))
         .unwrap();
     assert_eq!(m.n_leaves(), 2, "{}", m.describe());
     let s = &m.splits()[0];
@@ -83,7 +99,7 @@ fn oblique_tree_beats_axis_lolimot_on_an_oblique_function() {
             .lm_iterations(0)
             .check()
             .unwrap()
-            .fit(std::slice::from_ref(&e), Some(std::slice::from_ref(&e)))
+            .fit(&one(&e), Some(&one(&e)))
             .unwrap();
         let p = m.predict(&e).unwrap();
         (m.n_leaves(), gb_core::metrics::rmse(&e.output, &p).unwrap())
@@ -105,7 +121,7 @@ fn pruning_removes_a_split_added_on_pure_noise() {
             1.0 + 2.0 * v + 0.3 * e
         })
         .collect();
-    let e = [Experiment::new(vec![u], y)];
+    let e = one(&rec(vec![u], y));
     // choosing by the (same) data always keeps a split on the noise
     let mut m = LmnParams::new(RegressorSpec::arx(0, &[1], &[0]))
         .max_leaves(2)
@@ -131,13 +147,13 @@ fn pruning_removes_a_split_added_on_pure_noise() {
 }
 
 /// A mildly nonlinear second-order system (bounded by the tanh terms).
-fn nl_system(n: usize, noise: f64, seed: u64) -> Experiment {
+fn nl_system(n: usize, noise: f64, seed: u64) -> Record {
     nl_system_with_truth(n, noise, seed).0
 }
 
 /// [`nl_system`] and the same record without the measurement noise (the
 /// truth a simulation should reproduce).
-fn nl_system_with_truth(n: usize, noise: f64, seed: u64) -> (Experiment, Experiment) {
+fn nl_system_with_truth(n: usize, noise: f64, seed: u64) -> (Record, Record) {
     let mut r = rng(seed);
     let u: Vec<f64> = (0..n).map(|_| r.random_range(-1.0..1.0)).collect();
     let mut y0 = vec![0.0; n];
@@ -154,13 +170,10 @@ fn nl_system_with_truth(n: usize, noise: f64, seed: u64) -> (Experiment, Experim
             v + noise * e
         })
         .collect();
-    (
-        Experiment::new(vec![u.clone()], y),
-        Experiment::new(vec![u], y0),
-    )
+    (rec(vec![u.clone()], y), rec(vec![u], y0))
 }
 
-fn check_gradient(m: &LmnModel, e: &[Experiment], focus: Focus) {
+fn check_gradient(m: &LmnModel, e: &Records, focus: Focus) {
     let (_, g) = m.cost_gradient(e, focus).unwrap();
     let th = m.parameters();
     for q in 0..th.len() {
@@ -184,7 +197,7 @@ fn check_gradient(m: &LmnModel, e: &[Experiment], focus: Focus) {
 
 #[test]
 fn noe_gradient_matches_finite_differences() {
-    let e = [nl_system(400, 0.02, 4), nl_system(300, 0.02, 5)];
+    let e = Records::new(vec![nl_system(400, 0.02, 4), nl_system(300, 0.02, 5)]).unwrap();
     let reg = RegressorSpec::arx(2, &[2], &[1])
         .with_z(vec![1], vec![vec![1]])
         .with_degree(2);
@@ -212,7 +225,7 @@ fn noe_gradient_matches_finite_differences() {
 }
 
 /// Duffing oscillator x'' + 0.3 x' + x + 2 x³ = u, sampled at 0.2 with RK4 (zero-order hold).
-fn duffing(n: usize, noise: f64, seed: u64) -> (Experiment, Vec<f64>) {
+fn duffing(n: usize, noise: f64, seed: u64) -> (Record, Vec<f64>) {
     let mut r = rng(seed);
     let mut u = Vec::with_capacity(n);
     let mut level = 0.0;
@@ -242,7 +255,7 @@ fn duffing(n: usize, noise: f64, seed: u64) -> (Experiment, Vec<f64>) {
             v + noise * e
         })
         .collect();
-    (Experiment::new(vec![u], y), y0)
+    (rec(vec![u], y), y0)
 }
 
 #[test]
@@ -256,7 +269,7 @@ fn duffing_free_run_reaches_twice_the_noise_floor() {
         .max_leaves(8)
         .focus(Focus::Simulation)
         .lm_iterations(25)
-        .fit(std::slice::from_ref(&train))
+        .fit(&one(&train))
         .unwrap();
     let sim = m.simulate(&val, 0).unwrap();
     let k0 = m.max_lag();
@@ -273,12 +286,15 @@ fn duffing_free_run_reaches_twice_the_noise_floor() {
 fn several_experiments_and_user_columns_round_trip() {
     let e1 = nl_system(500, 0.01, 8);
     let e2 = nl_system(400, 0.01, 9);
-    // a user column: the square of the input, entering the local models linearly
-    let add = |e: Experiment| {
+    // a user column (the last input signal): the square of the input,
+    // entering the local models linearly
+    let add = |mut e: Record| {
         let c: Vec<f64> = e.inputs[0].iter().map(|v| v * v).collect();
-        e.with_extra(vec![c])
+        e.inputs.push(c);
+        e.input_names.push("u1_squared".into());
+        e
     };
-    let e = [add(e1), add(e2)];
+    let e = Records::new(vec![add(e1), add(e2)]).unwrap();
     let reg = RegressorSpec::arx(2, &[1], &[1]).with_extra(1);
     let m = LmnParams::new(reg)
         .max_leaves(3)
@@ -289,17 +305,18 @@ fn several_experiments_and_user_columns_round_trip() {
     let back: LmnModel = postcard::from_bytes(&bytes).unwrap();
     assert_eq!(m, back);
     back.check_consistency().unwrap();
-    assert_eq!(
-        m.simulate(&e[1], 10).unwrap(),
-        back.simulate(&e[1], 10).unwrap()
-    );
+    let e1 = &e.as_slice()[1];
+    assert_eq!(m.simulate(e1, 10).unwrap(), back.simulate(e1, 10).unwrap());
+    // the user columns are inputs of the model as a DynamicModel too
+    use gb_core::{DynamicModel, Init};
+    assert_eq!(DynamicModel::n_inputs(&m), 2);
+    let dm = DynamicModel::simulate(&m, &e1.inputs, Init::History(&e1.output[..10])).unwrap();
+    assert_eq!(dm[10..], m.simulate(e1, 10).unwrap()[10..]);
     assert!(m.effective_parameters() > 0.0);
     // bad data is an error, not a panic
-    assert!(m
-        .simulate(&Experiment::new(vec![], vec![0.0; 10]), 0)
-        .is_err());
+    assert!(m.simulate(&rec(vec![], vec![0.0; 10]), 0).is_err());
     assert!(LmnParams::new(RegressorSpec::arx(1, &[1], &[1]))
-        .fit(&[Experiment::new(vec![vec![0.0; 5]], vec![0.0; 5])])
+        .fit(&one(&rec(vec![vec![0.0; 5]], vec![0.0; 5])))
         .is_err());
 }
 
@@ -316,14 +333,12 @@ fn fast_tree_simulation_agrees_with_the_generic_evaluation() {
         .lm_iterations(0)
         .check()
         .unwrap()
-        .fit(std::slice::from_ref(&e), Some(std::slice::from_ref(&e)))
+        .fit(&one(&e), Some(&one(&e)))
         .unwrap();
     assert_eq!(m.n_leaves(), 6);
     let sim = m.simulate(&e, 0).unwrap();
     // one-step predictions with the simulated output as "measurement" reproduce it
-    let again = m
-        .predict(&Experiment::new(e.inputs.clone(), sim.clone()))
-        .unwrap();
+    let again = m.predict(&rec(e.inputs.clone(), sim.clone())).unwrap();
     for k in m.max_lag()..sim.len() {
         assert!(
             (sim[k] - again[k]).abs() < 1e-12 * (1.0 + sim[k].abs()),
@@ -343,7 +358,7 @@ fn output_error_construction_does_not_simulate_fresh_data_worse() {
     let reg = RegressorSpec::arx(2, &[2], &[1]).with_z(vec![1], vec![vec![1]]);
     let p = LmnParams::new(reg).max_leaves(6).lm_iterations(10);
     // truth RMSE of the simulation (from the true initial outputs)
-    let rms = |m: &LmnModel, truth: &Experiment| {
+    let rms = |m: &LmnModel, truth: &Record| {
         let s = m.simulate(truth, 0).unwrap();
         gb_core::metrics::rmse(&truth.output[2..], &s[2..]).unwrap()
     };
@@ -355,12 +370,8 @@ fn output_error_construction_does_not_simulate_fresh_data_worse() {
     ] {
         let e = nl_system(1500, noise, seed);
         let (_, truth) = nl_system_with_truth(3000, noise, seed + 100);
-        let plain = p.clone().fit(std::slice::from_ref(&e)).unwrap();
-        let noe = p
-            .clone()
-            .noe_construction(true)
-            .fit(std::slice::from_ref(&e))
-            .unwrap();
+        let plain = p.clone().fit(&one(&e)).unwrap();
+        let noe = p.clone().noe_construction(true).fit(&one(&e)).unwrap();
         let (a, b) = (rms(&plain, &truth), rms(&noe, &truth));
         eprintln!("seed {seed}, noise {noise}: fresh-data truth RMSE plain {a:.5}, NOE construction {b:.5}");
         // measured: 0.0831/0.0831, 0.0633/0.0633, 0.0821/0.0821, 0.0905/0.0716;
@@ -384,24 +395,23 @@ fn mismatched_lengths_are_errors_not_panics() {
     let m = LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
         .max_leaves(2)
         .lm_iterations(2)
-        .fit(std::slice::from_ref(&e))
+        .fit(&one(&e))
         .unwrap();
     let mut long = e.clone();
     long.output.extend_from_slice(&[0.0; 10]);
     assert!(m.predict(&long).is_err());
-    assert!(m
-        .clone()
-        .prune(std::slice::from_ref(&long), Criterion::Bic)
-        .is_err());
+    assert!(m.clone().prune(&one(&long), Criterion::Bic).is_err());
     assert!(LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
-        .fit(std::slice::from_ref(&long))
+        .fit(&one(&long))
         .is_err());
     // simulation needs only the inputs; the output may be just the init window
-    let init = Experiment::new(e.inputs.clone(), e.output[..5].to_vec());
-    assert_eq!(m.simulate(&init, 5).unwrap().len(), 300);
+    assert_eq!(
+        m.simulate_signals(&e.inputs, &e.output[..5]).unwrap().len(),
+        300
+    );
     let mut nan = e.clone();
     nan.output[7] = f64::NAN;
     assert!(LmnParams::new(RegressorSpec::arx(2, &[2], &[1]))
-        .fit(std::slice::from_ref(&nan))
+        .fit(&one(&nan))
         .is_err());
 }

@@ -12,9 +12,26 @@
 //! notice when absent. Writes the model and the test simulations to OUT_DIR
 //! when given.
 use gb_core::{metrics, CsvTable};
-use gb_model::{hysteretic_mechanical_start, second_order_parameters, OeParams, ProgressBar};
+use gb_model::{hysteretic_mechanical_start, second_order_parameters, OeParams};
 use std::path::PathBuf;
 use std::time::Instant;
+
+/// Progress on stderr, one line per stage of the fit (the `greybox` CLI
+/// draws a bar through the same `gb_core::Observer`).
+#[derive(Default)]
+struct StageLog(std::sync::Mutex<String>);
+
+impl gb_core::Observer for StageLog {
+    fn progress(&self, _done: usize, _total: usize, message: &str) {
+        let stage = message.split(':').next().unwrap_or(message);
+        if let Ok(mut last) = self.0.lock() {
+            if *last != stage {
+                eprintln!("  {message}");
+                *last = stage.to_string();
+            }
+        }
+    }
+}
 
 fn data_dir() -> Option<PathBuf> {
     let d = std::env::var_os("GREYBOX_DATA")
@@ -75,8 +92,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .max_level(max_level)
         .max_new(env_usize("BW_MAX_NEW", 40))
         .check()?;
-    let mut bar = ProgressBar::new();
-    let (model, report) = fit.fit(start, std::slice::from_ref(&u), &y, &mut bar)?;
+    let (model, report) = fit.fit(start, std::slice::from_ref(&u), &y, &StageLog::default())?;
     let fit_time = t0.elapsed().as_secs_f64();
     for s in &report.stages {
         println!(

@@ -150,7 +150,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let y = noisy(&y0, 2);
     let (uf, yf) = (vec![u[..n_fit].to_vec()], &y[..n_fit]);
     let uv = vec![u[n_fit..].to_vec()];
-    let (m1, r1) = fit.fit(mechanical_start(substeps)?, &uf, yf, &mut Silent)?;
+    let (m1, r1) = fit.fit(mechanical_start(substeps)?, &uf, yf, &Silent)?;
     let sim = m1.simulate(std::slice::from_ref(&u))?;
     println!("1. linear mass-spring-damper (position measured, velocity hidden)");
     let (km, cm, im) = physical(&m1, h);
@@ -177,10 +177,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         args: vec![Signal::State(0)],
         expansion: SparseExpansion::new("bior2.2", vec![-pmax], vec![pmax])?,
     });
-    let (m2, r2) = fit.fit(start, &uf, yf, &mut Silent)?;
+    let (m2, r2) = fit.fit(start, &uf, yf, &Silent)?;
     let sim = m2.simulate(std::slice::from_ref(&u))?;
     let lin_only = {
-        let (ml, _) = fit.fit(mechanical_start(substeps)?, &uf, yf, &mut Silent)?;
+        let (ml, _) = fit.fit(mechanical_start(substeps)?, &uf, yf, &Silent)?;
         ml.simulate(&uv)?
     };
     println!("2. nonlinear mass-spring-damper r(x) = k x + k3 x^3 (hidden velocity)");
@@ -261,10 +261,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .coarse_level(2)
         .max_level(3)
         .check()?;
-    let (m3, r3) = fit_h.fit(start, &uf, yf, &mut Silent)?;
+    let (m3, r3) = fit_h.fit(start, &uf, yf, &Silent)?;
     let sim = m3.simulate(std::slice::from_ref(&uh))?;
     let lin_only = {
-        let (ml, _) = fit_h.fit(mechanical_start(substeps)?, &uf, yf, &mut Silent)?;
+        let (ml, _) = fit_h.fit(mechanical_start(substeps)?, &uf, yf, &Silent)?;
         ml.simulate(&[uh[n_fit..].to_vec()])?
     };
     println!("3. Preisach hysteresis in the actuator force, F = P[u] (hidden velocity)");
@@ -324,7 +324,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         args: vec![Signal::State(0)],
         expansion: SparseExpansion::new("bior2.2", vec![-pmax], vec![pmax])?,
     });
-    let (oe, _) = fit.fit(start, std::slice::from_ref(&us), &y, &mut Silent)?;
+    let (oe, _) = fit.fit(start, std::slice::from_ref(&us), &y, &Silent)?;
     let smc = gb_model::SmcParams::new()
         .particles(200)
         .iterations(300, 100)
@@ -336,7 +336,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .seed(11)
         .check()?;
     let t0 = std::time::Instant::now();
-    let (ms, rep) = smc.fit(&oe, std::slice::from_ref(&us), &y, &mut Silent)?;
+    let (ms, rep) = smc.fit(&oe, std::slice::from_ref(&us), &y, &Silent)?;
     println!("4. SMC path (PMMH, 200 particles, 300 iterations, Student-t(3) measurement noise, Laplace prior on the 4 largest coefficients)");
     println!(
         "   particle log-likelihood: output-error model {:.1}, posterior-mean model {:.1}; acceptance {:.2}; final model from the {:?} path ({:.1} s)",

@@ -29,11 +29,33 @@
 //! filter), `MR_A=1` (acceleration as a fourth input), `MR_RIDGES` (candidate ridge
 //! weights, e.g. `0,1000`), `MR_ITER`, `MR_LEVEL`.
 use gb_core::{metrics, CsvTable};
-use gb_model::{linear_from_oe, MrDamperStructure, OeParams, ProgressBar, SparseStateSpace};
+use gb_model::{linear_from_oe, MrDamperStructure, OeParams, SparseStateSpace};
 use std::path::PathBuf;
 use std::time::Instant;
 
 type Res<T> = Result<T, Box<dyn std::error::Error>>;
+
+/// The rig's sample rate (Hz). The mean step of the `t` column gives
+/// 3004.795 Hz; the published 3004.8 Hz is kept so that the documented
+/// results are reproduced exactly.
+const SAMPLE_RATE: f64 = 3004.8;
+
+/// Progress on stderr, one line per stage of the fit (the `greybox` CLI
+/// draws a bar through the same `gb_core::Observer`).
+#[derive(Default)]
+struct StageLog(std::sync::Mutex<String>);
+
+impl gb_core::Observer for StageLog {
+    fn progress(&self, _done: usize, _total: usize, message: &str) {
+        let stage = message.split(':').next().unwrap_or(message);
+        if let Ok(mut last) = self.0.lock() {
+            if *last != stage {
+                eprintln!("  {message}");
+                *last = stage.to_string();
+            }
+        }
+    }
+}
 
 fn env_flag(name: &str, default: bool) -> bool {
     std::env::var(name).map_or(default, |v| v == "1")
@@ -127,10 +149,9 @@ fn main() -> Res<()> {
     let structures: Vec<MrDamperStructure> = res_sets
         .into_iter()
         .map(|r| MrDamperStructure {
-            resonances_hz: r,
             relative_velocity: env_flag("MR_REL", true),
             second_order_voltage: env_flag("MR_W2", true),
-            ..MrDamperStructure::default()
+            ..MrDamperStructure::new(SAMPLE_RATE, r)
         })
         .collect();
     let oe = OeParams::new()
@@ -143,7 +164,7 @@ fn main() -> Res<()> {
         &ridges,
         &head(n_fit),
         &f[..n_fit],
-        &mut ProgressBar::new(),
+        &StageLog::default(),
     )?;
     for (k, r, e) in &fit.scores {
         println!(

@@ -31,11 +31,17 @@ pub enum ModelError {
     /// From the local-model-network crate (linear initialisation).
     #[error(transparent)]
     Lmn(#[from] gb_lmn::LmnError),
+    /// From the core crate (the solver's settings).
+    #[error(transparent)]
+    Core(#[from] gb_core::CoreError),
 }
 
 impl From<ModelError> for gb_core::CoreError {
     fn from(e: ModelError) -> Self {
-        gb_core::CoreError::InvalidArgument(e.to_string())
+        match e {
+            ModelError::Core(e) => e,
+            e => gb_core::CoreError::InvalidArgument(e.to_string()),
+        }
     }
 }
 

@@ -11,7 +11,9 @@
 //! ∂ŷ_t/∂θ = (C + ∂g/∂x) S_t + ∂(Cx + Du + g + h_y)/∂θ |_direct,
 //! ```
 //!
-//! and Levenberg–Marquardt solves `(JᵀJ + λ diag JᵀJ) δ = Jᵀe`.
+//! and Levenberg–Marquardt (`gb_core::solver`, the workspace's one solver)
+//! solves `(JᵀJ + λ diag JᵀJ) δ = Jᵀe`; the sensitivity pass is the
+//! problem's linearisation.
 //!
 //! **Multiresolution refinement.** The wavelet terms start from the scaling
 //! functions of a coarse level `j₀` (a full tensor grid, value 0). For every
@@ -26,7 +28,10 @@
 use crate::basis::{EvalScratch, MAX_DIMS};
 use crate::error::{ModelError, Result};
 use crate::model::{Signal, SparseStateSpace, Target};
+use gb_core::solver::{LeastSquaresProblem, LmParams};
+use gb_core::{IterationInfo, Observer};
 use serde::{Deserialize, Serialize};
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// One free parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -39,68 +44,6 @@ pub(crate) enum Param {
     Offset,
     Coef(usize, usize),
     Hyst(usize, usize),
-}
-
-/// Progress of a long computation.
-pub trait Observer {
-    /// `done` of `total` units of work finished; `message` says what runs.
-    fn progress(&mut self, done: usize, total: usize, message: &str);
-}
-
-/// An observer that ignores everything.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Silent;
-impl Observer for Silent {
-    fn progress(&mut self, _: usize, _: usize, _: &str) {}
-}
-
-impl<F: FnMut(usize, usize, &str)> Observer for F {
-    fn progress(&mut self, done: usize, total: usize, message: &str) {
-        self(done, total, message)
-    }
-}
-
-/// An indicatif progress bar on stderr; draws nothing when stderr is not a
-/// terminal.
-#[derive(Debug)]
-pub struct ProgressBar {
-    bar: indicatif::ProgressBar,
-}
-
-impl ProgressBar {
-    /// A new bar (hidden when stderr is not a terminal).
-    pub fn new() -> Self {
-        use std::io::IsTerminal;
-        let bar = if std::io::stderr().is_terminal() {
-            let b = indicatif::ProgressBar::new(1);
-            if let Ok(style) = indicatif::ProgressStyle::with_template(
-                "{elapsed_precise} [{bar:30}] {pos}/{len} {msg}",
-            ) {
-                b.set_style(style);
-            }
-            b
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
-        Self { bar }
-    }
-}
-
-impl Default for ProgressBar {
-    fn default() -> Self {
-        Self::new()
-    }
-}
-
-impl Observer for ProgressBar {
-    fn progress(&mut self, done: usize, total: usize, message: &str) {
-        self.bar.set_length(total as u64);
-        self.bar.set_position(done as u64);
-        self.bar.set_message(message.to_string());
-        if done >= total {
-            self.bar.finish_and_clear();
-        }
-    }
 }
 
 /// All free parameters of `m` (free matrix entries, then every stored coefficient).
@@ -631,10 +574,159 @@ struct Ctx<'a, 'o> {
     inputs: &'a [Vec<f64>],
     y: &'a [f64],
     skip: usize,
-    obs: &'o mut dyn Observer,
+    obs: &'o dyn Observer,
     done: usize,
     total: usize,
     iterations: usize,
+}
+
+/// The output-error cost of one stage as a least-squares problem for the
+/// workspace's Levenberg–Marquardt solver: the cost is a free-run
+/// simulation, the linearisation the forward-sensitivity pass, and the
+/// ridge on the wavelet coefficients a Tikhonov penalty.
+struct OeProblem<'m, 'c, 'a> {
+    m: &'m mut SparseStateSpace,
+    cols: &'c [Param],
+    inputs: &'a [Vec<f64>],
+    y: &'a [f64],
+    skip: usize,
+    hreg: Vec<Vec<f64>>,
+    /// ρ on the wavelet-coefficient columns, 0 elsewhere.
+    ridge: Vec<f64>,
+    rho: f64,
+    /// The parameters `m` holds now.
+    installed: Vec<f64>,
+    /// The lowest cost evaluated so far: (θ, SSE, SSE + penalty). The solver
+    /// only accepts steps that lower the cost, so this is its current point.
+    best: Option<(Vec<f64>, f64, f64)>,
+    /// The first error of a sensitivity pass or a parameter update.
+    error: Option<ModelError>,
+}
+
+fn same(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+impl OeProblem<'_, '_, '_> {
+    fn penalty(&self, theta: &[f64]) -> f64 {
+        if self.rho == 0.0 {
+            return 0.0;
+        }
+        self.rho
+            * theta
+                .iter()
+                .zip(&self.ridge)
+                .filter(|(_, r)| **r != 0.0)
+                .map(|(v, _)| v * v)
+                .sum::<f64>()
+    }
+
+    fn install(&mut self, theta: &[f64]) -> bool {
+        if same(&self.installed, theta) {
+            return true;
+        }
+        match set_params(self.m, self.cols, theta) {
+            Ok(()) => {
+                self.installed.clear();
+                self.installed.extend_from_slice(theta);
+                true
+            }
+            Err(e) => {
+                self.error.get_or_insert(e);
+                false
+            }
+        }
+    }
+
+    /// `(SSE, SSE + penalty)` at θ (SSE = ∞ when the simulation diverges).
+    fn evaluate(&mut self, theta: &[f64]) -> Option<(f64, f64)> {
+        if let Some((t, e, c)) = &self.best {
+            if same(t, theta) {
+                return Some((*e, *c));
+            }
+        }
+        if !self.install(theta) {
+            return None;
+        }
+        let e = sse(self.m, self.inputs, self.y, self.skip);
+        let c = e + self.penalty(theta);
+        if c.is_finite() && self.best.as_ref().is_none_or(|b| c < b.2) {
+            self.best = Some((theta.to_vec(), e, c));
+        }
+        Some((e, c))
+    }
+}
+
+impl LeastSquaresProblem for OeProblem<'_, '_, '_> {
+    fn n_params(&self) -> usize {
+        self.cols.len()
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        self.evaluate(theta)
+            .map(|(_, c)| c)
+            .filter(|c| c.is_finite())
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let cost = self.cost(theta)?;
+        if !self.install(theta) {
+            return None;
+        }
+        let so = match sensitivities(
+            self.m,
+            self.cols,
+            self.inputs,
+            self.y,
+            self.skip,
+            true,
+            &self.hreg,
+        ) {
+            Ok(so) => so,
+            Err(e) => {
+                self.error.get_or_insert(e);
+                return None;
+            }
+        };
+        let q = self.cols.len();
+        for a in 0..q {
+            for b in a..q {
+                let v = so.jtj[a * q + b];
+                gram[a * q + b] = v;
+                gram[b * q + a] = v;
+            }
+        }
+        grad.copy_from_slice(&so.jte);
+        Some(cost)
+    }
+    fn tikhonov(&self) -> Option<&[f64]> {
+        (self.rho != 0.0).then_some(&self.ridge[..])
+    }
+}
+
+/// Reports every solver iteration of a stage as progress of the whole fit
+/// (`done` counts iterations, capped below `total`) and passes it on.
+struct StageProgress<'a> {
+    outer: &'a dyn Observer,
+    stage: &'a str,
+    done: AtomicUsize,
+    total: usize,
+    n_eff: f64,
+}
+
+impl Observer for StageProgress<'_> {
+    fn progress(&self, done: usize, total: usize, message: &str) {
+        self.outer.progress(done, total, message);
+    }
+    fn iteration(&self, info: &IterationInfo) {
+        let done = (self.done.load(Ordering::Relaxed) + 1).min(self.total.saturating_sub(1));
+        self.done.store(done, Ordering::Relaxed);
+        let msg = format!(
+            "{}: rmse {:.3e}",
+            self.stage,
+            (info.cost / self.n_eff).sqrt()
+        );
+        self.outer.progress(done, self.total, &msg);
+        self.outer.iteration(info);
+    }
 }
 
 impl OutputError {
@@ -643,6 +735,31 @@ impl OutputError {
         &self.params
     }
 
+    /// The Levenberg–Marquardt settings of a stage: λ from 1e-3, ×4 after a
+    /// rejected step (×10 when the damped system is singular), ÷3 after an
+    /// accepted one (≥ 1e-12), 12 trials, damping
+    /// `λ·max(Gᵢᵢ, 1e-10·max G) + 1e-14·max G`.
+    fn lm_params(&self) -> LmParams {
+        LmParams {
+            max_iter: self.params.max_iter,
+            tol: self.params.tol,
+            lambda_init: 1e-3,
+            lambda_up: 4.0,
+            lambda_up_singular: 10.0,
+            lambda_down: 1.0 / 3.0,
+            lambda_min: 1e-12,
+            lambda_max: f64::MAX,
+            max_trials: 12,
+            diag_floor: 1e-10,
+            diag_add: 0.0,
+            jitter: 1e-14,
+            diag_floor_abs: 0.0,
+            jitter_abs: 0.0,
+        }
+    }
+
+    /// Levenberg–Marquardt on the parameters `cols` of `m` (left at the
+    /// result); returns the SSE (without the ridge penalty).
     fn lm(
         &self,
         m: &mut SparseStateSpace,
@@ -650,93 +767,66 @@ impl OutputError {
         ctx: &mut Ctx,
         stage: &str,
     ) -> Result<f64> {
-        let q = cols.len();
-        let mut theta = get_params(m, cols);
-        let mut cost = sse(m, ctx.inputs, ctx.y, ctx.skip);
-        if !cost.is_finite() {
-            return Err(ModelError::Diverged(0));
-        }
-        if q == 0 {
-            return Ok(cost);
-        }
-        let hreg = hysteresis_regressors(m, ctx.inputs);
-        // ridge on the wavelet coefficients: minimise sse + ρ Σ c²
+        let theta0 = get_params(m, cols);
         let rho = self.params.ridge;
-        let is_coef: Vec<bool> = cols.iter().map(|c| matches!(c, Param::Coef(..))).collect();
-        let pen = |th: &[f64]| -> f64 {
-            if rho == 0.0 {
-                return 0.0;
-            }
-            rho * th
-                .iter()
-                .zip(&is_coef)
-                .filter(|(_, c)| **c)
-                .map(|(v, _)| v * v)
-                .sum::<f64>()
+        let ridge: Vec<f64> = cols
+            .iter()
+            .map(|c| {
+                if matches!(c, Param::Coef(..)) {
+                    rho
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let hreg = if cols.is_empty() {
+            Vec::new()
+        } else {
+            hysteresis_regressors(m, ctx.inputs)
         };
-        let mut sse_now = cost;
-        cost += pen(&theta);
-        let mut lambda = 1e-3;
-        for _ in 0..self.params.max_iter {
-            ctx.iterations += 1;
-            ctx.done = (ctx.done + 1).min(ctx.total.saturating_sub(1));
-            let msg = format!(
-                "{stage}: rmse {:.3e}",
-                (cost / (ctx.y.len() - ctx.skip) as f64).sqrt()
-            );
-            ctx.obs.progress(ctx.done, ctx.total, &msg);
-            let so = sensitivities(m, cols, ctx.inputs, ctx.y, ctx.skip, true, &hreg)?;
-            let dmax = so.diag.iter().cloned().fold(0.0, f64::max).max(1e-300);
-            let mut improved = false;
-            for _ in 0..12 {
-                let mut h = nalgebra::DMatrix::<f64>::zeros(q, q);
-                for a in 0..q {
-                    for b in a..q {
-                        h[(a, b)] = so.jtj[a * q + b];
-                        h[(b, a)] = so.jtj[a * q + b];
-                    }
-                    h[(a, a)] += lambda * so.diag[a].max(1e-10 * dmax) + 1e-14 * dmax;
-                    if is_coef[a] {
-                        h[(a, a)] += rho;
-                    }
-                }
-                let mut g = nalgebra::DVector::from_column_slice(&so.jte);
-                for a in 0..q {
-                    if is_coef[a] {
-                        g[a] -= rho * theta[a];
-                    }
-                }
-                let Some(ch) = h.cholesky() else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let delta = ch.solve(&g);
-                let trial: Vec<f64> = theta.iter().zip(delta.iter()).map(|(a, b)| a + b).collect();
-                if trial.iter().any(|v| !v.is_finite()) {
-                    lambda *= 10.0;
-                    continue;
-                }
-                set_params(m, cols, &trial)?;
-                let c_sse = sse(m, ctx.inputs, ctx.y, ctx.skip);
-                let c = c_sse + pen(&trial);
-                if c < cost {
-                    let rel = (cost - c) / cost.max(1e-300);
-                    theta = trial;
-                    cost = c;
-                    sse_now = c_sse;
-                    lambda = (lambda / 3.0).max(1e-12);
-                    improved = rel > self.params.tol;
-                    break;
-                }
-                set_params(m, cols, &theta)?;
-                lambda *= 4.0;
-            }
-            if !improved {
-                break;
-            }
+        let mut problem = OeProblem {
+            m,
+            cols,
+            inputs: ctx.inputs,
+            y: ctx.y,
+            skip: ctx.skip,
+            hreg,
+            ridge,
+            rho,
+            installed: theta0.clone(),
+            best: None,
+            error: None,
+        };
+        let Some((sse0, _)) = problem.evaluate(&theta0).filter(|(_, c)| c.is_finite()) else {
+            return Err(ModelError::Diverged(0));
+        };
+        if cols.is_empty() {
+            return Ok(sse0);
         }
-        set_params(m, cols, &theta)?;
-        Ok(sse_now)
+        let solver = self.lm_params().check()?;
+        let progress = StageProgress {
+            outer: ctx.obs,
+            stage,
+            done: AtomicUsize::new(ctx.done),
+            total: ctx.total,
+            n_eff: (ctx.y.len() - ctx.skip) as f64,
+        };
+        let state = solver.minimize(&mut problem, &theta0, &progress)?;
+        ctx.done = progress.done.load(Ordering::Relaxed);
+        ctx.iterations += state.iterations;
+        if let Some(e) = problem.error.take() {
+            return Err(e);
+        }
+        let sse = match &problem.best {
+            Some((t, e, _)) if same(t, &state.theta) => *e,
+            _ => problem
+                .evaluate(&state.theta)
+                .map_or(f64::INFINITY, |v| v.0),
+        };
+        if !problem.install(&state.theta) {
+            return Err(problem.error.take().unwrap_or(ModelError::Diverged(0)));
+        }
+        Ok(sse)
     }
 
     fn n_eff(&self, ctx: &Ctx) -> f64 {
@@ -810,7 +900,7 @@ impl OutputError {
     /// let mut start = SparseStateSpace::linear(vec![0.5], vec![1.0], vec![1.0], vec![0.0])?;
     /// start.structure.c = vec![false];
     /// start.structure.d = vec![false];
-    /// let (m, report) = OeParams::new().check()?.fit(start, &[u], &y, &mut Silent)?;
+    /// let (m, report) = OeParams::new().check()?.fit(start, &[u], &y, &Silent)?;
     /// assert!((m.a[0] - 0.8).abs() < 1e-6 && report.rmse < 1e-8);
     /// # Ok::<(), gb_model::ModelError>(())
     /// ```
@@ -819,7 +909,7 @@ impl OutputError {
         start: SparseStateSpace,
         inputs: &[Vec<f64>],
         y: &[f64],
-        obs: &mut dyn Observer,
+        obs: &dyn Observer,
     ) -> Result<(SparseStateSpace, OeReport)> {
         start.check()?;
         let len = start.check_inputs(inputs)?;

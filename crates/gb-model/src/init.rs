@@ -1,7 +1,75 @@
 //! Initial-state estimation from an init window of measured outputs.
 use crate::error::{ModelError, Result};
 use crate::model::SparseStateSpace;
+use gb_core::solver::{LeastSquaresProblem, LmParams};
+use gb_core::Silent;
 use nalgebra::{DMatrix, DVector};
+
+/// `min_x Σ_{t<w} (y_t − ŷ_t(x))²` for the workspace's Levenberg–Marquardt
+/// solver, with a forward-difference Jacobian.
+struct InitProblem<'a> {
+    model: &'a SparseStateSpace,
+    win: &'a [Vec<f64>],
+    y: &'a [f64],
+    /// State scales for the difference steps.
+    scale: Vec<f64>,
+    /// The lowest-cost point evaluated so far (x, residual, cost): the
+    /// solver's current point, whose residual the Jacobian reuses.
+    best: Option<(Vec<f64>, Vec<f64>, f64)>,
+}
+
+impl InitProblem<'_> {
+    fn residual(&self, x: &[f64]) -> Option<Vec<f64>> {
+        let (y, _) = self.model.simulate_from(self.win, x).ok()?;
+        let r: Vec<f64> = self.y.iter().zip(&y).map(|(a, b)| a - b).collect();
+        r.iter().all(|v| v.is_finite()).then_some(r)
+    }
+}
+
+impl LeastSquaresProblem for InitProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.model.n_states
+    }
+    fn cost(&mut self, x: &[f64]) -> Option<f64> {
+        let r = self.residual(x)?;
+        let c = r.iter().map(|v| v * v).sum::<f64>();
+        if self.best.as_ref().is_none_or(|b| c < b.2) {
+            self.best = Some((x.to_vec(), r, c));
+        }
+        Some(c)
+    }
+    fn linearize(&mut self, x: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        let hit = self
+            .best
+            .as_ref()
+            .is_some_and(|b| b.0.iter().zip(x).all(|(a, b)| a.to_bits() == b.to_bits()));
+        if !hit {
+            self.cost(x)?;
+        }
+        let (_, r, c) = self.best.clone()?;
+        let (w, n) = (self.y.len(), self.model.n_states);
+        let mut jac = DMatrix::<f64>::zeros(w, n);
+        for i in 0..n {
+            let h = 1e-6 * self.scale[i];
+            let mut xp = x.to_vec();
+            xp[i] += h;
+            let rp = self.residual(&xp)?;
+            // J = ∂ŷ/∂x = −∂r/∂x
+            for t in 0..w {
+                jac[(t, i)] = (r[t] - rp[t]) / h;
+            }
+        }
+        let jtj = jac.transpose() * &jac;
+        let jtr = jac.transpose() * DVector::from_column_slice(&r);
+        for i in 0..n {
+            for j in 0..n {
+                gram[i * n + j] = jtj[(i, j)];
+            }
+            grad[i] = jtr[i];
+        }
+        Some(c)
+    }
+}
 
 impl SparseStateSpace {
     /// Initial state `x̂₀` that makes the free-run simulation match the
@@ -50,62 +118,40 @@ impl SparseStateSpace {
                 .collect(),
             Err(_) => vec![1.0; n],
         };
-        let resid = |x: &[f64]| -> Option<Vec<f64>> {
-            let (y, _) = self.simulate_from(&win, x).ok()?;
-            let r: Vec<f64> = y_window[..w].iter().zip(&y).map(|(a, b)| a - b).collect();
-            r.iter().all(|v| v.is_finite()).then_some(r)
+        let mut problem = InitProblem {
+            model: self,
+            win: &win,
+            y: &y_window[..w],
+            scale,
+            best: None,
         };
-        let cost = |r: &[f64]| r.iter().map(|v| v * v).sum::<f64>();
-        let Some(mut r) = resid(&x) else {
+        let Some(c0) = problem.cost(&x) else {
             return Ok(x);
         };
-        let mut c = cost(&r);
-        let mut lambda = 1e-3;
-        for _ in 0..20 {
-            let mut jac = DMatrix::<f64>::zeros(w, n);
-            for i in 0..n {
-                let h = 1e-6 * scale[i];
-                let mut xp = x.clone();
-                xp[i] += h;
-                let Some(rp) = resid(&xp) else {
-                    return Ok(x);
-                };
-                // J = ∂ŷ/∂x = −∂r/∂x
-                for t in 0..w {
-                    jac[(t, i)] = (r[t] - rp[t]) / h;
-                }
-            }
-            let jtj = jac.transpose() * &jac;
-            let jtr = jac.transpose() * DVector::from_column_slice(&r);
-            let mut improved = false;
-            for _ in 0..8 {
-                let mut a = jtj.clone();
-                for i in 0..n {
-                    a[(i, i)] += lambda * (jtj[(i, i)] + 1e-12);
-                }
-                let Some(dx) = a.cholesky().map(|ch| ch.solve(&jtr)) else {
-                    lambda *= 10.0;
-                    continue;
-                };
-                let xn: Vec<f64> = x.iter().zip(dx.iter()).map(|(a, b)| a + b).collect();
-                if let Some(rn) = resid(&xn) {
-                    let cn = cost(&rn);
-                    if cn < c {
-                        let done = c - cn <= 1e-12 * c.max(1e-300);
-                        x = xn;
-                        r = rn;
-                        c = cn;
-                        lambda = (lambda * 0.3).max(1e-9);
-                        improved = !done;
-                        break;
-                    }
-                }
-                lambda *= 10.0;
-            }
-            if !improved {
-                break;
-            }
+        if !c0.is_finite() {
+            return Ok(x);
         }
+        // λ from 1e-3, ×10 after a rejected step, ×0.3 after an accepted one
+        // (≥ 1e-9), 8 trials, 20 iterations, damping λ·(Gᵢᵢ + 1e-12), done
+        // when a step lowers the cost by less than 1e-12 (relative)
+        let solver = LmParams {
+            max_iter: 20,
+            tol: 1e-12,
+            lambda_init: 1e-3,
+            lambda_up: 10.0,
+            lambda_up_singular: 10.0,
+            lambda_down: 0.3,
+            lambda_min: 1e-9,
+            lambda_max: f64::MAX,
+            max_trials: 8,
+            diag_floor: 0.0,
+            diag_add: 1e-12,
+            jitter: 0.0,
+            diag_floor_abs: 0.0,
+            jitter_abs: 0.0,
+        }
+        .check()?;
+        x = solver.minimize(&mut problem, &x, &Silent)?.theta;
         Ok(x)
     }
 

@@ -26,19 +26,19 @@ pub fn fit_hidden_state(
     hysteresis: bool,
     names: Vec<String>,
 ) -> ModelResult<SparseStateSpace> {
-    let mut silent = crate::Silent;
+    let silent = crate::Silent;
     if hysteresis && inputs.len() == 1 {
         if let Some(m) = mechanical(inputs, y, &names) {
             return Ok(m);
         }
     }
-    Ok(crate::fit_state_space(inputs, y, order, hysteresis, names, &mut silent)?.0)
+    Ok(crate::fit_state_space(inputs, y, order, hysteresis, names, &silent)?.0)
 }
 
 /// The mechanical hysteretic structure with the sub-step retry; `None` when
 /// it cannot be built or fitted.
 fn mechanical(inputs: &[Vec<f64>], y: &[f64], names: &[String]) -> Option<SparseStateSpace> {
-    let mut silent = crate::Silent;
+    let silent = crate::Silent;
     let u = &inputs[0];
     let err = |m: &SparseStateSpace| -> f64 {
         m.simulate(inputs)
@@ -61,7 +61,7 @@ fn mechanical(inputs: &[Vec<f64>], y: &[f64], names: &[String]) -> Option<Sparse
             .max_level(2)
             .max_new(24)
             .check()
-            .and_then(|p| p.fit(s0, inputs, y, &mut silent))
+            .and_then(|p| p.fit(s0, inputs, y, &silent))
         else {
             break;
         };
@@ -327,12 +327,11 @@ fn fit_lmn(spec: &ModelSpec, data: &Records, obs: &dyn Observer) -> Result<Fitte
         };
         r.check_identifiable(&format!("record {}", i + 1), min)?;
     }
-    let exps: Vec<gb_lmn::Experiment> = data.iter().map(gb_lmn::Experiment::from).collect();
-    let lmn = p.fit(&exps)?;
+    let lmn = p.check()?.fit_with_observer(data, None, obs)?;
     let mut res = vec![];
-    for (e, d) in exps.iter().zip(data.iter()) {
+    for d in data.iter() {
         let k0 = lmn.max_lag().min(d.len());
-        let sim = lmn.simulate(e, k0)?;
+        let sim = lmn.simulate(d, k0)?;
         res.extend(d.output[k0..].iter().zip(&sim[k0..]).map(|(a, b)| a - b));
     }
     let notes = vec![format!(
@@ -467,7 +466,7 @@ fn fit_ss_lmn(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<F
     let output_upper = o.f64_opt("output_max", f64::MIN, f64::MAX)?;
     o.finish(&["order", "max_leaves", "output_max"])?;
     let params = gb_lmn::SsLmnParams {
-        n_states,
+        n_states: vec![n_states],
         leaves: (1..=leaves).collect(),
         output_upper,
         ..gb_lmn::SsLmnParams::default()
@@ -514,14 +513,14 @@ fn fit_sparse_state_space(
             vec![],
         )
     } else {
-        let mut silent = crate::Silent;
+        let silent = crate::Silent;
         let (m, rep) = crate::fit_state_space(
             &d.inputs,
             &d.output,
             order,
             spec.has("preisach"),
             names,
-            &mut silent,
+            &silent,
         )?;
         let note = format!(
             "path {:?}, log-likelihood {:.1}",
@@ -559,11 +558,7 @@ fn fit_damper(spec: &ModelSpec, d: &Record) -> Result<Fitted, CoreError> {
             ))
         }
     };
-    let structure = crate::MrDamperStructure {
-        sample_rate,
-        resonances_hz,
-        ..crate::MrDamperStructure::default()
-    };
+    let structure = crate::MrDamperStructure::new(sample_rate, resonances_hz);
     // without a ridge: 0 or 10³, chosen on the last 20 % of the record
     let ridges = ridge.map_or(vec![0.0, 1e3], |r| vec![r]);
     let fit = structure.fit_validated(
@@ -571,7 +566,7 @@ fn fit_damper(spec: &ModelSpec, d: &Record) -> Result<Fitted, CoreError> {
         &ridges,
         &d.inputs,
         &d.output,
-        &mut crate::Silent,
+        &crate::Silent,
     )?;
     let notes = fit
         .scores

@@ -68,6 +68,11 @@ pub static CLASSES: &[ModelClass] = &[
         summary: "polynomial NARX/NOE: terms of degree <= 3 in lagged outputs and inputs chosen by FROLS, refined for the simulation error (gb-lmn)",
         decode: |b, v| boxed(gb_lmn::PolyNarx::decode(b, v)),
     },
+    ModelClass {
+        tag: "integrating",
+        summary: "integrating model: a model of any class simulates the output increments, which are summed (a pole at 1; gb-model)",
+        decode: |b, v| boxed(crate::IntegratingModel::decode(b, v)),
+    },
 ];
 
 /// The registry as a [`ClassDecoder`] for [`FittedModel::from_bytes`].

@@ -13,8 +13,9 @@
 //! particle likelihood beats the output-error model's, and the report says
 //! which path won.
 use crate::error::{ModelError, Result};
-use crate::identify::{get_params, layout, set_params, IdentificationPath, Observer, Param};
+use crate::identify::{get_params, layout, set_params, IdentificationPath, Param};
 use crate::model::{NoiseModel, SimScratch, SparseStateSpace};
+use gb_core::{Observer, SubTask};
 use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig};
 use gb_smc::noise::Noise;
 use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel};
@@ -325,7 +326,7 @@ impl Smc {
         oe: &SparseStateSpace,
         inputs: &[Vec<f64>],
         y: &[f64],
-        obs: &mut dyn Observer,
+        obs: &dyn Observer,
     ) -> Result<(SparseStateSpace, SmcReport)> {
         let p = &self.params;
         let len = oe.check_inputs(inputs)?;
@@ -392,16 +393,14 @@ impl Smc {
         cfg.adapt_start = (p.iterations / 3).max(50);
         let observations = Observations::new(y);
         let total = p.iterations;
-        let mut it = 0usize;
-        let mut observer = |s: &gb_smc::estimation::PmmhState| {
-            it += 1;
-            obs.progress(
-                it,
-                total + 1,
-                &format!("PMMH: log p̂ {:.1}", s.log_likelihood),
-            );
+        // PMMH reports its iterations into 0..total of total + 1 steps
+        let chain = SubTask {
+            outer: obs,
+            offset: 0,
+            span: total,
+            total: total + 1,
         };
-        let res = Pmmh::new(cfg)?.run(&problem, &observations, &theta0, &mut observer)?;
+        let res = Pmmh::new(cfg)?.run(&problem, &observations, &theta0, &chain)?;
         let mean: Vec<f64> = res.summary.iter().map(|s| s.mean).collect();
         let sd: Vec<f64> = res.summary.iter().map(|s| s.sd).collect();
         let start = problem

@@ -2,9 +2,10 @@
 use crate::basis::SparseExpansion;
 use crate::error::{ModelError, Result};
 use crate::everett::WaveletEverett;
-use crate::identify::{Observer, OeParams, OeReport};
+use crate::identify::{OeParams, OeReport};
 use crate::linear::linear_from_oe;
 use crate::model::{HysteresisTerm, NonlinearTerm, Signal, SparseStateSpace, Structure, Target};
+use gb_core::Observer;
 
 /// Start model of the Bouc-Wen recipe: the [`second_order`] hysteretic
 /// structure (position, velocity, hidden restoring force z) from the best
@@ -162,7 +163,7 @@ pub fn fit_state_space(
     order: usize,
     preisach: bool,
     names: Vec<String>,
-    obs: &mut dyn Observer,
+    obs: &dyn Observer,
 ) -> Result<(SparseStateSpace, OeReport)> {
     if inputs.is_empty() {
         return Err(ModelError::InvalidArgument(

@@ -47,7 +47,7 @@ fn bouc_wen_short_record_beats_pnlss() {
         .max_new(40)
         .check()
         .unwrap()
-        .fit(start, std::slice::from_ref(&u), &y, &mut Silent)
+        .fit(start, std::slice::from_ref(&u), &y, &Silent)
         .unwrap();
     let steady = |m: &gb_model::SparseStateSpace| {
         let mut z = m.clone();
@@ -90,8 +90,9 @@ fn mr_damper_short_record_beats_linear() {
     let lin = linear_from_oe(&head[..3], &f[..n_fit], 2).unwrap();
     let e_lin = metrics::nrmse(&f[n_fit..], &lin.simulate(&inputs[..3]).unwrap()[n_fit..]).unwrap();
     let oe = OeParams::new().max_level(2).check().unwrap();
-    let (m, _) = gb_model::MrDamperStructure::default()
-        .fit(&oe, &head, &f[..n_fit], &mut Silent)
+    // the Dyke rig: 3004.8 Hz, resonances started at 150 and 120 Hz
+    let (m, _) = gb_model::MrDamperStructure::new(3004.8, vec![150.0, 120.0])
+        .fit(&oe, &head, &f[..n_fit], &Silent)
         .unwrap();
     let e = metrics::nrmse(&f[n_fit..], &m.simulate(&inputs).unwrap()[n_fit..]).unwrap();
     eprintln!("MR damper short record: NRMSE {e:.4} vs linear {e_lin:.4}");

@@ -88,6 +88,74 @@ impl RelayGrid {
         Self::new(alpha, beta, weight)
     }
 
+    /// The discrete Preisach operator on a uniform triangular grid: `levels`
+    /// thresholds tᵢ = −h + 2h(i + ½)/levels over [−h, h] (h =
+    /// `half_range`), one relay per pair α = tᵢ ≥ β = tⱼ (levels·(levels+1)/2
+    /// relays, the diagonal α = β included), unit weights. Its relay states
+    /// ([`relay_states`](Self::relay_states), [`switch`](Self::switch)) are
+    /// regressor columns whose weights (the discretised density) a model
+    /// estimates linearly (Mayergoyz 2003, ch. 1).
+    ///
+    /// ```
+    /// use gb_preisach::RelayGrid;
+    /// let g = RelayGrid::uniform(2, 1.0).unwrap(); // thresholds ±0.5
+    /// let mut s = g.relay_states(0.0);
+    /// assert_eq!(s, vec![1.0, -1.0, -1.0]); // (α, β) = (−½, −½), (½, −½), (½, ½)
+    /// g.switch(&mut s, 0.6);
+    /// assert_eq!(s, vec![1.0, 1.0, 1.0]);
+    /// ```
+    pub fn uniform(levels: usize, half_range: f64) -> Result<Self, PreisachError> {
+        if !(half_range.is_finite() && half_range > 0.0) {
+            return Err(PreisachError::InvalidArgument(format!(
+                "a uniform relay grid needs half_range > 0, got {half_range}"
+            )));
+        }
+        let t = |i: usize| -half_range + 2.0 * half_range * (i as f64 + 0.5) / levels as f64;
+        let (mut alpha, mut beta) = (vec![], vec![]);
+        for i in 0..levels {
+            for j in 0..=i {
+                alpha.push(t(i));
+                beta.push(t(j));
+            }
+        }
+        let weight = vec![1.0; alpha.len()];
+        Self::new(alpha, beta, weight)
+    }
+
+    /// Relay states (±1) for a start at `x0`: relays that `x0` has switched
+    /// follow it, the others take the demagnetised state (+1 below the line
+    /// α + β = 2·x0, −1 above).
+    pub fn relay_states(&self, x0: f64) -> Vec<f64> {
+        self.alpha
+            .iter()
+            .zip(&self.beta)
+            .map(|(&a, &b)| {
+                if x0 >= a {
+                    1.0
+                } else if x0 <= b {
+                    -1.0
+                } else if a + b < 2.0 * x0 {
+                    1.0
+                } else {
+                    -1.0
+                }
+            })
+            .collect()
+    }
+
+    /// Switch relay states held as ±1 values (regressor columns) with the
+    /// input `x`, without forming the output (no allocation).
+    #[inline]
+    pub fn switch(&self, state: &mut [f64], x: f64) {
+        for ((s, &a), &b) in state.iter_mut().zip(&self.alpha).zip(&self.beta) {
+            if x >= a {
+                *s = 1.0;
+            } else if x <= b {
+                *s = -1.0;
+            }
+        }
+    }
+
     /// Number of relays.
     pub fn len(&self) -> usize {
         self.alpha.len()

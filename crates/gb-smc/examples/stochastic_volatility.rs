@@ -46,10 +46,11 @@ fn main() -> Result<(), gb_smc::SmcError> {
             );
         }
     };
-    let res = Pmmh::new(cfg)?.run(
+    let res = Pmmh::new(cfg)?.run_with(
         &SvParams,
         &Observations::new(&y),
         &[0.0, 0.8, 0.5],
+        &gb_smc::estimation::Silent,
         &mut progress,
     )?;
     println!("acceptance rate {:.3}", res.acceptance_rate);

@@ -2,8 +2,12 @@
 //! iterated filtering (IF2).
 //!
 //! Both follow the solver / state / observer shape: a validated solver
-//! configuration, an explicit state advanced one iteration at a time, and an
-//! [`Observer`] called after every iteration (e.g. for a progress bar).
+//! configuration, an explicit state advanced one iteration at a time, and
+//! the workspace's one progress [`Observer`] (`gb_core::Observer`) told
+//! after every iteration, so one progress bar can follow a PMMH run as well
+//! as a diagnosis or a deterministic fit. `run_with` also hands every
+//! iteration's typed state (`PmmhState`, `If2State`) to a callback, for
+//! users that need the chain itself (trace plots, diagnostics).
 //!
 //! * **PMMH** (Andrieu, Doucet & Holenstein 2010): Metropolis–Hastings on `θ`
 //!   with the particle estimate `p̂_θ(y)` in place of the likelihood; because
@@ -35,25 +39,7 @@ pub trait ParametricModel: Sync {
     fn log_prior(&self, theta: &[f64]) -> f64;
 }
 
-/// Called after every iteration of an iterative estimator.
-pub trait Observer<S> {
-    /// Sees the state after an iteration.
-    fn observe(&mut self, state: &S);
-}
-
-impl<S, F: FnMut(&S)> Observer<S> for F {
-    fn observe(&mut self, state: &S) {
-        self(state)
-    }
-}
-
-/// An observer that does nothing.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct NoObserver;
-
-impl<S> Observer<S> for NoObserver {
-    fn observe(&mut self, _state: &S) {}
-}
+pub use gb_core::{Observer, Silent};
 
 /// Posterior summary of one parameter.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -222,7 +208,7 @@ fn cholesky(a: &[f64], d: usize) -> Option<Vec<f64>> {
 /// Particle marginal Metropolis–Hastings.
 ///
 /// ```
-/// use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig, NoObserver};
+/// use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig, Silent};
 /// use gb_smc::{LinearGaussian, Observations};
 /// /// Unknown AR coefficient φ with a uniform prior on (−1, 1).
 /// struct Phi;
@@ -235,7 +221,7 @@ fn cholesky(a: &[f64], d: usize) -> Option<Vec<f64>> {
 /// let (_, y) = LinearGaussian::ar1(0.8, 1.0, 0.5).unwrap().simulate(100, 1);
 /// let mut cfg = PmmhConfig::new(300, 400, vec![0.05]);
 /// cfg.burn_in = 100;
-/// let res = Pmmh::new(cfg).unwrap().run(&Phi, &Observations::new(&y), &[0.5], &mut NoObserver).unwrap();
+/// let res = Pmmh::new(cfg).unwrap().run(&Phi, &Observations::new(&y), &[0.5], &Silent).unwrap();
 /// assert!(res.acceptance_rate > 0.05);
 /// assert!((res.summary[0].mean - 0.8).abs() < 0.3);
 /// ```
@@ -403,13 +389,27 @@ impl Pmmh {
         Ok(())
     }
 
-    /// Runs the chain from `theta0`, calling `observer` after each iteration.
-    pub fn run<P: ParametricModel, O: Observer<PmmhState>>(
+    /// Runs the chain from `theta0`, reporting each iteration to `observer`
+    /// (`progress(iteration, n_iter, "PMMH: log p̂ …")`).
+    pub fn run<P: ParametricModel>(
         &self,
         problem: &P,
         obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
         theta0: &[f64],
-        observer: &mut O,
+        observer: &dyn Observer,
+    ) -> Result<PmmhResult> {
+        self.run_with(problem, obs, theta0, observer, |_| {})
+    }
+
+    /// [`run`](Self::run), also handing the chain state after every
+    /// iteration to `on_state`.
+    pub fn run_with<P: ParametricModel, F: FnMut(&PmmhState)>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta0: &[f64],
+        observer: &dyn Observer,
+        mut on_state: F,
     ) -> Result<PmmhResult> {
         let mut ws = FilterWorkspace::new();
         let mut state = self.init(problem, obs, theta0, &mut ws)?;
@@ -420,7 +420,12 @@ impl Pmmh {
             self.step(problem, obs, &mut state, &mut ws)?;
             chain.extend_from_slice(&state.theta);
             lls.push(state.log_likelihood);
-            observer.observe(&state);
+            on_state(&state);
+            observer.progress(
+                state.iter,
+                self.config.n_iter,
+                &format!("PMMH: log p̂ {:.1}", state.log_likelihood),
+            );
         }
         Ok(PmmhResult {
             dim: d,
@@ -496,7 +501,7 @@ type If2Item<'a, S> = (
 /// Iterated filtering (IF2) for maximum-likelihood estimation.
 ///
 /// ```
-/// use gb_smc::estimation::{If2, If2Config, NoObserver, ParametricModel};
+/// use gb_smc::estimation::{If2, If2Config, ParametricModel, Silent};
 /// use gb_smc::{LinearGaussian, Observations};
 /// struct Phi;
 /// impl ParametricModel for Phi {
@@ -507,7 +512,7 @@ type If2Item<'a, S> = (
 /// }
 /// let (_, y) = LinearGaussian::ar1(0.8, 1.0, 0.5).unwrap().simulate(200, 1);
 /// let res = If2::new(If2Config::new(300, 30, vec![0.02])).unwrap()
-///     .run(&Phi, &Observations::new(&y), &[0.3], &mut NoObserver).unwrap();
+///     .run(&Phi, &Observations::new(&y), &[0.3], &Silent).unwrap();
 /// assert!((res.theta[0] - 0.8).abs() < 0.15);
 /// ```
 #[derive(Debug, Clone)]
@@ -542,13 +547,27 @@ impl If2 {
         Ok(Self { config })
     }
 
-    /// Runs IF2 from `theta0`, calling `observer` after each iteration.
-    pub fn run<P: ParametricModel, O: Observer<If2State>>(
+    /// Runs IF2 from `theta0`, reporting each iteration to `observer`
+    /// (`progress(iteration, n_iter, "IF2: log p̂ …")`).
+    pub fn run<P: ParametricModel>(
         &self,
         problem: &P,
         obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
         theta0: &[f64],
-        observer: &mut O,
+        observer: &dyn Observer,
+    ) -> Result<If2Result> {
+        self.run_with(problem, obs, theta0, observer, |_| {})
+    }
+
+    /// [`run`](Self::run), also handing the state after every iteration to
+    /// `on_state`.
+    pub fn run_with<P: ParametricModel, F: FnMut(&If2State)>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta0: &[f64],
+        observer: &dyn Observer,
+        mut on_state: F,
     ) -> Result<If2Result> {
         let cfg = &self.config;
         let d = problem.dim();
@@ -701,7 +720,12 @@ impl If2 {
                 log_likelihood: loglik,
                 scale,
             };
-            observer.observe(&state);
+            on_state(&state);
+            observer.progress(
+                state.iter,
+                cfg.n_iter,
+                &format!("IF2: log p̂ {:.1}", state.log_likelihood),
+            );
             trace.push(mean);
             lls.push(loglik);
         }

@@ -245,6 +245,14 @@ struct Norm {
     sum2: f64,
 }
 
+/// What a run carries from one step to the next.
+#[derive(Debug, Clone, Copy)]
+struct Carry {
+    norm: Norm,
+    ess: f64,
+    loglik: f64,
+}
+
 /// Combines the chunk statistics (sequentially, in chunk order) and sets the
 /// per-chunk factors `f_k = exp(max_k − max) / Σ` that normalise `e_i`.
 fn combine(stats: &[ChunkStat], t: usize, fac: &mut Vec<f64>) -> Result<Norm> {
@@ -850,17 +858,62 @@ impl ParticleFilter {
         if tt == 0 {
             return Err(SmcError::EmptyData);
         }
-        let par = cfg.parallel;
-        let seed = cfg.seed;
-        let kind = cfg.kind;
-        let batch = kind == FilterKind::Bootstrap;
-        let always = cfg.ess_threshold >= 1.0;
-        let ln_n = (n as f64).ln();
+        self.prepare(model, obs.input(0), ws);
+        let mut history = cfg.store_history.then(|| FilterHistory {
+            n,
+            states: Vec::with_capacity(n * tt),
+            weights: Vec::with_capacity(n * tt),
+            ancestors: Vec::with_capacity(n * tt),
+        });
+        let mut incs = Vec::with_capacity(tt);
+        let mut ess_hist = Vec::with_capacity(tt);
+        let mut rs_hist = Vec::with_capacity(tt);
+        let mut carry = None;
+        for t in 0..tt {
+            let (inc, resampled) =
+                self.advance(isa, model, t, obs.y(t), obs.input(t), ws, &mut carry)?;
+            let ess = carry.as_ref().map_or(f64::NAN, |c: &Carry| c.ess);
+            incs.push(inc);
+            ess_hist.push(ess);
+            rs_hist.push(resampled);
+            if let Some(h) = history.as_mut() {
+                h.states.extend_from_slice(&ws.x);
+                h.weights.extend_from_slice(&ws.w);
+                h.ancestors.extend_from_slice(&ws.anc);
+            }
+            observer(&FilterStep {
+                t,
+                particles: &ws.x,
+                weights: &ws.w,
+                ancestors: &ws.anc,
+                ess,
+                resampled,
+                log_likelihood_increment: inc,
+            });
+        }
+        let loglik = carry.as_ref().map_or(0.0, |c| c.loglik);
+        Ok(FilterOutput {
+            log_likelihood: loglik,
+            log_likelihood_increments: incs,
+            ess: ess_hist,
+            resampled: rs_hist,
+            history,
+        })
+    }
 
-        // buffers
+    /// Buffers for a run whose first input is `u0` (the fill value of the
+    /// particle buffers is an initial draw, as every run has it).
+    fn prepare<M: StateSpaceModel>(
+        &self,
+        model: &M,
+        u0: &[f64],
+        ws: &mut FilterWorkspace<M::State>,
+    ) {
+        let cfg = &self.config;
+        let n = cfg.n_particles;
         if ws.x.len() != n {
-            let mut rng = stream(seed, domain::FILL, 0, 0);
-            let s = model.sample_initial(obs.input(0), &mut rng);
+            let mut rng = stream(cfg.seed, domain::FILL, 0, 0);
+            let s = model.sample_initial(u0, &mut rng);
             ws.x = vec![s; n];
             ws.x_new = ws.x.clone();
         }
@@ -871,29 +924,44 @@ impl ParticleFilter {
         ws.cum_new.resize(n, 0.0);
         ws.anc.clear();
         ws.anc.extend(0..n);
+        if cfg.kind == FilterKind::Auxiliary {
+            ws.aux.resize(n, 0.0);
+        }
+    }
+
+    /// Step `t` of a run (`carry` is `None` before step 0 and holds the
+    /// normaliser, ESS and log-likelihood after each step): returns
+    /// `log p̂(y_t | y_{0:t-1})` and whether the particles were resampled.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn advance<M: StateSpaceModel>(
+        &self,
+        isa: Isa,
+        model: &M,
+        t: usize,
+        y: &M::Obs,
+        u: &[f64],
+        ws: &mut FilterWorkspace<M::State>,
+        carry: &mut Option<Carry>,
+    ) -> Result<(f64, bool)> {
+        let cfg = &self.config;
+        let n = cfg.n_particles;
+        let par = cfg.parallel;
+        let seed = cfg.seed;
+        let kind = cfg.kind;
+        let batch = kind == FilterKind::Bootstrap;
+        let always = cfg.ess_threshold >= 1.0;
+        let ln_n = (n as f64).ln();
         // systematic resampling inside the move tasks (not for the APF, whose
         // first-stage weights are resampled before the move)
         let fused = kind != FilterKind::Auxiliary && cfg.resampling == Resampling::Systematic;
-        if kind == FilterKind::Auxiliary {
-            ws.aux.resize(n, 0.0);
-        }
-        let mut history = cfg.store_history.then(|| FilterHistory {
-            n,
-            states: Vec::with_capacity(n * tt),
-            weights: Vec::with_capacity(n * tt),
-            ancestors: Vec::with_capacity(n * tt),
-        });
-        let mut incs = Vec::with_capacity(tt);
-        let mut ess_hist = Vec::with_capacity(tt);
-        let mut rs_hist = Vec::with_capacity(tt);
-
-        // t = 0
-        {
+        let Some(prev) = *carry else {
+            // t = 0
             let ctx = Ctx {
                 model,
-                t: 0,
-                y: obs.y(0),
-                u: obs.input(0),
+                t,
+                y,
+                u,
                 seed,
                 batch,
                 x_old: &[],
@@ -913,191 +981,271 @@ impl ParticleFilter {
                 &mut ws.anc,
                 &mut ws.stats,
             );
-        }
-        let mut norm = combine(&ws.stats, 0, &mut ws.fac)?;
-        std::mem::swap(&mut ws.x, &mut ws.x_new);
-        std::mem::swap(&mut ws.lw, &mut ws.lw_new);
-        std::mem::swap(&mut ws.cum, &mut ws.cum_new);
-        normalise(par, &mut ws.w, &ws.fac);
-        let mut ess = norm.sum * norm.sum / norm.sum2;
-        let mut inc = norm.max + norm.sum.ln() - ln_n;
-        let mut loglik = inc;
-        incs.push(inc);
-        ess_hist.push(ess);
-        rs_hist.push(false);
-        if let Some(h) = history.as_mut() {
-            h.states.extend_from_slice(&ws.x);
-            h.weights.extend_from_slice(&ws.w);
-            h.ancestors.extend_from_slice(&ws.anc);
-        }
-        observer(&FilterStep {
-            t: 0,
-            particles: &ws.x,
-            weights: &ws.w,
-            ancestors: &ws.anc,
-            ess,
-            resampled: false,
-            log_likelihood_increment: inc,
-        });
-
-        for t in 1..tt {
-            let y = obs.y(t);
-            let u = obs.input(t);
-            let mut extra = 0.0;
-            let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
-            let mut sys_v = None;
-            let resampled = if kind == FilterKind::Auxiliary {
-                // log η_t(x_{t-1}^i)
-                let (x, aux) = (&ws.x, &mut ws.aux);
-                let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
-                if par && n >= FILTER_PAR_MIN {
-                    aux.par_iter_mut().zip(x.par_iter()).for_each(map);
-                } else {
-                    aux.iter_mut().zip(x.iter()).for_each(map);
-                }
-                // first-stage weights W_i η_i (lw_new is scratch here)
-                let scratch = &mut ws.lw_new;
-                let mut amax = f64::NEG_INFINITY;
-                let mut bad = false;
-                for ((s, &wi), &a) in scratch.iter_mut().zip(ws.w.iter()).zip(ws.aux.iter()) {
-                    let v = if wi > 0.0 {
-                        wi.ln() + a
-                    } else {
-                        f64::NEG_INFINITY
-                    };
-                    bad |= v.is_nan() || v == f64::INFINITY;
-                    *s = v;
-                    amax = if v > amax { v } else { amax };
-                }
-                if bad {
-                    return Err(SmcError::InvalidLogWeight { t });
-                }
-                if amax == f64::NEG_INFINITY {
-                    return Err(SmcError::AllWeightsZero { t });
-                }
-                let (mut s, mut s2) = (0.0, 0.0);
-                for sc in scratch.iter_mut() {
-                    let e = (*sc - amax).exp();
-                    *sc = e;
-                    s += e;
-                    s2 += e * e;
-                }
-                let rs = always || s * s / s2 < cfg.ess_threshold * n as f64;
-                if rs {
-                    extra = amax + s.ln();
-                    resample_unchecked(
-                        cfg.resampling,
-                        scratch,
-                        s,
-                        &mut rng,
-                        &mut ws.anc,
-                        &mut ws.counts,
-                    );
-                }
-                rs
-            } else {
-                let rs = always || ess < cfg.ess_threshold * n as f64;
-                if rs && fused {
-                    sys_v = Some(rng.random::<f64>());
-                } else if rs {
-                    resample_unchecked(
-                        cfg.resampling,
-                        &ws.w,
-                        1.0,
-                        &mut rng,
-                        &mut ws.anc,
-                        &mut ws.counts,
-                    );
-                }
-                rs
-            };
-            if !resampled {
-                for (i, a) in ws.anc.iter_mut().enumerate() {
-                    *a = i;
-                }
-            }
-            let sys = match sys_v {
-                Some(v) => {
-                    let (total, scale, shift) =
-                        plan(&ws.stats, &ws.fac, v, n, &mut ws.off, &mut ws.bnd);
-                    Some(Sys {
-                        cum: &ws.cum,
-                        fac: &ws.fac,
-                        off: &ws.off,
-                        bnd: &ws.bnd,
-                        total,
-                        scale,
-                        shift,
-                        n,
-                    })
-                }
-                None => None,
-            };
-            let prev_ln = if resampled { ln_n } else { norm.sum.ln() };
-            let base = if !resampled {
-                Base::Prev(norm.max)
-            } else if kind == FilterKind::Auxiliary {
-                Base::Apf
-            } else {
-                Base::Zero
-            };
-            let ctx = Ctx {
-                model,
-                t,
-                y,
-                u,
-                seed,
-                batch,
-                x_old: &ws.x,
-                lw_old: &ws.lw,
-                aux: &ws.aux,
-                base,
-                sys,
-            };
-            run_step(
-                isa,
-                par,
-                &ctx,
-                &mut ws.x_new,
-                &mut ws.lw_new,
-                &mut ws.w,
-                &mut ws.cum_new,
-                &mut ws.anc,
-                &mut ws.stats,
-            );
-            norm = combine(&ws.stats, t, &mut ws.fac)?;
+            let norm = combine(&ws.stats, t, &mut ws.fac)?;
             std::mem::swap(&mut ws.x, &mut ws.x_new);
             std::mem::swap(&mut ws.lw, &mut ws.lw_new);
             std::mem::swap(&mut ws.cum, &mut ws.cum_new);
             normalise(par, &mut ws.w, &ws.fac);
-            ess = norm.sum * norm.sum / norm.sum2;
-            inc = norm.max + norm.sum.ln() - prev_ln + extra;
-            loglik += inc;
-            incs.push(inc);
-            ess_hist.push(ess);
-            rs_hist.push(resampled);
-            if let Some(h) = history.as_mut() {
-                h.states.extend_from_slice(&ws.x);
-                h.weights.extend_from_slice(&ws.w);
-                h.ancestors.extend_from_slice(&ws.anc);
+            let inc = norm.max + norm.sum.ln() - ln_n;
+            *carry = Some(Carry {
+                norm,
+                ess: norm.sum * norm.sum / norm.sum2,
+                loglik: inc,
+            });
+            return Ok((inc, false));
+        };
+        let (norm, ess) = (prev.norm, prev.ess);
+        let mut extra = 0.0;
+        let mut rng = stream(seed, domain::RESAMPLE, t as u64, 0);
+        let mut sys_v = None;
+        let resampled = if kind == FilterKind::Auxiliary {
+            // log η_t(x_{t-1}^i)
+            let (x, aux) = (&ws.x, &mut ws.aux);
+            let map = |(a, xi): (&mut f64, &M::State)| *a = model.log_auxiliary(t, xi, y, u);
+            if par && n >= FILTER_PAR_MIN {
+                aux.par_iter_mut().zip(x.par_iter()).for_each(map);
+            } else {
+                aux.iter_mut().zip(x.iter()).for_each(map);
             }
-            observer(&FilterStep {
-                t,
-                particles: &ws.x,
-                weights: &ws.w,
-                ancestors: &ws.anc,
-                ess,
-                resampled,
-                log_likelihood_increment: inc,
+            // first-stage weights W_i η_i (lw_new is scratch here)
+            let scratch = &mut ws.lw_new;
+            let mut amax = f64::NEG_INFINITY;
+            let mut bad = false;
+            for ((s, &wi), &a) in scratch.iter_mut().zip(ws.w.iter()).zip(ws.aux.iter()) {
+                let v = if wi > 0.0 {
+                    wi.ln() + a
+                } else {
+                    f64::NEG_INFINITY
+                };
+                bad |= v.is_nan() || v == f64::INFINITY;
+                *s = v;
+                amax = if v > amax { v } else { amax };
+            }
+            if bad {
+                return Err(SmcError::InvalidLogWeight { t });
+            }
+            if amax == f64::NEG_INFINITY {
+                return Err(SmcError::AllWeightsZero { t });
+            }
+            let (mut s, mut s2) = (0.0, 0.0);
+            for sc in scratch.iter_mut() {
+                let e = (*sc - amax).exp();
+                *sc = e;
+                s += e;
+                s2 += e * e;
+            }
+            let rs = always || s * s / s2 < cfg.ess_threshold * n as f64;
+            if rs {
+                extra = amax + s.ln();
+                resample_unchecked(
+                    cfg.resampling,
+                    scratch,
+                    s,
+                    &mut rng,
+                    &mut ws.anc,
+                    &mut ws.counts,
+                );
+            }
+            rs
+        } else {
+            let rs = always || ess < cfg.ess_threshold * n as f64;
+            if rs && fused {
+                sys_v = Some(rng.random::<f64>());
+            } else if rs {
+                resample_unchecked(
+                    cfg.resampling,
+                    &ws.w,
+                    1.0,
+                    &mut rng,
+                    &mut ws.anc,
+                    &mut ws.counts,
+                );
+            }
+            rs
+        };
+        if !resampled {
+            for (i, a) in ws.anc.iter_mut().enumerate() {
+                *a = i;
+            }
+        }
+        let sys = match sys_v {
+            Some(v) => {
+                let (total, scale, shift) =
+                    plan(&ws.stats, &ws.fac, v, n, &mut ws.off, &mut ws.bnd);
+                Some(Sys {
+                    cum: &ws.cum,
+                    fac: &ws.fac,
+                    off: &ws.off,
+                    bnd: &ws.bnd,
+                    total,
+                    scale,
+                    shift,
+                    n,
+                })
+            }
+            None => None,
+        };
+        let prev_ln = if resampled { ln_n } else { norm.sum.ln() };
+        let base = if !resampled {
+            Base::Prev(norm.max)
+        } else if kind == FilterKind::Auxiliary {
+            Base::Apf
+        } else {
+            Base::Zero
+        };
+        let ctx = Ctx {
+            model,
+            t,
+            y,
+            u,
+            seed,
+            batch,
+            x_old: &ws.x,
+            lw_old: &ws.lw,
+            aux: &ws.aux,
+            base,
+            sys,
+        };
+        run_step(
+            isa,
+            par,
+            &ctx,
+            &mut ws.x_new,
+            &mut ws.lw_new,
+            &mut ws.w,
+            &mut ws.cum_new,
+            &mut ws.anc,
+            &mut ws.stats,
+        );
+        let norm = combine(&ws.stats, t, &mut ws.fac)?;
+        std::mem::swap(&mut ws.x, &mut ws.x_new);
+        std::mem::swap(&mut ws.lw, &mut ws.lw_new);
+        std::mem::swap(&mut ws.cum, &mut ws.cum_new);
+        normalise(par, &mut ws.w, &ws.fac);
+        let inc = norm.max + norm.sum.ln() - prev_ln + extra;
+        *carry = Some(Carry {
+            norm,
+            ess: norm.sum * norm.sum / norm.sum2,
+            loglik: prev.loglik + inc,
+        });
+        Ok((inc, resampled))
+    }
+
+    /// A filter fed one observation at a time ([`OnlineFilter::push`]) for
+    /// online use; it runs the same steps as [`run`](Self::run), so pushing
+    /// a record sample by sample gives the same log-likelihood, bit for bit.
+    pub fn online<'m, M: StateSpaceModel>(&self, model: &'m M) -> OnlineFilter<'m, M> {
+        OnlineFilter {
+            pf: self.clone(),
+            model,
+            ws: FilterWorkspace::new(),
+            carry: None,
+            t: 0,
+            isa: Isa::detect(),
+            failed: false,
+        }
+    }
+}
+
+/// A particle filter fed one observation at a time (from
+/// [`ParticleFilter::online`]): the online form of [`ParticleFilter::run`]
+/// with the same random streams, so the log-likelihood after pushing
+/// `y_0, …, y_{T-1}` equals that of a batch run on the same record.
+///
+/// ```
+/// use gb_smc::{FilterConfig, LinearGaussian, Observations};
+/// let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+/// let (_, y) = model.simulate(50, 3);
+/// let pf = FilterConfig::new(500).seed(1).build().unwrap();
+/// let mut online = pf.online(&model);
+/// for yt in &y {
+///     online.push(yt, &[]).unwrap();
+/// }
+/// let batch = pf.run(&model, &Observations::new(&y)).unwrap();
+/// assert_eq!(online.log_likelihood(), batch.log_likelihood);
+/// ```
+pub struct OnlineFilter<'m, M: StateSpaceModel> {
+    pf: ParticleFilter,
+    model: &'m M,
+    ws: FilterWorkspace<M::State>,
+    carry: Option<Carry>,
+    t: usize,
+    isa: Isa,
+    failed: bool,
+}
+
+impl<M: StateSpaceModel> OnlineFilter<'_, M> {
+    /// Filters the next observation `y_t` with the inputs `u_t` (`t` counts
+    /// the pushes from 0) and returns `log p̂(y_t | y_{0:t-1})`. After an
+    /// error the filter is spent and every further push fails.
+    pub fn push(&mut self, y: &M::Obs, u: &[f64]) -> Result<f64> {
+        if self.failed {
+            return Err(SmcError::InvalidParameter {
+                name: "push",
+                value: self.t as f64,
+                reason: "the filter failed at an earlier step",
             });
         }
-        Ok(FilterOutput {
-            log_likelihood: loglik,
-            log_likelihood_increments: incs,
-            ess: ess_hist,
-            resampled: rs_hist,
-            history,
-        })
+        if self.t == 0 {
+            self.pf.prepare(self.model, u, &mut self.ws);
+        }
+        let r = self.pf.advance(
+            self.isa,
+            self.model,
+            self.t,
+            y,
+            u,
+            &mut self.ws,
+            &mut self.carry,
+        );
+        match r {
+            Ok((inc, _)) => {
+                self.t += 1;
+                Ok(inc)
+            }
+            Err(e) => {
+                self.failed = true;
+                Err(e)
+            }
+        }
+    }
+
+    /// Number of observations pushed.
+    pub fn len(&self) -> usize {
+        self.t
+    }
+
+    /// `true` before the first push.
+    pub fn is_empty(&self) -> bool {
+        self.t == 0
+    }
+
+    /// `log p̂(y_{0:t-1})` of the observations pushed so far (0 before the first).
+    pub fn log_likelihood(&self) -> f64 {
+        self.carry.as_ref().map_or(0.0, |c| c.loglik)
+    }
+
+    /// ESS of the current filtering weights (NaN before the first push).
+    pub fn ess(&self) -> f64 {
+        self.carry.as_ref().map_or(f64::NAN, |c| c.ess)
+    }
+
+    /// The current particles `x_{t-1}^i` (empty before the first push).
+    pub fn particles(&self) -> &[M::State] {
+        if self.t == 0 {
+            &[]
+        } else {
+            &self.ws.x
+        }
+    }
+
+    /// The current normalised weights `W_{t-1}^i` (empty before the first push).
+    pub fn weights(&self) -> &[f64] {
+        if self.t == 0 {
+            &[]
+        } else {
+            &self.ws.w
+        }
     }
 }
 

@@ -39,7 +39,7 @@ pub mod smoothing;
 pub use error::{Result, SmcError};
 pub use filter::{
     summarise, weighted_quantiles, FilterConfig, FilterHistory, FilterKind, FilterOutput,
-    FilterStep, FilterWorkspace, ParticleFilter, StepSummary,
+    FilterStep, FilterWorkspace, OnlineFilter, ParticleFilter, StepSummary,
 };
 pub use kalman::{KalmanFilter, KalmanOutput, LinearGaussian};
 pub use model::{Observations, StateSpaceModel, StateVector, TransitionDensity};

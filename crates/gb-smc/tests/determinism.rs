@@ -177,3 +177,70 @@ fn default_proposal_reduces_guided_and_auxiliary_to_bootstrap() {
     // η ≡ 1: the APF equals the bootstrap filter up to rounding of Σ W_i = 1
     assert!((a.log_likelihood - b.log_likelihood).abs() < 1e-9);
 }
+
+/// Pushing the observations one at a time (`ParticleFilter::online`) gives
+/// the batch filter's log-likelihood, increments, ESS and final particles,
+/// bit for bit, for every filter kind and resampling scheme, serial and
+/// parallel (17 000 particles), and for a model whose transition depends on
+/// the time index.
+#[test]
+fn online_push_equals_the_batch_filter() {
+    let model = LinearGaussian::ar1(0.9, 1.0, 0.5).unwrap();
+    let (_, y) = model.simulate(80, 6);
+    let obs = Observations::new(&y);
+    for n in [1_000, 17_000] {
+        for kind in [
+            FilterKind::Bootstrap,
+            FilterKind::Guided,
+            FilterKind::Auxiliary,
+        ] {
+            for rs in [Resampling::Systematic, Resampling::Multinomial] {
+                let pf = FilterConfig::new(n)
+                    .kind(kind)
+                    .resampling(rs)
+                    .seed(4)
+                    .build()
+                    .unwrap();
+                let mut steps = Vec::new();
+                let batch = pf
+                    .run_with(&model, &obs, &mut gb_smc::FilterWorkspace::new(), |s| {
+                        if s.t + 1 == y.len() {
+                            steps.extend_from_slice(s.particles);
+                        }
+                    })
+                    .unwrap();
+                let mut online = pf.online(&model);
+                assert!(online.is_empty() && online.particles().is_empty());
+                for (t, yt) in y.iter().enumerate() {
+                    let inc = online.push(yt, &[]).unwrap();
+                    assert_eq!(
+                        inc.to_bits(),
+                        batch.log_likelihood_increments[t].to_bits(),
+                        "{kind:?} {rs:?} N {n} t {t}"
+                    );
+                    assert_eq!(online.ess().to_bits(), batch.ess[t].to_bits());
+                }
+                assert_eq!(online.len(), y.len());
+                assert_eq!(
+                    online.log_likelihood().to_bits(),
+                    batch.log_likelihood.to_bits(),
+                    "{kind:?} {rs:?} N {n}"
+                );
+                assert_eq!(online.particles(), &steps[..]);
+            }
+        }
+    }
+    // a model whose transition depends on the time index
+    let growth = gb_smc::models::NonlinearGrowth::classic();
+    let (_, y) = growth.simulate(60, 3);
+    let pf = FilterConfig::new(2_000).seed(7).build().unwrap();
+    let batch = pf.run(&growth, &Observations::new(&y)).unwrap();
+    let mut online = pf.online(&growth);
+    for yt in &y {
+        online.push(yt, &[]).unwrap();
+    }
+    assert_eq!(
+        online.log_likelihood().to_bits(),
+        batch.log_likelihood.to_bits()
+    );
+}

@@ -1,5 +1,5 @@
 //! PMMH coverage and IF2 against the exact (Kalman) maximum-likelihood estimate.
-use gb_smc::estimation::{If2, If2Config, NoObserver, ParametricModel, Pmmh, PmmhConfig};
+use gb_smc::estimation::{If2, If2Config, ParametricModel, Pmmh, PmmhConfig, Silent};
 use gb_smc::{KalmanFilter, LinearGaussian, Observations};
 use rayon::prelude::*;
 
@@ -41,12 +41,7 @@ fn pmmh_intervals_cover_the_truth() {
             let (_, y) = truth.simulate(100, 500 + r);
             Pmmh::new(pmmh_config(r))
                 .unwrap()
-                .run(
-                    &Ar1Params,
-                    &Observations::new(&y),
-                    &[0.5, 1.5],
-                    &mut NoObserver,
-                )
+                .run(&Ar1Params, &Observations::new(&y), &[0.5, 1.5], &Silent)
                 .unwrap()
         })
         .collect();
@@ -94,20 +89,15 @@ fn pmmh_observer_and_determinism() {
             .unwrap()
     };
     let a = pool(1).install(|| {
-        pmmh.run(&Ar1Params, &obs, &[0.5, 1.5], &mut obs_fn)
+        pmmh.run_with(&Ar1Params, &obs, &[0.5, 1.5], &Silent, &mut obs_fn)
             .unwrap()
     });
     assert_eq!(seen, 25);
-    let b = pool(2).install(|| {
-        pmmh.run(&Ar1Params, &obs, &[0.5, 1.5], &mut NoObserver)
-            .unwrap()
-    });
+    let b = pool(2).install(|| pmmh.run(&Ar1Params, &obs, &[0.5, 1.5], &Silent).unwrap());
     assert_eq!(a, b);
     // invalid starts are errors
-    assert!(pmmh
-        .run(&Ar1Params, &obs, &[1.5, 1.0], &mut NoObserver)
-        .is_err());
-    assert!(pmmh.run(&Ar1Params, &obs, &[0.5], &mut NoObserver).is_err());
+    assert!(pmmh.run(&Ar1Params, &obs, &[1.5, 1.0], &Silent).is_err());
+    assert!(pmmh.run(&Ar1Params, &obs, &[0.5], &Silent).is_err());
 }
 
 fn kalman_mle(y: &[f64]) -> ([f64; 2], f64) {
@@ -136,11 +126,12 @@ fn if2_finds_the_kalman_mle() {
     let if2 = If2::new(cfg.clone()).unwrap();
     let mut iters = 0;
     let res = if2
-        .run(
+        .run_with(
             &Ar1Params,
             &Observations::new(&y),
             &[0.5, 1.5],
-            &mut |_: &gb_smc::estimation::If2State| iters += 1,
+            &Silent,
+            |_: &gb_smc::estimation::If2State| iters += 1,
         )
         .unwrap();
     let m = LinearGaussian::ar1(res.theta[0], res.theta[1], 0.5).unwrap();
@@ -165,13 +156,7 @@ fn if2_finds_the_kalman_mle() {
     short.n_iter = 3;
     short.n_particles = 5000; // above PAR_MIN: the parallel path runs
     let if2 = If2::new(short).unwrap();
-    let a = pool(1).install(|| {
-        if2.run(&Ar1Params, &obs, &[0.5, 1.5], &mut NoObserver)
-            .unwrap()
-    });
-    let b = pool(2).install(|| {
-        if2.run(&Ar1Params, &obs, &[0.5, 1.5], &mut NoObserver)
-            .unwrap()
-    });
+    let a = pool(1).install(|| if2.run(&Ar1Params, &obs, &[0.5, 1.5], &Silent).unwrap());
+    let b = pool(2).install(|| if2.run(&Ar1Params, &obs, &[0.5, 1.5], &Silent).unwrap());
     assert_eq!(a, b);
 }

@@ -28,8 +28,10 @@ Workflow:
   greybox simulate model.gbm data/validate.csv -o sim.csv
   greybox fit data/train.csv --model linear+preisach -o model.gbm
 
-CSV files need a header row; a `t` column is ignored. Errors name the file,
-row and column and exit with code 2.";
+CSV files need a header row. A uniform `t` (or `time`) column gives the
+sample time; t/time/timestamp/k/sample/ts/index columns are never inputs.
+Without --output the column `y` is the output (else an error lists the
+columns). Errors name the file, row and column and exit with code 2.";
 
 #[derive(Parser)]
 #[command(name = "greybox", version, about = ABOUT, long_about = LONG_ABOUT)]
@@ -141,10 +143,10 @@ pub(crate) struct WaveletArgs {
 
 #[derive(Args)]
 pub(crate) struct SignalArgs {
-    /// Input column (repeat for several inputs). Default: every column except the output and `t`.
+    /// Input column (repeat for several inputs). Default: every column except the output, index/time columns and other output-like columns (y1, out, ...).
     #[arg(long = "input", value_name = "COLUMN")]
     pub(crate) inputs: Vec<String>,
-    /// Output column. Default: the last column.
+    /// Output column. Default: the column named `y` (an error listing the columns when there is none).
     #[arg(long, value_name = "COLUMN")]
     pub(crate) output: Option<String>,
 }

@@ -64,3 +64,10 @@ impl Observer for Bar {
         ));
     }
 }
+
+impl Drop for Bar {
+    /// A bar never outlives its work on the terminal.
+    fn drop(&mut self) {
+        self.0.finish_and_clear();
+    }
+}

@@ -481,15 +481,31 @@ fn help_teaches_the_workflow() {
 fn bench_without_data_is_a_notice_and_exit_0() {
     let d = tmp("bench-none");
     let res = d.join("results.md");
-    let o = run(&[
+    let absent = d.join("absent");
+    let args = [
         "bench",
         "--data-dir",
-        d.join("absent").to_str().unwrap(),
+        absent.to_str().unwrap(),
         "--results",
         res.to_str().unwrap(),
-    ]);
+    ];
+    // A newcomer without the data: a visible notice, exit 0.
+    let o = bin()
+        .args(args)
+        .env_remove("GREYBOX_REQUIRE_DATA")
+        .output()
+        .expect("run greybox");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(stdout(&o).contains("not found; nothing run"));
+    assert!(!res.exists(), "nothing run, nothing written");
+    // CI (GREYBOX_REQUIRE_DATA set): a missing folder is a failure.
+    let o = bin()
+        .args(args)
+        .env("GREYBOX_REQUIRE_DATA", "1")
+        .output()
+        .expect("run greybox");
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("GREYBOX_REQUIRE_DATA"));
     assert!(!res.exists(), "nothing run, nothing written");
 }
 

@@ -60,10 +60,7 @@ pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, 
     let mut p = p.clone();
     p.fit = ctx.options.fit.clone();
     p.lolimot = ctx.options.lolimot.clone();
-    let warm_net = ctx
-        .current
-        .model
-        .dynamics
+    let warm_net = crate::plan::core(&ctx.current.model)
         .as_any()
         .downcast_ref::<gb_lmn::LocalModelNetwork>();
     let net = p.check()?.fit(

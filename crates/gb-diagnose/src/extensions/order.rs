@@ -5,7 +5,10 @@ use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, ModelView, Series, ViewData};
 
-/// Raise the dynamic order by one and by two.
+/// Raise the dynamic order by one and by two, and for a linear model also
+/// double it (n → 2n when 2n > n + 2): a structure with several resonant
+/// modes reaches a high order in a few steps, and only when the training
+/// data pay for it (up to the policy's `max_order`).
 pub struct LinearOrder;
 
 impl Extension for LinearOrder {
@@ -19,16 +22,20 @@ impl Extension for LinearOrder {
         let Some(p) = ctx.current.lineage.io() else {
             return vec![];
         };
-        [1, 2]
+        let mut orders = vec![p.order + 1, p.order + 2];
+        if !p.network && !p.hysteresis && 2 * p.order > p.order + 2 {
+            orders.push(2 * p.order);
+        }
+        orders
             .into_iter()
-            .filter(|add| p.order + add <= ctx.policy().max_order)
-            .map(|add| Proposal {
+            .filter(|&n| n <= ctx.policy().max_order)
+            .map(|n| Proposal {
                 cause: Cause::Dynamics,
                 lineage: Lineage::Io(gb_lmn::IoNetworkParams {
-                    order: p.order + add,
+                    order: n,
                     ..p.clone()
                 }),
-                text: format!("order {} -> {}", p.order, p.order + add),
+                text: format!("order {} -> {n}", p.order),
             })
             .collect()
     }

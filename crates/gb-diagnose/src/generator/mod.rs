@@ -53,7 +53,7 @@ pub use excite::{Excitation, ExcitationKind};
 pub use linfit::{arx_misfit, Arx};
 pub use noise::NoiseKind;
 
-use gb_core::{CoreError, DataSet};
+use gb_core::{CoreError, Record};
 use serde::{Deserialize, Serialize};
 
 /// The families of systems.
@@ -201,9 +201,9 @@ pub struct Case {
     /// What the system is, in one line.
     pub description: String,
     /// Training record.
-    pub train: DataSet,
+    pub train: Record,
     /// Validation record (independent input realisation, same system).
-    pub validate: DataSet,
+    pub validate: Record,
     /// The causes hidden in the data (`[]`: none).
     pub expected: Vec<String>,
     /// Other cause sets that also count as right (e.g. `[[]]` for Gaussian

@@ -4,7 +4,7 @@ use super::ctx::{Built, Ctx, Drawn};
 use super::linfit::arx_misfit;
 use super::noise::{output_noise, process_force, white, NoiseKind};
 use super::{families, Case, Family, Knobs};
-use gb_core::{metrics, rng, CoreError, DataSet};
+use gb_core::{metrics, rng, CoreError, Record};
 
 /// Stable 64-bit FNV-1a hash of a family name (mixes the family into the seed).
 fn fnv(s: &str) -> u64 {
@@ -63,8 +63,8 @@ pub(crate) fn realise(fam: Family, seed: u64, knobs: &Knobs) -> Result<Case, Cor
         family: fam.name().to_string(),
         seed,
         description,
-        train: DataSet::new(names.clone(), "y".into(), u_tr, m_tr)?,
-        validate: DataSet::new(names, "y".into(), u_va, m_va)?,
+        train: Record::new(names.clone(), "y".into(), u_tr, m_tr)?,
+        validate: Record::new(names, "y".into(), u_va, m_va)?,
         expected: own(&b.expected),
         acceptable_alternatives: b.alternatives.iter().map(|a| own(a)).collect(),
         foreign,

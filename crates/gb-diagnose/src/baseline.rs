@@ -1,0 +1,436 @@
+//! The engineer's baseline with the structure the training data show: the
+//! input delay per input (0 = direct feedthrough), an integrator when the
+//! output integrates, and with `--order auto` the order. A least-squares
+//! ARX scan proposes ([`crate::structure`]); the output-error fit on the
+//! decision data (select block or cross-validation) confirms.
+use crate::evaluate::{Evaluated, Lineage};
+use crate::extension::io_model;
+use crate::plan::{assess, Plan};
+use crate::{structure, DiagnoseData, DiagnoseError, DiagnoseOptions, OrderChoice};
+use gb_core::Record;
+use gb_lmn::{IoNetworkParams, LocalModelNetwork, WarmStart};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+/// How the baseline's structure was chosen (the report's `structure`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct StructureChoice {
+    /// Input delay per input in samples (0: direct feedthrough), estimated
+    /// from the training data; every extension keeps it.
+    pub delay: Vec<usize>,
+    /// Delays scanned: 0 ..= this.
+    pub delay_bound: usize,
+    /// The delay with the smallest information criterion of least-squares
+    /// ARX models (it proposes; biased under output noise).
+    pub arx_delay: Vec<usize>,
+    /// The delay with the smallest information criterion of in-sample
+    /// output-error fits at the reference order.
+    pub oe_delay: Vec<usize>,
+    /// The delays confirmed by the output-error fit, with their decision
+    /// NRMSE (at the reference order).
+    pub delay_candidates: Vec<(Vec<usize>, f64)>,
+    /// The baseline integrates: it models the increments of the output.
+    pub integrating: bool,
+    /// The real pole of the ARX model closest to 1.
+    pub arx_pole: f64,
+    /// Decision NRMSE of the plain and of the increments baseline, when an
+    /// integrator was suspected and both were fitted.
+    pub integrator_test: Option<[f64; 2]>,
+    /// The order was chosen on the decision data (`--order auto`), not
+    /// given by the engineer.
+    pub order_auto: bool,
+    /// Orders fitted by `--order auto`, with their decision NRMSE.
+    pub orders: Vec<(usize, f64)>,
+    /// How decisions are made (select-block bootstrap or cross-validation).
+    pub decision: String,
+}
+
+impl StructureChoice {
+    /// One line for the text report.
+    pub fn text(&self) -> String {
+        let v = |d: &[usize]| {
+            let s: Vec<String> = d.iter().map(|x| x.to_string()).collect();
+            format!("[{}]", s.join(","))
+        };
+        let cands: Vec<String> = self
+            .delay_candidates
+            .iter()
+            .map(|(d, e)| format!("{} {:.4}", v(d), e))
+            .collect();
+        let mut s = format!(
+            "delay {} samples{} estimated on the training data (scan 0..={}: ARX {}, output-error {}; decision NRMSE {})",
+            v(&self.delay),
+            if self.delay.contains(&0) {
+                " (0 = direct feedthrough)"
+            } else {
+                ""
+            },
+            self.delay_bound,
+            v(&self.arx_delay),
+            v(&self.oe_delay),
+            cands.join(", ")
+        );
+        if self.integrating {
+            s.push_str(&format!(
+                "; integrating (pole at 1): ARX pole {:.4}, the increments model",
+                self.arx_pole
+            ));
+        } else if self.integrator_test.is_some() {
+            s.push_str(&format!(
+                "; integrator tested (ARX pole {:.4}) and rejected",
+                self.arx_pole
+            ));
+        }
+        if let Some([plain, inc]) = self.integrator_test {
+            s.push_str(&format!(" (NRMSE {plain:.4} plain vs {inc:.4} increments)"));
+        }
+        if self.order_auto {
+            let o: Vec<String> = self
+                .orders
+                .iter()
+                .map(|(n, e)| format!("{n}: {e:.4}"))
+                .collect();
+            s.push_str(&format!(
+                "; order chosen on the training data ({})",
+                o.join(", ")
+            ));
+        } else {
+            s.push_str("; order: the engineer's");
+        }
+        s
+    }
+}
+
+/// The baseline, the plan it fixes (integrating or not) and how it was chosen.
+pub(crate) struct Baseline {
+    pub eval: Evaluated,
+    pub plan: Plan,
+    pub choice: StructureChoice,
+}
+
+/// Information criterion N ln σ² + p ln N of a network's in-sample
+/// simulation error on `rec` (unbiased under output noise, unlike an ARX
+/// loss).
+fn bic(net: &LocalModelNetwork, rec: &Record) -> f64 {
+    match net.simulation_residuals(&rec.inputs, &rec.output) {
+        Ok(e) if !e.is_empty() => {
+            let n = e.len() as f64;
+            let mse = e.iter().map(|v| v * v).sum::<f64>() / n;
+            n * mse.max(1e-300).ln() + net.n_parameters() as f64 * n.ln()
+        }
+        _ => f64::INFINITY,
+    }
+}
+
+/// The linear output-error model of `p` on `rec`: a cold fit and, with a
+/// pole template, a fit started from its poles with the numerator of this
+/// structure ([`gb_lmn::fixed_pole_start`]); the smaller simulation error
+/// wins (output-error costs of oversampled records have local minima).
+fn fit_net(
+    p: &IoNetworkParams,
+    rec: &Record,
+    poles: Option<&LocalModelNetwork>,
+) -> Result<LocalModelNetwork, DiagnoseError> {
+    let v = p.check()?;
+    let cold = v.fit(rec, WarmStart::default());
+    let spec = p.network_spec(rec.n_inputs());
+    let warm = poles
+        .and_then(|t| gb_lmn::fixed_pole_start(t, &spec, &rec.inputs, &rec.output))
+        .and_then(|s| gb_lmn::refine_output_error(&s, &rec.inputs, &rec.output, &p.fit).ok())
+        .map(|(m, _)| m);
+    let err = |m: &LocalModelNetwork| {
+        m.simulation_residuals(&rec.inputs, &rec.output)
+            .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e))
+    };
+    match (cold, warm) {
+        (Ok(c), Some(w)) => Ok(if err(&w) < err(&c) { w } else { c }),
+        (Ok(c), None) => Ok(c),
+        (Err(_), Some(w)) => Ok(w),
+        (Err(e), None) => Err(e.into()),
+    }
+}
+
+/// The delay of every input by output-error fits of `order` over
+/// `0..=bound` on (at most the policy's `delay_scan_samples` of) `rec`,
+/// scanning one input at a time from `start`: cold fits first, then every
+/// delay again from the poles of the best one; the smallest information
+/// criterion wins. Returns the delay and the best network (a pole template).
+fn oe_delay_scan(
+    rec: &Record,
+    order: usize,
+    bound: usize,
+    start: &[usize],
+    opts: &DiagnoseOptions,
+) -> (Vec<usize>, Option<LocalModelNetwork>) {
+    let n = rec.len().min(opts.policy.delay_scan_samples);
+    let rec = rec.slice(0..n);
+    let params = |t: &[usize]| IoNetworkParams {
+        fit: opts.fit.clone(),
+        delay: t.to_vec(),
+        ..IoNetworkParams::linear(order)
+    };
+    let mut best = start.to_vec();
+    let mut template: Option<LocalModelNetwork> = None;
+    for j in 0..best.len() {
+        let mut found: Option<(usize, f64, LocalModelNetwork)> = None;
+        for pass in 0..2 {
+            let poles = template.clone();
+            if pass == 1 && poles.is_none() {
+                break;
+            }
+            let fits: Vec<(usize, f64, LocalModelNetwork)> = (0..=bound)
+                .into_par_iter()
+                .filter_map(|d| {
+                    let mut t = best.clone();
+                    t[j] = d;
+                    let net = if pass == 0 {
+                        fit_net(&params(&t), &rec, None).ok()?
+                    } else {
+                        let spec = params(&t).network_spec(rec.n_inputs());
+                        let s = gb_lmn::fixed_pole_start(
+                            poles.as_ref()?,
+                            &spec,
+                            &rec.inputs,
+                            &rec.output,
+                        )?;
+                        gb_lmn::refine_output_error(&s, &rec.inputs, &rec.output, &opts.fit)
+                            .ok()?
+                            .0
+                    };
+                    Some((d, bic(&net, &rec), net))
+                })
+                .collect();
+            for (d, b, net) in fits {
+                if b.is_finite() && found.as_ref().is_none_or(|f| b < f.1) {
+                    found = Some((d, b, net));
+                }
+            }
+            if let Some((_, _, net)) = &found {
+                template = Some(net.clone());
+            }
+        }
+        if let Some((d, _, _)) = found {
+            best[j] = d;
+        }
+    }
+    (best, template)
+}
+
+/// Candidate delays around `v` (each input one lower and one higher).
+fn around(v: &[usize], bound: usize, out: &mut Vec<Vec<usize>>) {
+    let mut push = |t: Vec<usize>| {
+        if !out.contains(&t) {
+            out.push(t);
+        }
+    };
+    push(v.to_vec());
+    for j in 0..v.len() {
+        if v[j] > 0 {
+            let mut t = v.to_vec();
+            t[j] -= 1;
+            push(t);
+        }
+        if v[j] < bound {
+            let mut t = v.to_vec();
+            t[j] += 1;
+            push(t);
+        }
+    }
+}
+
+/// The linear output-error model of `order` with `delay`, assessed.
+fn fit_structure(
+    plan: &Plan,
+    d: &DiagnoseData,
+    opts: &DiagnoseOptions,
+    order: usize,
+    delay: &[usize],
+    poles: Option<&LocalModelNetwork>,
+) -> Result<Evaluated, DiagnoseError> {
+    let p = IoNetworkParams {
+        fit: opts.fit.clone(),
+        lolimot: opts.lolimot.clone(),
+        delay: delay.to_vec(),
+        ..IoNetworkParams::linear(order)
+    };
+    let lineage = Lineage::Io(p.clone());
+    assess(plan, d, lineage, &|t| {
+        let rec = plan.fit_of(t);
+        io_model(fit_net(&p, rec, poles)?, rec)
+    })
+}
+
+/// The baseline of `opts.order` on `d`.
+pub(crate) fn baseline(
+    d: &DiagnoseData,
+    plan0: &Plan,
+    opts: &DiagnoseOptions,
+) -> Result<Baseline, DiagnoseError> {
+    let pol = &opts.policy;
+    let n_ref = match opts.order {
+        OrderChoice::Fixed(n) => n,
+        OrderChoice::Auto => 2,
+    };
+    let bound = pol.delay_bound(plan0.fit_y.len());
+    let scan = structure::scan(&plan0.fit_y, n_ref, bound, pol.structure_scan_samples);
+    let mut choice = StructureChoice {
+        delay_bound: bound,
+        arx_delay: scan.best.clone(),
+        arx_pole: scan.real_pole,
+        order_auto: opts.order == OrderChoice::Auto,
+        ..StructureChoice::default()
+    };
+    // an integrator? the increments model must pay on the decision data
+    let plan = if (scan.real_pole - 1.0).abs() < pol.integrator_pole {
+        let inc_plan = plan0.integrating(true);
+        let (plain, inc) = rayon::join(
+            || fit_structure(plan0, d, opts, n_ref, &scan.best, None),
+            || fit_structure(&inc_plan, d, opts, n_ref, &scan.best, None),
+        );
+        let e =
+            |r: &Result<Evaluated, _>| r.as_ref().map_or(f64::INFINITY, |e| e.scores.nrmse_select);
+        choice.integrator_test = Some([e(&plain), e(&inc)]);
+        if e(&inc) <= e(&plain) * (1.0 - pol.integrator_gain) {
+            inc_plan
+        } else {
+            plan0.clone()
+        }
+    } else {
+        plan0.clone()
+    };
+    choice.integrating = plan.integrating;
+    // the delay: an output-error scan proposes, the decision data confirm
+    let (oe, poles) = oe_delay_scan(&plan.fit, n_ref, bound, &scan.best, opts);
+    choice.oe_delay = oe.clone();
+    let mut cands = vec![];
+    around(&oe, bound, &mut cands);
+    let ones = vec![1usize.min(bound); scan.best.len()];
+    if !cands.contains(&ones) {
+        cands.push(ones);
+    }
+    let mut fits: Vec<(Vec<usize>, Evaluated)> = cands
+        .par_iter()
+        .filter_map(|v| {
+            fit_structure(&plan, d, opts, n_ref, v, poles.as_ref())
+                .ok()
+                .map(|e| (v.clone(), e))
+        })
+        .collect();
+    choice.delay_candidates = fits
+        .iter()
+        .map(|(v, e)| (v.clone(), e.scores.nrmse_select))
+        .collect();
+    let pick = pick_delay(&fits, pol.delay_tolerance).ok_or_else(|| {
+        DiagnoseError::Core(gb_core::CoreError::Unstable(
+            "no baseline gave a stable model".into(),
+        ))
+    })?;
+    let (delay, eval) = fits.swap_remove(pick);
+    choice.delay = delay.clone();
+    let eval = match opts.order {
+        OrderChoice::Fixed(_) => eval,
+        OrderChoice::Auto => auto_order(d, &plan, opts, &delay, eval, &mut choice)?,
+    };
+    Ok(Baseline { eval, plan, choice })
+}
+
+/// The delay candidate with the smallest decision NRMSE, or one with fewer
+/// parameters (strictly proper rather than direct feedthrough) within
+/// `tolerance` of it.
+fn pick_delay(fits: &[(Vec<usize>, Evaluated)], tolerance: f64) -> Option<usize> {
+    let best = fits
+        .iter()
+        .map(|(_, e)| e.scores.nrmse_select)
+        .fold(f64::INFINITY, f64::min);
+    fits.iter()
+        .enumerate()
+        .filter(|(_, (_, e))| e.scores.nrmse_select <= best * tolerance + 1e-15)
+        .min_by(|a, b| {
+            let pa = a.1 .1.model.dynamics.n_parameters();
+            let pb = b.1 .1.model.dynamics.n_parameters();
+            pa.cmp(&pb).then(
+                a.1 .1
+                    .scores
+                    .nrmse_select
+                    .total_cmp(&b.1 .1.scores.nrmse_select),
+            )
+        })
+        .map(|(i, _)| i)
+}
+
+/// The orders `--order auto` tries, in stages: the policy's `auto_orders`,
+/// then 8, 10, 12, then 16, 20, 24, 30 (up to `max_order`), a stage only
+/// when the best order so far is one of the two highest tried.
+fn ladder(opts: &DiagnoseOptions) -> Vec<Vec<usize>> {
+    let pol = &opts.policy;
+    let first: Vec<usize> = pol.auto_orders.clone().collect();
+    let top = first.iter().copied().max().unwrap_or(0);
+    let mut stages = vec![first];
+    for s in [&[8usize, 10, 12][..], &[16, 20, 24, 30][..]] {
+        let v: Vec<usize> = s
+            .iter()
+            .copied()
+            .filter(|&n| n > top && n <= pol.max_order)
+            .collect();
+        if !v.is_empty() {
+            stages.push(v);
+        }
+    }
+    stages
+}
+
+/// `--order auto`: the lowest order within the policy's tolerance of the
+/// best decision NRMSE, searched in stages (see [`ladder`]).
+fn auto_order(
+    d: &DiagnoseData,
+    plan: &Plan,
+    opts: &DiagnoseOptions,
+    delay: &[usize],
+    at_ref: Evaluated,
+    choice: &mut StructureChoice,
+) -> Result<Evaluated, DiagnoseError> {
+    let mut fits: Vec<(usize, Evaluated)> = vec![(at_ref.lineage.order(), at_ref)];
+    for stage in ladder(opts) {
+        let todo: Vec<usize> = stage
+            .into_iter()
+            .filter(|n| fits.iter().all(|(m, _)| m != n))
+            .collect();
+        let new: Vec<(usize, Evaluated)> = todo
+            .par_iter()
+            .filter_map(|&n| {
+                fit_structure(plan, d, opts, n, delay, None)
+                    .ok()
+                    .map(|e| (n, e))
+            })
+            .collect();
+        fits.extend(new);
+        fits.sort_by_key(|(n, _)| *n);
+        let best = fits
+            .iter()
+            .min_by(|a, b| a.1.scores.nrmse_select.total_cmp(&b.1.scores.nrmse_select))
+            .map(|(n, _)| *n);
+        let tried: Vec<usize> = fits.iter().map(|(n, _)| *n).collect();
+        let high = tried.len().saturating_sub(2);
+        if !best.is_some_and(|b| tried[high..].contains(&b)) {
+            break;
+        }
+    }
+    choice.orders = fits
+        .iter()
+        .map(|(n, e)| (*n, e.scores.nrmse_select))
+        .collect();
+    let best = fits
+        .iter()
+        .map(|(_, e)| e.scores.nrmse_select)
+        .fold(f64::INFINITY, f64::min);
+    let tol = opts.policy.auto_order_tolerance;
+    let i = fits
+        .iter()
+        .position(|(_, e)| e.scores.nrmse_select <= best * tol + 1e-12)
+        .ok_or_else(|| {
+            DiagnoseError::Core(gb_core::CoreError::Unstable(
+                "no order gave a stable model".into(),
+            ))
+        })?;
+    Ok(fits.swap_remove(i).1)
+}
