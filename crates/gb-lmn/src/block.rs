@@ -1139,11 +1139,13 @@ mod tests {
         let v = input(2000, 9);
         let yv = truth(&v);
         let e = rms_err(
-            &m.simulate(&[v.clone()], Init::Window(&yv[..50])).unwrap(),
+            &m.simulate(std::slice::from_ref(&v), Init::Window(&yv[..50]))
+                .unwrap(),
             &yv,
         );
         let e_lin = rms_err(
-            &lin.simulate(&[v.clone()], Init::Window(&yv[..50])).unwrap(),
+            &lin.simulate(std::slice::from_ref(&v), Init::Window(&yv[..50]))
+                .unwrap(),
             &yv,
         );
         assert_eq!(m.kind(), "Wiener");
