@@ -21,6 +21,15 @@ pub enum Lineage {
         /// Whether it has a hysteretic part.
         hysteresis: bool,
     },
+    /// A model of another class (a nonlinear extension's: polynomial,
+    /// block-oriented, tree or Wiener–Hammerstein network); the
+    /// input–output extensions do not extend it further.
+    Other {
+        /// The model SPEC (`greybox fit --model`) or the class in words.
+        spec: String,
+        /// Dynamic order of its linear part.
+        order: usize,
+    },
 }
 
 impl Lineage {
@@ -41,6 +50,7 @@ impl Lineage {
                     "state-space".into()
                 }
             }
+            Lineage::Other { spec, .. } => spec.clone(),
         }
     }
 
@@ -48,7 +58,7 @@ impl Lineage {
     pub fn order(&self) -> usize {
         match self {
             Lineage::Io(p) => p.order,
-            Lineage::HiddenState { order, .. } => *order,
+            Lineage::HiddenState { order, .. } | Lineage::Other { order, .. } => *order,
         }
     }
 
@@ -56,7 +66,7 @@ impl Lineage {
     pub fn io(&self) -> Option<&IoNetworkParams> {
         match self {
             Lineage::Io(p) => Some(p),
-            Lineage::HiddenState { .. } => None,
+            Lineage::HiddenState { .. } | Lineage::Other { .. } => None,
         }
     }
 }

@@ -6,7 +6,8 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, HiddenState, LinearOrder, Lolimot, PreisachColumns, StudentTNoise,
+    Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PolyNoe, PreisachColumns,
+    StudentTNoise, Wiener,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -140,6 +141,12 @@ pub trait Extension: Sync {
         let _ = fitted;
         p.text.clone()
     }
+    /// The input a candidate makes nonlinear alone (reports say which input
+    /// the nonlinearity lives on).
+    fn input(&self, p: &Proposal, ctx: &Context) -> Option<String> {
+        let _ = (p, ctx);
+        None
+    }
     /// The evidence plot of its cause from the residuals before and after
     /// (report block), for [`Role::NewCause`] extensions.
     fn evidence_view(
@@ -157,6 +164,9 @@ pub trait Extension: Sync {
 pub static EXTENSIONS: &[&dyn Extension] = &[
     &Capacity,
     &Lolimot,
+    &PolyNoe,
+    &Hammerstein,
+    &Wiener,
     &PreisachColumns,
     &LinearOrder,
     &StudentTNoise,

@@ -20,6 +20,8 @@ use crate::DiagnoseError;
 /// | `tie_bootstrap`, `tie_seed` | 50, 0 | replicates and seed of the unique-contribution comparison when nonlinearity and hysteresis tie |
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
+/// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
+/// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
 /// | `init_window_max`, `init_window_min`, `init_window_divisor` | 50, 10, 8 | leading samples of every evaluated record (report block, cross-validation fold) that set the initial state and are not scored: `clamp(shortest such block / 8, 10, 50)`, the benchmark's 50 on long records, 12 of a 100-sample block |
 /// | `min_block` | 40 | fewest samples of the select and report blocks |
 /// | `min_fit` | 60 | fewest samples of the fit block |
@@ -71,6 +73,10 @@ pub struct DecisionPolicy {
     pub unexplained_p: f64,
     /// Most fit samples of the hidden-state model.
     pub hidden_state_fit_samples: usize,
+    /// Most fit samples of the polynomial and block-oriented candidates.
+    pub nonlinear_fit_samples: usize,
+    /// Most fit samples of the tree and Wiener–Hammerstein networks.
+    pub expensive_fit_samples: usize,
     /// Longest init window of an evaluated record (not scored).
     pub init_window_max: usize,
     /// Shortest init window.
@@ -132,6 +138,8 @@ impl Default for DecisionPolicy {
             tie_seed: 0,
             unexplained_p: 1e-3,
             hidden_state_fit_samples: 4000,
+            nonlinear_fit_samples: 20_000,
+            expensive_fit_samples: 8000,
             init_window_max: 50,
             init_window_min: 10,
             init_window_divisor: 8,
@@ -185,6 +193,9 @@ impl DecisionPolicy {
         }
         if self.tie_bootstrap < 10 || self.min_block < 10 || self.min_fit < 10 {
             return bad("tie_bootstrap, min_block and min_fit >= 10");
+        }
+        if self.nonlinear_fit_samples < 100 || self.expensive_fit_samples < 100 {
+            return bad("nonlinear_fit_samples and expensive_fit_samples >= 100");
         }
         if self.max_order == 0 || self.max_order > gb_lmn::MAX_IO_ORDER {
             return bad("max_order in 1..=30");

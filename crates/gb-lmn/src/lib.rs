@@ -57,6 +57,7 @@
 // Index loops mirror the subscripts of the formulas they implement.
 #![allow(clippy::needless_range_loop)]
 
+mod block;
 mod dynamic;
 mod hilomot;
 mod io_network;
@@ -65,6 +66,7 @@ mod lolimot;
 mod narx;
 mod network;
 pub mod noe;
+pub mod poly;
 mod prune;
 mod regressors;
 mod scaling;
@@ -74,6 +76,7 @@ pub mod tree;
 mod views;
 mod wiener_hammerstein;
 
+pub use block::{BlockModel, BlockParams, MapBasis, StaticMap, ValidBlockParams};
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
 pub use io_network::{IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER};
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
@@ -85,6 +88,7 @@ pub use noe::{
     refine_output_error, refine_output_error_with_observer, zero_linear_network, FitOptions,
     TrainReport,
 };
+pub use poly::{PolyNarx, PolyParams, ValidPolyParams};
 pub use regressors::{RegressorSpec, Signal, Tap};
 pub use scaling::Scaling;
 pub use spec::NetworkSpec;

@@ -150,6 +150,27 @@ pub static RECIPES: &[Recipe] = &[
         options: &["order=2: states", "resonances: +damper, start frequencies of rig resonances in Hz (a/b)", "sample_rate: +damper, Hz (default: the record's)", "ridge: +damper, Tikhonov weight (default: 0 or 1000, chosen on the last 20 %)"],
         fit: fit_sparse_state_space,
     },
+    Recipe {
+        name: "hammerstein",
+        components: &[],
+        summary: "Hammerstein: static maps of the inputs (cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out) before linear dynamics of order n, trained output-error",
+        options: &["order=2", "delay=1 (list)", "maps=1: which inputs get a map, 0 or 1 per input (list)"],
+        fit: fit_block,
+    },
+    Recipe {
+        name: "wiener",
+        components: &[],
+        summary: "Wiener: linear dynamics of order n, then a static map of the output (cubic spline or piecewise linear, chosen on a hold-out), trained output-error",
+        options: &["order=2", "delay=1 (list)"],
+        fit: fit_block,
+    },
+    Recipe {
+        name: "poly",
+        components: &[],
+        summary: "polynomial NARX/NOE: terms of degree <= 3 in lagged outputs and inputs chosen by FROLS (error reduction ratio), the number of terms on a hold-out, refined for the simulation error",
+        options: &["order=2: output lags", "input_lags=order (list)", "delay=1 (list)", "degree=3: 1..3", "max_terms=15", "focus=simulation: simulation|prediction"],
+        fit: |s, d, o| gb_lmn::poly::fit_spec(s, d, o).map(|(model, notes)| Fitted { model, notes }),
+    },
 ];
 
 /// The recipe of `name`.
@@ -372,6 +393,36 @@ fn tree_params(spec: &ModelSpec, n_inputs: usize) -> Result<(gb_lmn::LmnParams, 
         .max_leaves(max_leaves);
     p.check()?;
     Ok((p, order))
+}
+
+/// `hammerstein` and `wiener`: the block-oriented class.
+fn fit_block(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<Fitted, CoreError> {
+    let mut o = spec.options();
+    let d = one_record(data, "a block-oriented model")?;
+    let ni = d.n_inputs();
+    let order = o.usize("order", 2, 1, 30)?;
+    let delay = o.usize_list("delay", ni, 1, 0, 64)?;
+    let mut p = gb_lmn::BlockParams {
+        delay,
+        ..gb_lmn::BlockParams::linear(order)
+    };
+    if spec.name == "wiener" {
+        o.finish(&["order", "delay"])?;
+        p.output_map = true;
+    } else {
+        p.input_maps = o
+            .usize_list("maps", ni, 1, 0, 1)?
+            .iter()
+            .map(|&m| m == 1)
+            .collect();
+        o.finish(&["order", "delay", "maps"])?;
+    }
+    d.check_identifiable("training record", 20 * (order + 1) * (ni + 1) + 50)?;
+    let m = p.check()?.fit(d)?;
+    let k0 = m.max_lag().min(d.len());
+    let sim = m.simulate_signals(&d.inputs, &d.output[..k0])?;
+    let noise = residual_noise(&d.output, &sim, k0);
+    wrap(d, Box::new(m), noise, vec![])
 }
 
 /// `wiener-hammerstein`.

@@ -1,22 +1,57 @@
 //! The candidate extensions, one file each (see [`crate::Extension`]).
 mod capacity;
+mod hammerstein;
 mod hidden_state;
 mod lolimot;
 mod order;
+mod poly_noe;
 mod preisach;
 mod student_t;
+mod wiener;
 
 pub use capacity::Capacity;
+pub use hammerstein::Hammerstein;
 pub use hidden_state::HiddenState;
 pub use lolimot::Lolimot;
 pub use order::LinearOrder;
+pub use poly_noe::PolyNoe;
 pub use preisach::PreisachColumns;
 pub use student_t::StudentTNoise;
+pub use wiener::Wiener;
 
+use crate::evaluate::Lineage;
 use crate::extension::{io_model, Context};
 use crate::DiagnoseError;
-use gb_core::FittedModel;
+use gb_core::{FittedModel, ModelSpec, Records};
 use gb_lmn::{IoNetworkParams, WarmStart};
+
+/// The order and the dead times (`1/1`) of an input–output model.
+pub(crate) fn io_structure(p: &IoNetworkParams, n_inputs: usize) -> (usize, String) {
+    let delay: Vec<String> = if p.delay.len() == n_inputs {
+        p.delay.iter().map(|d| d.to_string()).collect()
+    } else {
+        vec!["1".into(); n_inputs]
+    };
+    (p.order, delay.join("/"))
+}
+
+/// Fit the recipe of a proposal's spec (`greybox fit --model SPEC`) on at
+/// most `cap` samples of the fit block.
+pub(crate) fn fit_spec(
+    lineage: &Lineage,
+    ctx: &Context,
+    cap: usize,
+) -> Result<FittedModel, DiagnoseError> {
+    let Lineage::Other { spec, .. } = lineage else {
+        return Err(DiagnoseError::InvalidArgument(
+            "not a model-spec proposal".into(),
+        ));
+    };
+    let spec: ModelSpec = spec.parse()?;
+    let sub = ctx.fit.slice(0..ctx.fit.len().min(cap));
+    let f = gb_model::recipes::fit(&spec, &Records::single(sub), ctx.observer)?;
+    Ok(f.model)
+}
 
 /// Fit an input–output network on the fit block, warm-started from the
 /// current model (its network for linear fits, its simulated output for

@@ -1,0 +1,111 @@
+//! `nonlinearity`: a Hammerstein model (static maps of the inputs before
+//! the linear dynamics); with several inputs, a map of one input at a time
+//! says which input the nonlinearity lives on.
+use super::{fit_spec, io_structure};
+use crate::evaluate::Lineage;
+use crate::extension::{Context, Extension, Proposal};
+use crate::{Cause, DiagnoseError};
+use gb_core::FittedModel;
+
+/// Static maps of the inputs (cubic spline or piecewise linear, knots at
+/// quantiles, the structure chosen on a hold-out of the fit block) before
+/// the current linear dynamics, trained output-error. With several inputs:
+/// one candidate per input (only that path nonlinear) and one with every
+/// input mapped.
+pub struct Hammerstein;
+
+/// The maps of a proposal (`maps=0/1/…`) as flags.
+fn maps(p: &Proposal) -> Vec<bool> {
+    let Lineage::Other { spec, .. } = &p.lineage else {
+        return vec![];
+    };
+    spec.split("maps=")
+        .nth(1)
+        .map(|m| {
+            m.split([',', ' '])
+                .next()
+                .unwrap_or("")
+                .split('/')
+                .map(|f| f == "1")
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+impl Extension for Hammerstein {
+    fn name(&self) -> &'static str {
+        "hammerstein"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Nonlinearity
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        let Some(p) = ctx.current.lineage.io() else {
+            return vec![];
+        };
+        if p.network || p.hysteresis {
+            return vec![];
+        }
+        let ni = ctx.fit.n_inputs();
+        let (order, delay) = io_structure(p, ni);
+        let names = &ctx.fit.input_names;
+        let proposal = |flags: Vec<bool>, text: String| {
+            let m: Vec<&str> = flags.iter().map(|&f| if f { "1" } else { "0" }).collect();
+            Proposal {
+                cause: Cause::Nonlinearity,
+                lineage: Lineage::Other {
+                    spec: format!(
+                        "hammerstein:order={order},delay={delay},maps={}",
+                        m.join("/")
+                    ),
+                    order,
+                },
+                text,
+            }
+        };
+        let tail = format!(
+            "(cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order}, trained output-error"
+        );
+        if ni == 1 {
+            return vec![proposal(
+                vec![true],
+                format!(
+                    "Hammerstein: a static map of the input '{}' {tail}",
+                    names[0]
+                ),
+            )];
+        }
+        let mut out: Vec<Proposal> = (0..ni)
+            .map(|j| {
+                proposal(
+                    (0..ni).map(|i| i == j).collect(),
+                    format!(
+                        "Hammerstein on input '{}' only: a static map of '{}' {tail}; the other inputs stay linear",
+                        names[j], names[j]
+                    ),
+                )
+            })
+            .collect();
+        out.push(proposal(
+            vec![true; ni],
+            format!("Hammerstein: a static map of every input {tail}"),
+        ));
+        out
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        fit_spec(&p.lineage, ctx, ctx.policy().nonlinear_fit_samples)
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.nonlinearity_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        format!("{} -> {}", p.text, fitted.dynamics.describe())
+    }
+    fn input(&self, p: &Proposal, ctx: &Context) -> Option<String> {
+        let m = maps(p);
+        (m.len() > 1 && m.iter().filter(|&&f| f).count() == 1)
+            .then(|| m.iter().position(|&f| f))
+            .flatten()
+            .and_then(|j| ctx.fit.input_names.get(j).cloned())
+    }
+}

@@ -1,0 +1,49 @@
+//! `nonlinearity`: a Wiener model (the linear dynamics, then a static map
+//! of the output).
+use super::{fit_spec, io_structure};
+use crate::evaluate::Lineage;
+use crate::extension::{Context, Extension, Proposal};
+use crate::{Cause, DiagnoseError};
+use gb_core::FittedModel;
+
+/// The current linear dynamics followed by a static map of the output
+/// (cubic spline or piecewise linear, knots at quantiles, the structure
+/// chosen on a hold-out of the fit block), trained output-error.
+pub struct Wiener;
+
+impl Extension for Wiener {
+    fn name(&self) -> &'static str {
+        "wiener"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Nonlinearity
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        let Some(p) = ctx.current.lineage.io() else {
+            return vec![];
+        };
+        if p.network || p.hysteresis {
+            return vec![];
+        }
+        let (order, delay) = io_structure(p, ctx.fit.n_inputs());
+        vec![Proposal {
+            cause: Cause::Nonlinearity,
+            lineage: Lineage::Other {
+                spec: format!("wiener:order={order},delay={delay}"),
+                order,
+            },
+            text: format!(
+                "Wiener: the linear dynamics of order {order}, then a static map of the output (cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
+            ),
+        }]
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        fit_spec(&p.lineage, ctx, ctx.policy().nonlinear_fit_samples)
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.nonlinearity_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        format!("{} -> {}", p.text, fitted.dynamics.describe())
+    }
+}

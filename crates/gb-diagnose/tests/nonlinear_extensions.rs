@@ -1,0 +1,34 @@
+//! The block-oriented and polynomial nonlinearity extensions: a generated
+//! Hammerstein system is diagnosed as `nonlinearity` and the final model
+//! reaches the noise floor.
+use gb_diagnose::generator::draw;
+use gb_diagnose::sweep::{run_diagnosis, OrderMode};
+use gb_diagnose::EXTENSIONS;
+
+#[test]
+fn the_nonlinearity_extensions_are_registered() {
+    for name in ["hammerstein", "wiener", "poly-noe"] {
+        assert!(EXTENSIONS.iter().any(|e| e.name() == name), "{name}");
+    }
+}
+
+/// `hammerstein-odd` seed 1 (an odd static map before second-order dynamics).
+#[test]
+fn a_generated_hammerstein_system_is_named_and_reaches_the_floor() {
+    let c = draw("hammerstein-odd", 1).unwrap();
+    let out = run_diagnosis(&c, OrderMode::Case).unwrap();
+    let ratio = out.final_nrmse / c.noise_floor_nrmse;
+    assert!(
+        out.causes.iter().any(|n| n == "nonlinearity") && c.causes_right(&out.causes),
+        "{}: named {:?}, steps {:?}",
+        c.description,
+        out.causes,
+        out.steps
+    );
+    assert!(
+        ratio <= 1.5,
+        "{}: final/floor {ratio:.2}, steps {:?}",
+        c.description,
+        out.steps
+    );
+}
