@@ -1,7 +1,7 @@
 //! `nonlinearity`: a Hammerstein model (static maps of the inputs before
 //! the linear dynamics); with several inputs, a map of one input at a time
 //! says which input the nonlinearity lives on.
-use super::{fit_spec, io_structure};
+use super::{fit_spec, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -40,14 +40,10 @@ impl Extension for Hammerstein {
         Cause::Nonlinearity
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        let Some(p) = ctx.current.lineage.io() else {
+        let Some((order, delay)) = plain_linear_structure(ctx) else {
             return vec![];
         };
-        if p.network || p.hysteresis {
-            return vec![];
-        }
         let ni = ctx.fit.n_inputs();
-        let (order, delay) = io_structure(p, ni);
         let names = &ctx.fit.input_names;
         let proposal = |flags: Vec<bool>, text: String| {
             let m: Vec<&str> = flags.iter().map(|&f| if f { "1" } else { "0" }).collect();

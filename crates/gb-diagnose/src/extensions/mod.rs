@@ -35,6 +35,17 @@ pub(crate) fn io_structure(p: &IoNetworkParams, n_inputs: usize) -> (usize, Stri
     (p.order, delay.join("/"))
 }
 
+/// The order and delay list (`a/b`) of the current model when it is a
+/// plain linear input–output model (no network, no hysteresis columns):
+/// the structure the static-map and polynomial extensions start from.
+pub(crate) fn plain_linear_structure(ctx: &Context) -> Option<(usize, String)> {
+    let p = ctx.current.lineage.io()?;
+    if p.network || p.hysteresis {
+        return None;
+    }
+    Some(io_structure(p, ctx.fit.n_inputs()))
+}
+
 /// Fit the recipe of a proposal's spec (`greybox fit --model SPEC`) on at
 /// most `cap` samples of the fit block.
 pub(crate) fn fit_spec(

@@ -1,6 +1,6 @@
 //! `nonlinearity`: a polynomial NOE model (gb-lmn `poly`) on the current
 //! input–output model's regressors.
-use super::{fit_spec, io_structure};
+use super::{fit_spec, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -19,13 +19,9 @@ impl Extension for PolyNoe {
         Cause::Nonlinearity
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        let Some(p) = ctx.current.lineage.io() else {
+        let Some((order, delay)) = plain_linear_structure(ctx) else {
             return vec![];
         };
-        if p.network || p.hysteresis {
-            return vec![];
-        }
-        let (order, delay) = io_structure(p, ctx.fit.n_inputs());
         vec![Proposal {
             cause: Cause::Nonlinearity,
             lineage: Lineage::Other {
