@@ -58,6 +58,11 @@ pub static CLASSES: &[ModelClass] = &[
         summary: "wavelet-sparse grey-box state space with hidden states and Preisach terms (gb-model)",
         decode: |b, v| boxed(SparseStateSpace::decode(b, v)),
     },
+    ModelClass {
+        tag: "physics",
+        summary: "the engineer's continuous-time equations from a model file (TOML), RK4, fitted with standard errors and intervals (gb-model)",
+        decode: |b, v| boxed(crate::physics::PhysicsModel::decode(b, v)),
+    },
 ];
 
 /// The registry as a [`ClassDecoder`] for [`FittedModel::from_bytes`].
