@@ -166,7 +166,8 @@ impl ModelFile {
         Self::parse(&text, &path.display().to_string())
     }
 
-    /// Parse and check a model file's text; `name` labels errors.
+    /// Parse and check a model file's text (names, values, and every
+    /// expression compiles); `name` labels errors.
     pub fn parse(text: &str, name: &str) -> PhysicsResult<Self> {
         let doc: Doc = toml::from_str(text).map_err(|e| PhysicsError::Toml {
             file: name.into(),
@@ -268,7 +269,8 @@ impl ModelFile {
             spec,
             lines,
         };
-        f.spec.check().map_err(|e| f.locate(e))?;
+        // names, values and every expression (exmex), located
+        f.spec.compile().map_err(|e| f.locate(e))?;
         Ok(f)
     }
 

@@ -48,6 +48,8 @@ mod model;
 mod simulate;
 mod spec;
 mod tape;
+#[cfg(test)]
+mod tests;
 
 pub use bands::{prediction_bands, BandParams, Bands};
 pub use error::{Item, Location, PhysicsError, PhysicsResult};
