@@ -20,6 +20,8 @@
 //!   sensitivities, Levenberg–Marquardt and coarse-to-fine sparse refinement.
 //! * [`SmcParams`] → [`Smc::fit`]: the SMC path (particle filter likelihood,
 //!   PMMH with a Laplace sparsity prior, `gb-smc`).
+//! * [`physics`]: the engineer's own continuous-time equations (a TOML
+//!   model file or Rust), fitted with uncertainties (issue 17).
 //! * [`linear_from_oe`]: the best linear model (`gb-lmn`) as state space;
 //!   [`second_order`]: the known mechanical structure equivalent to it.
 //!
@@ -41,6 +43,7 @@ mod integrating;
 mod legacy;
 mod linear;
 mod model;
+pub mod physics;
 pub mod recipes;
 pub mod registry;
 mod smc;

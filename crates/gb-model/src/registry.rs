@@ -73,6 +73,11 @@ pub static CLASSES: &[ModelClass] = &[
         summary: "integrating model: a model of any class simulates the output increments, which are summed (a pole at 1; gb-model)",
         decode: |b, v| boxed(crate::IntegratingModel::decode(b, v)),
     },
+    ModelClass {
+        tag: "physics",
+        summary: "the engineer's continuous-time equations from a model file (TOML), RK4, fitted with standard errors and intervals (gb-model)",
+        decode: |b, v| boxed(crate::physics::PhysicsModel::decode(b, v)),
+    },
 ];
 
 /// The registry as a [`ClassDecoder`] for [`FittedModel::from_bytes`].

@@ -1,0 +1,237 @@
+//! Fitting a physics model to records: validated settings implementing
+//! [`gb_core::Identify`].
+use super::error::{PhysicsError, PhysicsResult};
+use super::fit::{coordinates, summarise, OeProblem, Optimum, Segment};
+use super::model::PhysicsModel;
+use super::spec::PhysicsSpec;
+use gb_core::solver::{LevenbergMarquardt, LmParams, Termination};
+use gb_core::{Identify, Observer, Records};
+
+/// Settings of a physics fit; validate with [`check`](Self::check).
+///
+/// | setting | default | meaning |
+/// |---|---|---|
+/// | `max_iter` | 200 | Levenberg–Marquardt iterations |
+/// | `tol` | 1e-10 | relative cost decrease that counts as converged |
+#[derive(Debug, Clone)]
+pub struct PhysicsFitParams {
+    spec: PhysicsSpec,
+    source: Option<String>,
+    lm: LmParams,
+}
+
+impl PhysicsFitParams {
+    /// Fit `spec` with the default settings.
+    pub fn new(spec: PhysicsSpec) -> Self {
+        Self {
+            spec,
+            source: None,
+            lm: LmParams::default().max_iter(200).tol(1e-10),
+        }
+    }
+    /// Most iterations.
+    pub fn max_iter(mut self, n: usize) -> Self {
+        self.lm = self.lm.max_iter(n);
+        self
+    }
+    /// Convergence tolerance.
+    pub fn tol(mut self, t: f64) -> Self {
+        self.lm = self.lm.tol(t);
+        self
+    }
+    /// The model file's text, stored with the fitted model.
+    pub fn source(mut self, text: String) -> Self {
+        self.source = Some(text);
+        self
+    }
+    /// Validate once (compiles the equations).
+    pub fn check(self) -> PhysicsResult<PhysicsFit> {
+        let mut model = PhysicsModel::new(self.spec)?;
+        if let Some(s) = self.source {
+            model = model.with_source(s);
+        }
+        Ok(PhysicsFit {
+            model,
+            lm: self.lm.check()?,
+        })
+    }
+}
+
+/// A validated physics fit.
+#[derive(Debug, Clone)]
+pub struct PhysicsFit {
+    model: PhysicsModel,
+    lm: LevenbergMarquardt,
+}
+
+impl PhysicsFit {
+    /// The unfitted model (start values).
+    pub fn model(&self) -> &PhysicsModel {
+        &self.model
+    }
+
+    fn check_data(&self, data: &Records) -> PhysicsResult<f64> {
+        let spec = self.model.spec();
+        if spec.outputs.len() != 1 {
+            return Err(PhysicsError::Data(format!(
+                "model '{}' has {} outputs; the fit handles one output",
+                spec.name,
+                spec.outputs.len()
+            )));
+        }
+        if data.input_names() != spec.inputs.as_slice() {
+            return Err(PhysicsError::Data(format!(
+                "the data's inputs [{}] are not the model's inputs [{}]",
+                data.input_names().join(", "),
+                spec.inputs.join(", ")
+            )));
+        }
+        if data.output_name() != spec.outputs[0].name {
+            return Err(PhysicsError::Data(format!(
+                "the data's output '{}' is not the model's output '{}'",
+                data.output_name(),
+                spec.outputs[0].name
+            )));
+        }
+        let ts = spec
+            .sample_time
+            .or(data.first().sample_time)
+            .ok_or_else(|| {
+                PhysicsError::Data(format!(
+                    "model '{}': the sample time is unknown: give sample_time in the model file or a uniform t column in the data",
+                    spec.name
+                ))
+            })?;
+        if let Some(r) = data.iter().find(|r| r.is_empty()) {
+            return Err(PhysicsError::Data(format!(
+                "an empty record (output '{}')",
+                r.output_name
+            )));
+        }
+        Ok(ts)
+    }
+
+    /// The start must simulate: the error names the sample where it
+    /// diverges.
+    fn check_start(&self, p: &mut OeProblem<'_>) -> PhysicsResult<()> {
+        if p.sse().is_some() {
+            return Ok(());
+        }
+        let seg = &p.segments[0];
+        let mut y = vec![0.0; seg.y.len() * self.model.n_outputs_fit()];
+        let at = match self.model.run(&p.theta, &p.x0, &seg.u, &mut y) {
+            Err(PhysicsError::Diverged(k)) => format!("diverges at sample {k}"),
+            _ => "is not finite".into(),
+        };
+        Err(PhysicsError::Numerical(format!(
+            "model '{}': the simulation with the start values {at}; check the start values, signs and units",
+            self.model.spec().name
+        )))
+    }
+}
+
+impl PhysicsModel {
+    fn n_outputs_fit(&self) -> usize {
+        self.spec().outputs.len()
+    }
+}
+
+impl Identify for PhysicsFit {
+    type Model = PhysicsModel;
+    type Error = PhysicsError;
+
+    /// Output-error fit of the free parameters and free initial states
+    /// (shared by all records) by Levenberg–Marquardt on the free-run
+    /// simulation error, bounds enforced by rejecting trials outside them.
+    /// With Gaussian priors the cost is `SSE + σ̂² Σ ((θ − μ)/sd)²` (the
+    /// MAP estimate), σ̂² from a first pass, then refitted once.
+    fn identify(&self, data: &Records, obs: &dyn Observer) -> PhysicsResult<PhysicsModel> {
+        let ts = self.check_data(data)?;
+        let spec = self.model.spec();
+        let first = data.first();
+        let u0: Vec<f64> = first.inputs.iter().map(|s| s[0]).collect();
+        let (theta0, x00) = (self.model.parameters(), self.model.initial_state());
+        self.model.compiled().check_point(spec, x00, &u0, theta0)?;
+        let segments: Vec<Segment<'_>> = data
+            .iter()
+            .map(|r| Segment {
+                u: r.inputs.iter().map(Vec::as_slice).collect(),
+                y: &r.output,
+            })
+            .collect();
+        let coords = coordinates(spec, theta0, x00, false);
+        let mut p = OeProblem::new(
+            self.model.compiled(),
+            ts,
+            spec.substeps,
+            segments,
+            coords.clone(),
+            theta0.to_vec(),
+            x00.to_vec(),
+        );
+        self.check_start(&mut p)?;
+        let n = p.samples();
+        let mut iterations = 0;
+        let mut termination = "no free parameters".to_string();
+        if !coords.is_empty() {
+            let priors = coords.iter().any(|c| c.prior.is_some());
+            for pass in 0..if priors { 2 } else { 1 } {
+                if priors {
+                    // σ² of the current point weighs the priors
+                    let sse = p.sse().unwrap_or(f64::INFINITY);
+                    p.prior_weight = sse / (n.saturating_sub(coords.len()).max(1)) as f64;
+                    p.with_prior = true;
+                }
+                let phi0 = p.phi();
+                let st = self.lm.minimize(&mut p, &phi0, obs)?;
+                p.unpack(&st.theta);
+                iterations += st.iterations;
+                termination = termination_text(st.termination);
+                if pass == 1 || !priors {
+                    break;
+                }
+            }
+        }
+        let l = coords.len();
+        let (mut gram, mut grad) = (vec![0.0; l * l], vec![0.0; l]);
+        let sse = p
+            .gram(&mut gram, &mut grad)
+            .ok_or_else(|| PhysicsError::Numerical("the fitted model does not simulate".into()))?;
+        let y_sd = output_sd(data);
+        let report = summarise(&Optimum {
+            spec,
+            coords: &coords,
+            theta: &p.theta,
+            x0: &p.x0,
+            gram: &gram,
+            sse,
+            samples: n,
+            y_sd,
+            iterations,
+            termination,
+        })?;
+        let mut m = self.model.clone();
+        let (theta, x0) = (p.theta.clone(), p.x0.clone());
+        m.set_fitted(theta, x0, ts, report);
+        Ok(m)
+    }
+}
+
+fn termination_text(t: Option<Termination>) -> String {
+    match t {
+        Some(Termination::Converged) => "converged".into(),
+        Some(Termination::MaxIterations) => "stopped at the iteration limit".into(),
+        Some(Termination::NoImprovement) => "converged (no further decrease)".into(),
+        Some(Termination::DampingOverflow) => "converged (damping limit)".into(),
+        Some(Termination::Infeasible) => "stopped: infeasible point".into(),
+        _ => "stopped".into(),
+    }
+}
+
+/// Standard deviation of all records' outputs together.
+fn output_sd(data: &Records) -> f64 {
+    let all: Vec<f64> = data.iter().flat_map(|r| r.output.iter().copied()).collect();
+    let n = all.len().max(1) as f64;
+    let m = all.iter().sum::<f64>() / n;
+    (all.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / n).sqrt()
+}

@@ -1,0 +1,817 @@
+//! Expressions compiled to a tape: exmex parses, we trace.
+//!
+//! exmex (`FlatEx::parse`) parses every expression — its grammar, operators,
+//! precedence and constant folding are exmex's. The tape is recorded by
+//! evaluating exmex's parsed expression **once** with a recording number
+//! type ([`Rec`]) whose operators append a node instead of computing
+//! (tracing, as JAX or an operator-overloading AD tool records a program).
+//! The operator table ([`TraceOps`]) mirrors exmex's `FloatOpsFactory`:
+//! the same names and priorities, so the parse is the same as for `f64`
+//! (tested against `FlatEx::<f64>::eval` on every operator).
+//!
+//! Why a tape of our own: exmex evaluates the mass–spring–damper
+//! acceleration `(F - c*v - k*x)/m` in about 135 ns (`benches/physics.rs`,
+//! `exmex_eval`); RK4 needs four right-hand sides per sub-step, which caps
+//! a simulation below 1 M samples/s. The tape evaluates the same expression
+//! in a few ns, shares common sub-expressions between the equations
+//! (hash-consing), evaluates parameter-only sub-expressions (`c/m`, `k/m`)
+//! once per simulation instead of once per stage, and gives exact
+//! derivatives by forward mode: each node's partial derivatives
+//! `(∂out/∂a, ∂out/∂b)` are closed-form (chain rule), so one pass gives
+//! the directional derivatives `f_x·s + f_θ·e` of all outputs along any
+//! number of directions (lanes). exmex's own symbolic `partial` has no rule
+//! for `abs`, `signum`, `min` and `max` (it returns "operator abs needed for
+//! outer partial derivative"; nor for `cbrt`), which the Bouc–Wen law
+//! `|v|`, `|z|` needs;
+//! it is used in the tests as an independent check of the tape's
+//! derivatives for every operator it can differentiate.
+use exmex::prelude::*;
+use exmex::{BinOp, MakeOperators, Operator};
+use std::cell::RefCell;
+use std::collections::HashMap;
+use std::str::FromStr;
+
+/// A tape operation. Binary operations read slots `a` and `b`; unary ones
+/// read `a`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[allow(missing_docs)]
+pub(crate) enum Op {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    Neg,
+    /// `a^n` for a constant integer exponent.
+    Powi(i32),
+    /// `a^b` for a constant exponent `b`.
+    PowC,
+    /// `a^b` with a variable exponent.
+    Pow,
+    Atan2,
+    Min,
+    Max,
+    Abs,
+    Signum,
+    Sin,
+    Cos,
+    Tan,
+    Asin,
+    Acos,
+    Atan,
+    Sinh,
+    Cosh,
+    Tanh,
+    Asinh,
+    Acosh,
+    Atanh,
+    Floor,
+    Round,
+    Ceil,
+    Trunc,
+    Fract,
+    Exp,
+    Sqrt,
+    Cbrt,
+    Ln,
+    Log2,
+    Log10,
+}
+
+/// The value of `op` (exmex's float semantics).
+#[inline(always)]
+fn apply(op: Op, a: f64, b: f64) -> f64 {
+    match op {
+        Op::Add => a + b,
+        Op::Sub => a - b,
+        Op::Mul => a * b,
+        Op::Div => a / b,
+        Op::Neg => -a,
+        Op::Powi(n) => a.powi(n),
+        Op::PowC | Op::Pow => a.powf(b),
+        Op::Atan2 => a.atan2(b),
+        Op::Min => a.min(b),
+        Op::Max => a.max(b),
+        Op::Abs => a.abs(),
+        Op::Signum => a.signum(),
+        Op::Sin => a.sin(),
+        Op::Cos => a.cos(),
+        Op::Tan => a.tan(),
+        Op::Asin => a.asin(),
+        Op::Acos => a.acos(),
+        Op::Atan => a.atan(),
+        Op::Sinh => a.sinh(),
+        Op::Cosh => a.cosh(),
+        Op::Tanh => a.tanh(),
+        Op::Asinh => a.asinh(),
+        Op::Acosh => a.acosh(),
+        Op::Atanh => a.atanh(),
+        Op::Floor => a.floor(),
+        Op::Round => a.round(),
+        Op::Ceil => a.ceil(),
+        Op::Trunc => a.trunc(),
+        Op::Fract => a.fract(),
+        Op::Exp => a.exp(),
+        Op::Sqrt => a.sqrt(),
+        Op::Cbrt => a.cbrt(),
+        Op::Ln => a.ln(),
+        Op::Log2 => a.log2(),
+        Op::Log10 => a.log10(),
+    }
+}
+
+/// `(∂out/∂a, ∂out/∂b)` at `(a, b)` with `out = op(a, b)`. Non-smooth
+/// operators take the one-sided convention of their subgradient:
+/// `∂|a|/∂a = sign(a)` with 0 at 0, `signum`/`floor`/… have derivative 0,
+/// `min`/`max` follow the chosen argument.
+#[inline(always)]
+fn partials(op: Op, a: f64, b: f64, out: f64) -> (f64, f64) {
+    let sign0 = |x: f64| {
+        if x > 0.0 {
+            1.0
+        } else if x < 0.0 {
+            -1.0
+        } else {
+            0.0
+        }
+    };
+    match op {
+        Op::Add => (1.0, 1.0),
+        Op::Sub => (1.0, -1.0),
+        Op::Mul => (b, a),
+        Op::Div => (1.0 / b, -out / b),
+        Op::Neg => (-1.0, 0.0),
+        Op::Powi(n) => (n as f64 * a.powi(n - 1), 0.0),
+        Op::PowC => (b * a.powf(b - 1.0), 0.0),
+        Op::Pow => (
+            b * a.powf(b - 1.0),
+            if a > 0.0 { out * a.ln() } else { 0.0 },
+        ),
+        Op::Atan2 => {
+            let r = a * a + b * b;
+            (b / r, -a / r)
+        }
+        Op::Min => {
+            if a <= b {
+                (1.0, 0.0)
+            } else {
+                (0.0, 1.0)
+            }
+        }
+        Op::Max => {
+            if a >= b {
+                (1.0, 0.0)
+            } else {
+                (0.0, 1.0)
+            }
+        }
+        Op::Abs => (sign0(a), 0.0),
+        Op::Signum | Op::Floor | Op::Round | Op::Ceil | Op::Trunc => (0.0, 0.0),
+        Op::Fract => (1.0, 0.0),
+        Op::Sin => (a.cos(), 0.0),
+        Op::Cos => (-a.sin(), 0.0),
+        Op::Tan => (1.0 + out * out, 0.0),
+        Op::Asin => (1.0 / (1.0 - a * a).sqrt(), 0.0),
+        Op::Acos => (-1.0 / (1.0 - a * a).sqrt(), 0.0),
+        Op::Atan => (1.0 / (1.0 + a * a), 0.0),
+        Op::Sinh => (a.cosh(), 0.0),
+        Op::Cosh => (a.sinh(), 0.0),
+        Op::Tanh => (1.0 - out * out, 0.0),
+        Op::Asinh => (1.0 / (a * a + 1.0).sqrt(), 0.0),
+        Op::Acosh => (1.0 / (a * a - 1.0).sqrt(), 0.0),
+        Op::Atanh => (1.0 / (1.0 - a * a), 0.0),
+        Op::Exp => (out, 0.0),
+        Op::Sqrt => (0.5 / out, 0.0),
+        Op::Cbrt => (1.0 / (3.0 * out * out), 0.0),
+        Op::Ln => (1.0 / a, 0.0),
+        Op::Log2 => (1.0 / (a * std::f64::consts::LN_2), 0.0),
+        Op::Log10 => (1.0 / (a * std::f64::consts::LN_10), 0.0),
+    }
+}
+
+fn is_binary(op: Op) -> bool {
+    matches!(
+        op,
+        Op::Add | Op::Sub | Op::Mul | Op::Div | Op::Pow | Op::PowC | Op::Atan2 | Op::Min | Op::Max
+    )
+}
+
+/// The recording number: a folded constant or a traced value.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Rec {
+    /// A constant (folded: operations on constants compute at once).
+    C(f64),
+    /// The traced value of this id.
+    V(u32),
+}
+
+impl Default for Rec {
+    fn default() -> Self {
+        Rec::C(0.0)
+    }
+}
+
+impl FromStr for Rec {
+    type Err = std::num::ParseFloatError;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        s.parse::<f64>().map(Rec::C)
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+enum Def {
+    Var(u32),
+    Const(u64),
+    Node(Op, u32, u32),
+}
+
+#[derive(Debug, Default)]
+struct Tracer {
+    defs: Vec<Def>,
+    index: HashMap<Def, u32>,
+}
+
+thread_local! {
+    static TRACER: RefCell<Tracer> = RefCell::new(Tracer::default());
+}
+
+fn intern(def: Def) -> u32 {
+    TRACER.with(|t| {
+        let mut t = t.borrow_mut();
+        if let Some(&i) = t.index.get(&def) {
+            return i;
+        }
+        let i = t.defs.len() as u32;
+        t.defs.push(def);
+        t.index.insert(def, i);
+        i
+    })
+}
+
+fn id(r: Rec) -> u32 {
+    match r {
+        Rec::V(i) => i,
+        Rec::C(c) => intern(Def::Const(c.to_bits())),
+    }
+}
+
+fn bin(op: Op, a: Rec, b: Rec) -> Rec {
+    if let (Rec::C(x), Rec::C(y)) = (a, b) {
+        return Rec::C(apply(op, x, y));
+    }
+    if op == Op::Pow {
+        if let Rec::C(c) = b {
+            if c == 1.0 {
+                return a;
+            }
+            if c == 2.0 {
+                let ia = id(a);
+                return Rec::V(intern(Def::Node(Op::Mul, ia, ia)));
+            }
+            if c == 0.5 {
+                return un(Op::Sqrt, a);
+            }
+            if c.fract() == 0.0 && c.abs() <= 16.0 {
+                let ia = id(a);
+                return Rec::V(intern(Def::Node(Op::Powi(c as i32), ia, ia)));
+            }
+            return Rec::V(intern(Def::Node(Op::PowC, id(a), id(b))));
+        }
+    }
+    Rec::V(intern(Def::Node(op, id(a), id(b))))
+}
+
+fn un(op: Op, a: Rec) -> Rec {
+    match a {
+        Rec::C(x) => Rec::C(apply(op, x, 0.0)),
+        Rec::V(i) => Rec::V(intern(Def::Node(op, i, i))),
+    }
+}
+
+/// Run `f` with `tracer` installed as the thread's tracer.
+fn with_tracer<R>(tracer: &mut Tracer, f: impl FnOnce() -> R) -> R {
+    TRACER.with(|t| std::mem::swap(&mut *t.borrow_mut(), tracer));
+    let r = f();
+    TRACER.with(|t| std::mem::swap(&mut *t.borrow_mut(), tracer));
+    r
+}
+
+/// exmex's float operators (`FloatOpsFactory`: the same names and
+/// priorities) on the recording type.
+#[derive(Clone, Debug)]
+pub(crate) struct TraceOps;
+
+macro_rules! unary {
+    ($name:expr, $op:expr) => {
+        Operator::make_unary($name, |a| un($op, a))
+    };
+}
+
+macro_rules! binary {
+    ($name:expr, $op:expr, $prio:expr, $comm:expr) => {
+        Operator::make_bin(
+            $name,
+            BinOp {
+                apply: |a, b| bin($op, a, b),
+                prio: $prio,
+                is_commutative: $comm,
+            },
+        )
+    };
+}
+
+impl MakeOperators<Rec> for TraceOps {
+    fn make<'a>() -> Vec<Operator<'a, Rec>> {
+        use std::f64::consts::{E, PI, TAU};
+        vec![
+            binary!("^", Op::Pow, 4, false),
+            binary!("*", Op::Mul, 2, true),
+            binary!("/", Op::Div, 3, false),
+            Operator::make_bin_unary(
+                "+",
+                BinOp {
+                    apply: |a, b| bin(Op::Add, a, b),
+                    prio: 0,
+                    is_commutative: true,
+                },
+                |a| a,
+            ),
+            Operator::make_bin_unary(
+                "-",
+                BinOp {
+                    apply: |a, b| bin(Op::Sub, a, b),
+                    prio: 1,
+                    is_commutative: false,
+                },
+                |a| un(Op::Neg, a),
+            ),
+            binary!("atan2", Op::Atan2, 0, false),
+            binary!("min", Op::Min, 0, false),
+            binary!("max", Op::Max, 0, false),
+            unary!("abs", Op::Abs),
+            unary!("signum", Op::Signum),
+            unary!("sin", Op::Sin),
+            unary!("cos", Op::Cos),
+            unary!("tan", Op::Tan),
+            unary!("asin", Op::Asin),
+            unary!("acos", Op::Acos),
+            unary!("atan", Op::Atan),
+            unary!("sinh", Op::Sinh),
+            unary!("cosh", Op::Cosh),
+            unary!("tanh", Op::Tanh),
+            unary!("asinh", Op::Asinh),
+            unary!("acosh", Op::Acosh),
+            unary!("atanh", Op::Atanh),
+            unary!("floor", Op::Floor),
+            unary!("round", Op::Round),
+            unary!("ceil", Op::Ceil),
+            unary!("trunc", Op::Trunc),
+            unary!("fract", Op::Fract),
+            unary!("exp", Op::Exp),
+            unary!("sqrt", Op::Sqrt),
+            unary!("cbrt", Op::Cbrt),
+            unary!("ln", Op::Ln),
+            unary!("log2", Op::Log2),
+            unary!("log10", Op::Log10),
+            unary!("log", Op::Ln),
+            Operator::make_constant("PI", Rec::C(PI)),
+            Operator::make_constant("π", Rec::C(PI)),
+            Operator::make_constant("E", Rec::C(E)),
+            Operator::make_constant("e", Rec::C(E)),
+            Operator::make_constant("TAU", Rec::C(TAU)),
+            Operator::make_constant("τ", Rec::C(TAU)),
+        ]
+    }
+}
+
+/// Names exmex reads as operators or constants: never a symbol's name.
+pub(crate) const RESERVED: &[&str] = &[
+    "atan2", "min", "max", "abs", "signum", "sin", "cos", "tan", "asin", "acos", "atan", "sinh",
+    "cosh", "tanh", "asinh", "acosh", "atanh", "floor", "round", "ceil", "trunc", "fract", "exp",
+    "sqrt", "cbrt", "ln", "log2", "log10", "log", "PI", "π", "E", "e", "TAU", "τ",
+];
+
+/// Why an expression did not compile.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum ExprError {
+    /// exmex could not parse or evaluate it (its message).
+    Syntax(String),
+    /// It names a symbol that is not a variable.
+    Unknown(String),
+}
+
+/// Records expressions over named variables into one [`Tape`].
+#[derive(Debug)]
+pub(crate) struct TapeBuilder {
+    names: HashMap<String, u32>,
+    n_vars: usize,
+    /// Variables from this index on are parameters (hoisted sub-expressions).
+    param_start: usize,
+    tracer: Tracer,
+}
+
+impl TapeBuilder {
+    /// A builder over `names` (the variable slots, in order); variables
+    /// `param_start..` are parameters.
+    pub(crate) fn new(names: &[String], param_start: usize) -> Self {
+        let mut b = Self {
+            names: names
+                .iter()
+                .enumerate()
+                .map(|(i, n)| (n.clone(), i as u32))
+                .collect(),
+            n_vars: names.len(),
+            param_start,
+            tracer: Tracer::default(),
+        };
+        with_tracer(&mut b.tracer, || {
+            for i in 0..names.len() {
+                intern(Def::Var(i as u32));
+            }
+        });
+        b
+    }
+
+    /// Record one expression; the symbols it uses, in exmex's order.
+    pub(crate) fn expr(&mut self, text: &str) -> Result<(Rec, Vec<String>), ExprError> {
+        let names = &self.names;
+        let run = || -> Result<(Rec, Vec<String>), ExprError> {
+            let e = FlatEx::<Rec, TraceOps>::parse(text)
+                .map_err(|e| ExprError::Syntax(e.msg().to_string()))?;
+            let mut vars = Vec::with_capacity(e.var_names().len());
+            for n in e.var_names() {
+                let i = names
+                    .get(n.as_str())
+                    .ok_or_else(|| ExprError::Unknown(n.clone()))?;
+                vars.push(Rec::V(*i));
+            }
+            let r = e
+                .eval(&vars)
+                .map_err(|e| ExprError::Syntax(e.msg().to_string()))?;
+            Ok((r, e.var_names().to_vec()))
+        };
+        // parse and evaluate inside the tracer: every recorded node lands here
+        with_tracer(&mut self.tracer, run)
+    }
+
+    /// The sum of recorded values (additive terms).
+    pub(crate) fn sum(&mut self, terms: &[Rec]) -> Rec {
+        with_tracer(&mut self.tracer, || {
+            let mut acc = Rec::C(0.0);
+            for (i, t) in terms.iter().enumerate() {
+                acc = if i == 0 { *t } else { bin(Op::Add, acc, *t) };
+            }
+            acc
+        })
+    }
+
+    /// The tape computing `outputs` (dead nodes dropped, parameter-only
+    /// nodes hoisted into the prologue).
+    pub(crate) fn finish(mut self, outputs: &[Rec]) -> Tape {
+        let out_ids: Vec<u32> = with_tracer(&mut self.tracer, || {
+            outputs.iter().map(|r| id(*r)).collect()
+        });
+        let defs = &self.tracer.defs;
+        // reachability from the outputs (ids are topological: operands first)
+        let mut live = vec![false; defs.len()];
+        for &o in &out_ids {
+            live[o as usize] = true;
+        }
+        for i in (0..defs.len()).rev() {
+            if let (true, Def::Node(_, a, b)) = (live[i], defs[i]) {
+                live[a as usize] = true;
+                live[b as usize] = true;
+            }
+        }
+        // parameter-only values: parameters, constants and nodes of them
+        let mut param_only = vec![false; defs.len()];
+        for (i, d) in defs.iter().enumerate() {
+            param_only[i] = match *d {
+                Def::Var(v) => v as usize >= self.param_start,
+                Def::Const(_) => true,
+                Def::Node(_, a, b) => param_only[a as usize] && param_only[b as usize],
+            };
+        }
+        let mut slot = vec![u32::MAX; defs.len()];
+        let mut next = self.n_vars as u32;
+        let mut consts = Vec::new();
+        for (i, d) in defs.iter().enumerate() {
+            match *d {
+                Def::Var(v) => slot[i] = v,
+                Def::Const(bits) if live[i] => {
+                    slot[i] = next;
+                    consts.push((next, f64::from_bits(bits)));
+                    next += 1;
+                }
+                _ => {}
+            }
+        }
+        let mut pre = Vec::new();
+        let mut main = Vec::new();
+        for hoisted in [true, false] {
+            for (i, d) in defs.iter().enumerate() {
+                if let Def::Node(op, a, b) = *d {
+                    if live[i] && param_only[i] == hoisted {
+                        slot[i] = next;
+                        let node = Node {
+                            op,
+                            a: slot[a as usize],
+                            b: slot[b as usize],
+                            out: next,
+                        };
+                        next += 1;
+                        if hoisted {
+                            pre.push(node);
+                        } else {
+                            main.push(node);
+                        }
+                    }
+                }
+            }
+        }
+        Tape {
+            n_slots: next as usize,
+            consts,
+            pre,
+            main,
+            outputs: out_ids.iter().map(|&o| slot[o as usize]).collect(),
+        }
+    }
+}
+
+/// One tape operation: `slot[out] = op(slot[a], slot[b])`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Node {
+    op: Op,
+    a: u32,
+    b: u32,
+    out: u32,
+}
+
+/// A compiled set of expressions over variable slots `0..n_vars`
+/// (the caller's layout), constants, a prologue of parameter-only nodes and
+/// the main nodes. Slots of a node's operands always precede its own.
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct Tape {
+    n_slots: usize,
+    consts: Vec<(u32, f64)>,
+    pre: Vec<Node>,
+    main: Vec<Node>,
+    outputs: Vec<u32>,
+}
+
+/// Slot values (and derivative lanes) of one tape evaluation.
+#[derive(Clone, Debug)]
+pub(crate) struct Slots {
+    /// Values.
+    pub(crate) v: Vec<f64>,
+    /// Derivative lanes, `lanes` per slot.
+    pub(crate) d: Vec<f64>,
+    /// Lanes per slot.
+    pub(crate) lanes: usize,
+}
+
+impl Tape {
+    /// Slots with the constants set and `lanes` zero derivative lanes.
+    pub(crate) fn slots(&self, lanes: usize) -> Slots {
+        let mut v = vec![0.0; self.n_slots];
+        for &(s, c) in &self.consts {
+            v[s as usize] = c;
+        }
+        Slots {
+            v,
+            d: vec![0.0; self.n_slots * lanes],
+            lanes,
+        }
+    }
+
+    /// Operations per evaluation (prologue, main).
+    #[cfg(test)]
+    pub(crate) fn len(&self) -> (usize, usize) {
+        (self.pre.len(), self.main.len())
+    }
+
+    /// Evaluate the prologue (after the parameter slots were set).
+    pub(crate) fn run_pre(&self, s: &mut Slots) {
+        run(&self.pre, &mut s.v);
+    }
+
+    /// Evaluate the main nodes (after the variable slots were set).
+    #[inline]
+    pub(crate) fn run(&self, s: &mut Slots) {
+        run(&self.main, &mut s.v);
+    }
+
+    /// The prologue with derivative lanes.
+    pub(crate) fn run_pre_dual(&self, s: &mut Slots) {
+        run_dual(&self.pre, s);
+    }
+
+    /// The main nodes with derivative lanes.
+    #[inline]
+    pub(crate) fn run_dual(&self, s: &mut Slots) {
+        run_dual(&self.main, s);
+    }
+
+    /// Value of output `i` after a run.
+    #[inline(always)]
+    pub(crate) fn out(&self, s: &Slots, i: usize) -> f64 {
+        s.v[self.outputs[i] as usize]
+    }
+
+    /// Derivative lanes of output `i` after a dual run.
+    #[inline(always)]
+    pub(crate) fn out_lanes<'s>(&self, s: &'s Slots, i: usize) -> &'s [f64] {
+        let o = self.outputs[i] as usize * s.lanes;
+        &s.d[o..o + s.lanes]
+    }
+
+    /// Number of outputs.
+    pub(crate) fn n_outputs(&self) -> usize {
+        self.outputs.len()
+    }
+}
+
+#[inline(always)]
+fn run(nodes: &[Node], v: &mut [f64]) {
+    for n in nodes {
+        let r = apply(n.op, v[n.a as usize], v[n.b as usize]);
+        v[n.out as usize] = r;
+    }
+}
+
+fn run_dual(nodes: &[Node], s: &mut Slots) {
+    let l = s.lanes;
+    for n in nodes {
+        let (a, b, o) = (n.a as usize, n.b as usize, n.out as usize);
+        let (va, vb) = (s.v[a], s.v[b]);
+        let out = apply(n.op, va, vb);
+        s.v[o] = out;
+        if l == 0 {
+            continue;
+        }
+        let (ca, cb) = partials(n.op, va, vb, out);
+        let (lo, hi) = s.d.split_at_mut(o * l);
+        let dout = &mut hi[..l];
+        let da = &lo[a * l..a * l + l];
+        if is_binary(n.op) && cb != 0.0 {
+            let db = &lo[b * l..b * l + l];
+            for k in 0..l {
+                dout[k] = ca * da[k] + cb * db[k];
+            }
+        } else {
+            for k in 0..l {
+                dout[k] = ca * da[k];
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use exmex::Differentiate;
+
+    const CASES: &[&str] = &[
+        "(F - c*v - k*x)/m",
+        "-k1*sqrt(x) + k2*F",
+        "alpha*v - beta*(gamma*abs(v)*x + delta*v*abs(x))",
+        "x^2 + x^3 - x^-1 + x^0.5 + x^2.5 + 2^x",
+        "exp(-x)*sin(v) + cos(x*v) - tan(0.1*x)",
+        "tanh(v/0.01) + atan(x) + sinh(0.3*v) + cosh(0.2*x)",
+        "ln(x) + log(x) + log2(x) + log10(x) + cbrt(x)",
+        "min(x, v) + max(x, v) + atan2(v, x)",
+        "signum(v) + abs(-v) - -x + +x",
+        "2*3*x + PI*v - E + TAU*c",
+        "x^v",
+        "asin(0.1*x) + acos(0.1*v) + asinh(x) + acosh(1+x) + atanh(0.1*v)",
+    ];
+    const NAMES: [&str; 7] = ["x", "v", "F", "c", "k", "m", "k1"];
+
+    fn names() -> Vec<String> {
+        let mut n: Vec<String> = NAMES.iter().map(|s| s.to_string()).collect();
+        for s in ["k2", "alpha", "beta", "gamma", "delta"] {
+            n.push(s.into());
+        }
+        n
+    }
+
+    fn point(seed: usize) -> Vec<f64> {
+        (0..12)
+            .map(|i| 0.3 + 1.7 * (((seed * 31 + i * 17) % 23) as f64 / 23.0))
+            .collect()
+    }
+
+    fn compile(text: &str) -> (Tape, Vec<String>) {
+        let n = names();
+        let mut b = TapeBuilder::new(&n, 3);
+        let (r, used) = b.expr(text).unwrap();
+        (b.finish(&[r]), used)
+    }
+
+    fn eval_tape(t: &Tape, p: &[f64]) -> f64 {
+        let mut s = t.slots(0);
+        s.v[..p.len()].copy_from_slice(p);
+        t.run_pre(&mut s);
+        t.run(&mut s);
+        t.out(&s, 0)
+    }
+
+    fn exmex_args(used: &[String], p: &[f64]) -> Vec<f64> {
+        let n = names();
+        used.iter()
+            .map(|u| p[n.iter().position(|x| x == u).unwrap()])
+            .collect()
+    }
+
+    #[test]
+    fn the_tape_evaluates_as_exmex_does() {
+        for text in CASES {
+            let (t, used) = compile(text);
+            let ex = FlatEx::<f64>::parse(text).unwrap();
+            assert_eq!(ex.var_names(), used.as_slice());
+            for seed in 0..5 {
+                let p = point(seed);
+                let want = ex.eval(&exmex_args(&used, &p)).unwrap();
+                let got = eval_tape(&t, &p);
+                assert!(
+                    (got - want).abs() <= 1e-12 * want.abs().max(1.0),
+                    "{text}: tape {got} exmex {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn derivatives_match_exmex_partial_and_finite_differences() {
+        let n = names();
+        for text in CASES {
+            let (t, used) = compile(text);
+            let ex = FlatEx::<f64>::parse(text).unwrap();
+            let p = point(3);
+            // all variables as lanes
+            let mut s = t.slots(n.len());
+            s.v[..p.len()].copy_from_slice(&p);
+            for i in 0..n.len() {
+                s.d[i * n.len() + i] = 1.0;
+            }
+            t.run_pre_dual(&mut s);
+            t.run_dual(&mut s);
+            let lanes = t.out_lanes(&s, 0).to_vec();
+            for (k, name) in used.iter().enumerate() {
+                let i = n.iter().position(|x| x == name).unwrap();
+                // central difference of the expression
+                let h = 1e-6 * p[i].abs().max(1.0);
+                let (mut a, mut b) = (p.clone(), p.clone());
+                a[i] += h;
+                b[i] -= h;
+                let fd = (eval_tape(&t, &a) - eval_tape(&t, &b)) / (2.0 * h);
+                assert!(
+                    (lanes[i] - fd).abs() <= 1e-6 * fd.abs().max(1.0),
+                    "{text}: d/d{name} tape {} fd {fd}",
+                    lanes[i]
+                );
+                // exmex's symbolic derivative, where exmex has the rules
+                if let Ok(d) = ex.clone().partial(k) {
+                    let want = d.eval(&exmex_args(&used, &p)).unwrap();
+                    assert!(
+                        (lanes[i] - want).abs() <= 1e-9 * want.abs().max(1.0),
+                        "{text}: d/d{name} tape {} exmex {want}",
+                        lanes[i]
+                    );
+                } else {
+                    assert!(
+                        ["abs", "signum", "min", "max", "atan2", "cbrt"]
+                            .iter()
+                            .any(|o| text.contains(o)),
+                        "{text}: exmex cannot differentiate"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn common_subexpressions_are_shared_and_parameters_hoisted() {
+        let n = names();
+        let mut b = TapeBuilder::new(&n, 3);
+        let (f1, _) = b.expr("-k1*sqrt(x) + c/m*F").unwrap();
+        let (f2, _) = b.expr("k*sqrt(x) - c/m").unwrap();
+        let t = b.finish(&[f1, f2]);
+        let (pre, main) = t.len();
+        // -k1 and c/m are parameter-only; sqrt(x) is computed once
+        assert_eq!(pre, 2, "{t:?}");
+        assert_eq!(main, 6, "{t:?}");
+    }
+
+    #[test]
+    fn unknown_symbols_and_syntax_errors() {
+        let n = names();
+        let mut b = TapeBuilder::new(&n, 3);
+        assert_eq!(
+            b.expr("x + kk*v").unwrap_err(),
+            ExprError::Unknown("kk".into())
+        );
+        assert!(matches!(b.expr("x + (v"), Err(ExprError::Syntax(_))));
+        assert!(matches!(b.expr("x +* v"), Err(ExprError::Syntax(_))));
+    }
+}

@@ -1,0 +1,92 @@
+//! The sensitivities measured against finite differences of the whole
+//! simulation.
+use super::fit::{coordinates, lanes_of};
+use super::simulate::{simulate, simulate_dual};
+use super::spec::{Parameter, PhysicsSpec, State};
+
+/// A Bouc–Wen oscillator: `abs` in the law, free initial states.
+fn bouc_wen() -> PhysicsSpec {
+    PhysicsSpec::new("bw")
+        .input("u")
+        .parameter(Parameter::new("m", 2.0))
+        .parameter(Parameter::new("c", 10.0))
+        .parameter(Parameter::new("k", 5e4))
+        .parameter(Parameter::new("alpha", 5e4))
+        .parameter(Parameter::new("beta", 1e3).fixed())
+        .parameter(Parameter::new("gamma", 0.8))
+        .parameter(Parameter::new("delta", -1.1))
+        .state(State::new("q", 1e-4).free(), "v")
+        .state(State::new("v", 0.0).free(), "u/m - k/m*q - c/m*v - z/m")
+        .state(
+            State::new("z", 0.0),
+            "alpha*v - beta*(gamma*abs(v)*z + delta*v*abs(z))",
+        )
+        .output("y", "q + 0.001*tanh(v)")
+        .sample_time(1.0 / 750.0)
+        .substeps(4)
+}
+
+fn input(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|k| {
+            let t = k as f64 / 750.0;
+            40.0 * (2.0 * std::f64::consts::PI * 31.0 * t).sin()
+                + 25.0 * (2.0 * std::f64::consts::PI * 7.3 * t + 1.0).sin()
+        })
+        .collect()
+}
+
+#[test]
+fn sensitivities_match_finite_differences_of_the_simulation() {
+    let spec = bouc_wen();
+    let c = spec.compile().unwrap();
+    let (theta, x0) = (spec.theta0(), spec.x0());
+    let coords = coordinates(&spec, &theta, &x0, false);
+    let lanes = lanes_of(&coords, c.np, c.n);
+    assert_eq!(lanes.n, 8); // 6 free parameters, 2 free initial states
+    let n = 400;
+    let u = input(n);
+    let us: Vec<&[f64]> = vec![&u];
+    let ts = 1.0 / 750.0;
+    let mut dy = vec![0.0; n * lanes.n];
+    simulate_dual(&c, &theta, &x0, &us, ts, 4, n, &lanes, |t, _, d| {
+        dy[t * lanes.n..(t + 1) * lanes.n].copy_from_slice(d);
+    })
+    .unwrap();
+    let sim = |th: &[f64], x: &[f64]| {
+        let mut y = vec![0.0; n];
+        simulate(&c, th, x, &us, ts, 4, &mut y).unwrap();
+        y
+    };
+    let mut worst: f64 = 0.0;
+    for (l, co) in coords.iter().enumerate() {
+        let h = 1e-6 * co.scale.max(1e-4);
+        let (mut tp, mut tm, mut xp, mut xm) =
+            (theta.clone(), theta.clone(), x0.clone(), x0.clone());
+        match co.what {
+            super::fit::Coordinate::Parameter(i) => {
+                tp[i] += h;
+                tm[i] -= h;
+            }
+            super::fit::Coordinate::InitialState(i) => {
+                xp[i] += h;
+                xm[i] -= h;
+            }
+        }
+        let (yp, ym) = (sim(&tp, &xp), sim(&tm, &xm));
+        let fd: Vec<f64> = yp
+            .iter()
+            .zip(&ym)
+            .map(|(a, b)| (a - b) / (2.0 * h))
+            .collect();
+        let norm = fd.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let err = (0..n)
+            .map(|t| (dy[t * lanes.n + l] - fd[t]).powi(2))
+            .sum::<f64>()
+            .sqrt();
+        let rel = err / norm;
+        worst = worst.max(rel);
+        assert!(rel < 1e-5, "{:?}: relative error {rel:e}", co.what);
+    }
+    eprintln!("sensitivities vs central differences: worst relative error {worst:.2e}");
+}
