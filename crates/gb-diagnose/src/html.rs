@@ -320,7 +320,13 @@ pub fn plot_ids(d: &Diagnosis) -> Vec<String> {
             v.push(format!("plot-evidence-{}-{}", i + 1, s.cause));
         }
     }
-    v.extend(model_views(d).into_iter().map(|(id, _, _)| id));
+    // table views are HTML tables, not figures
+    v.extend(
+        model_views(d)
+            .into_iter()
+            .filter(|(_, view, _)| !matches!(view.data, ViewData::Table { .. }))
+            .map(|(id, _, _)| id),
+    );
     v
 }
 
