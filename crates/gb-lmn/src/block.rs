@@ -286,13 +286,6 @@ impl BlockModel {
         Ok(m)
     }
 
-    fn normalise_inputs(&self, u: &[Vec<f64>]) -> Vec<Vec<f64>> {
-        u.iter()
-            .zip(&self.input_scaling)
-            .map(|(s, sc)| s.iter().map(|&v| sc.to_norm(v)).collect())
-            .collect()
-    }
-
     /// The map values of normalised inputs.
     fn mapped(&self, un: &[Vec<f64>]) -> Mapped {
         let mut w = vec![];
@@ -364,7 +357,7 @@ impl BlockModel {
     /// else taken from them (missing values: the training mean).
     pub fn simulate_signals(&self, u: &[Vec<f64>], window: &[f64]) -> Result<Vec<f64>, LmnError> {
         let n = u.first().map_or(0, Vec::len);
-        let un = self.normalise_inputs(u);
+        let un = Scaling::normalise_all(&self.input_scaling, u);
         let mp = self.mapped(&un);
         let k0 = self.max_lag().min(n);
         let sc = self.output_scaling;

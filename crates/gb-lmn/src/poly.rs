@@ -164,18 +164,11 @@ impl PolyNarx {
         Ok(m)
     }
 
-    fn normalise_inputs(&self, u: &[Vec<f64>]) -> Vec<Vec<f64>> {
-        u.iter()
-            .zip(&self.input_scaling)
-            .map(|(s, sc)| s.iter().map(|&v| sc.to_norm(v)).collect())
-            .collect()
-    }
-
     /// Free-run simulation in physical units; the first `max_lag` outputs
     /// are `history` (padded with the training mean).
     pub fn simulate_signals(&self, u: &[Vec<f64>], history: &[f64]) -> Result<Vec<f64>, LmnError> {
         let n = u.first().map_or(0, Vec::len);
-        let un = self.normalise_inputs(u);
+        let un = Scaling::normalise_all(&self.input_scaling, u);
         let k0 = self.max_lag().min(n);
         let sc = self.output_scaling;
         let mut y: Vec<f64> = (0..n)

@@ -12,6 +12,14 @@ pub struct Scaling {
 }
 
 impl Scaling {
+    /// Every signal of `u` mapped by its own scaling: `(uⱼ − offsetⱼ) / scaleⱼ`.
+    pub fn normalise_all(scalings: &[Scaling], u: &[Vec<f64>]) -> Vec<Vec<f64>> {
+        u.iter()
+            .zip(scalings)
+            .map(|(s, sc)| s.iter().map(|&v| sc.to_norm(v)).collect())
+            .collect()
+    }
+
     /// Scaling from a signal's mean and standard deviation.
     pub fn of(x: &[f64]) -> Self {
         let m = gb_core::metrics::mean(x);
