@@ -476,19 +476,9 @@ impl LmnModel {
         let p = ev.lay.p;
         let inner = &ev.w.inner;
         let ni = inner.len();
-        let mut w = Vec::with_capacity(ni * nz);
-        let mut w0 = Vec::with_capacity(ni);
-        let mut kids = Vec::with_capacity(ni);
-        for &i in inner {
-            if let Some(sp) = &part.nodes[i].split {
-                w.extend_from_slice(&sp.w);
-                w0.push(sp.w0);
-                kids.push((i, sp.left, sp.right));
-            }
-        }
-        if kids.len() != ni {
+        let Some((w, w0, kids)) = split_table(part, inner, nz) else {
             return false;
-        }
+        };
         let leaves = &ev.w.leaves;
         let nl = leaves.len();
         // local parameters transposed (p × leaves): L = Θᵀφ vectorises over leaves
@@ -693,6 +683,28 @@ pub(crate) struct TreeSim {
     z: Vec<f64>,
 }
 
+/// The splits of the inner nodes `inner` in one table: the weight vectors
+/// (`nz` each, concatenated), the offsets and `(node, left, right)`.
+/// `None` when an inner node has no split (an inconsistent tree).
+#[allow(clippy::type_complexity)]
+fn split_table(
+    part: &Partition,
+    inner: &[usize],
+    nz: usize,
+) -> Option<(Vec<f64>, Vec<f64>, Vec<(usize, usize, usize)>)> {
+    let ni = inner.len();
+    let mut w = Vec::with_capacity(ni * nz);
+    let mut w0 = Vec::with_capacity(ni);
+    let mut kids = Vec::with_capacity(ni);
+    for &i in inner {
+        let sp = part.nodes[i].split.as_ref()?;
+        w.extend_from_slice(&sp.w);
+        w0.push(sp.w0);
+        kids.push((i, sp.left, sp.right));
+    }
+    Some((w, w0, kids))
+}
+
 impl TreeSim {
     /// `None` when an inner node has no split (an inconsistent tree);
     /// `no_extra`: the data have no user columns.
@@ -702,19 +714,7 @@ impl TreeSim {
         let p = ev.lay.p;
         let inner = &ev.w.inner;
         let ni = inner.len();
-        let mut w = Vec::with_capacity(ni * nz);
-        let mut w0 = Vec::with_capacity(ni);
-        let mut kids = Vec::with_capacity(ni);
-        for &i in inner {
-            if let Some(sp) = &part.nodes[i].split {
-                w.extend_from_slice(&sp.w);
-                w0.push(sp.w0);
-                kids.push((i, sp.left, sp.right));
-            }
-        }
-        if kids.len() != ni {
-            return None;
-        }
+        let (w, w0, kids) = split_table(part, inner, nz)?;
         let leaves = ev.w.leaves.clone();
         let nl = leaves.len();
         // local parameters transposed (p × leaves): L = Θᵀφ vectorises over leaves
