@@ -138,6 +138,7 @@ pub fn bench(a: BenchArgs, quiet: bool) -> Result<()> {
         data_dir,
         only: a.only,
         quick: a.quick,
+        blind_only: a.blind_only,
         quiet,
         results,
     })
