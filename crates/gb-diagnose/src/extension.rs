@@ -7,7 +7,7 @@
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PolyNoe, PreisachColumns,
-    StudentTNoise, Wiener,
+    StateSpaceNetwork, StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -167,6 +167,8 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &PolyNoe,
     &Hammerstein,
     &Wiener,
+    &WienerHammerstein,
+    &StateSpaceNetwork,
     &PreisachColumns,
     &LinearOrder,
     &StudentTNoise,

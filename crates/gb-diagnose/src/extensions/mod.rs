@@ -6,8 +6,10 @@ mod lolimot;
 mod order;
 mod poly_noe;
 mod preisach;
+mod state_space_net;
 mod student_t;
 mod wiener;
+mod wiener_hammerstein;
 
 pub use capacity::Capacity;
 pub use hammerstein::Hammerstein;
@@ -16,8 +18,10 @@ pub use lolimot::Lolimot;
 pub use order::LinearOrder;
 pub use poly_noe::PolyNoe;
 pub use preisach::PreisachColumns;
+pub use state_space_net::StateSpaceNetwork;
 pub use student_t::StudentTNoise;
 pub use wiener::Wiener;
+pub use wiener_hammerstein::WienerHammerstein;
 
 use crate::evaluate::Lineage;
 use crate::extension::{io_model, Context};

@@ -1,0 +1,53 @@
+//! `nonlinearity`: a Wiener–Hammerstein network (a static local model
+//! network between two linear filters, from the best linear approximation).
+use super::{fit_spec, plain_linear_structure};
+use crate::evaluate::Lineage;
+use crate::extension::{Context, Extension, Proposal};
+use crate::{Cause, DiagnoseError};
+use gb_core::FittedModel;
+
+/// Fewest fit samples for the best linear approximation and its pole/zero
+/// splits (the recipe's own minimum).
+const MIN_FIT_SAMPLES: usize = 1000;
+
+/// `y = G₂(f(G₁ u))`: the best linear approximation's poles and zeros split
+/// between the filters `G₁` and `G₂` (every split scanned, the best refined),
+/// the static map `f` a local model network of `v = G₁ u`, then all of it
+/// refined by Levenberg–Marquardt on the simulation error (gb-lmn's
+/// `WienerHammersteinNetwork`; orders and split chosen on the fit block).
+/// One input; proposed while the current model is plain linear.
+pub struct WienerHammerstein;
+
+impl Extension for WienerHammerstein {
+    fn name(&self) -> &'static str {
+        "wiener-hammerstein"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Nonlinearity
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        let Some((order, _)) = plain_linear_structure(ctx) else {
+            return vec![];
+        };
+        if ctx.fit.n_inputs() != 1 || ctx.fit.len() < MIN_FIT_SAMPLES {
+            return vec![];
+        }
+        vec![Proposal {
+            cause: Cause::Nonlinearity,
+            lineage: Lineage::Other {
+                spec: "wiener-hammerstein".into(),
+                order,
+            },
+            text: "Wiener-Hammerstein network: a static local model network between two linear filters split from the best linear approximation, refined on the simulation error".into(),
+        }]
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        fit_spec(&p.lineage, ctx, ctx.policy().expensive_fit_samples)
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.nonlinearity_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        format!("{} -> {}", p.text, fitted.dynamics.describe())
+    }
+}
