@@ -7,7 +7,7 @@
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PolyNoe, PreisachColumns,
-    StateSpaceNetwork, StudentTNoise, Wiener, WienerHammerstein,
+    StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -168,7 +168,6 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &Hammerstein,
     &Wiener,
     &WienerHammerstein,
-    &StateSpaceNetwork,
     &PreisachColumns,
     &LinearOrder,
     &StudentTNoise,
