@@ -19,7 +19,7 @@ use crate::DiagnoseError;
 /// | `noise_nrmse_tolerance` | 1.02 | a noise model may not worsen the select-block NRMSE by more than 2 % |
 /// | `tie_bootstrap`, `tie_seed` | 50, 0 | replicates and seed of the unique-contribution comparison when nonlinearity and hysteresis tie |
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
-/// | `hidden_state_fit_samples` | 8000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
+/// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
 /// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
 /// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
 /// | `init_window_max`, `init_window_min`, `init_window_divisor` | 50, 10, 8 | leading samples of every evaluated record (report block, cross-validation fold) that set the initial state and are not scored: `clamp(shortest such block / 8, 10, 50)`, the benchmark's 50 on long records, 12 of a 100-sample block |
@@ -137,7 +137,7 @@ impl Default for DecisionPolicy {
             tie_bootstrap: 50,
             tie_seed: 0,
             unexplained_p: 1e-3,
-            hidden_state_fit_samples: 8000,
+            hidden_state_fit_samples: 4000,
             nonlinear_fit_samples: 20_000,
             expensive_fit_samples: 8000,
             init_window_max: 50,
