@@ -1,7 +1,7 @@
 //! `nonlinearity`: a Hammerstein model (static maps of the inputs before
 //! the linear dynamics); with several inputs, a map of one input at a time
 //! says which input the nonlinearity lives on.
-use super::{fit_spec, plain_linear_structure};
+use super::{delay_variants, fit_spec, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -9,9 +9,10 @@ use gb_core::FittedModel;
 
 /// Static maps of the inputs (cubic spline or piecewise linear, knots at
 /// quantiles, the structure chosen on a hold-out of the fit block) before
-/// the current linear dynamics, trained output-error. With several inputs:
-/// one candidate per input (only that path nonlinear) and one with every
-/// input mapped.
+/// the current linear dynamics, trained output-error, with the current
+/// input delay and the delays one sample either side ([`delay_variants`]).
+/// With several inputs: one candidate per input (only that path nonlinear,
+/// the current delay) and the every-input candidates.
 pub struct Hammerstein;
 
 /// The maps of a proposal (`maps=0/1/…`) as flags.
@@ -45,7 +46,7 @@ impl Extension for Hammerstein {
         };
         let ni = ctx.fit.n_inputs();
         let names = &ctx.fit.input_names;
-        let proposal = |flags: Vec<bool>, text: String| {
+        let proposal = |flags: &[bool], delay: &str, text: String| {
             let m: Vec<&str> = flags.iter().map(|&f| if f { "1" } else { "0" }).collect();
             Proposal {
                 cause: Cause::Nonlinearity,
@@ -59,33 +60,49 @@ impl Extension for Hammerstein {
                 text,
             }
         };
-        let tail = format!(
-            "(cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order}, trained output-error"
-        );
+        let tail = |d: &str| {
+            format!(
+                "(cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order} (input delay {d}), trained output-error"
+            )
+        };
         if ni == 1 {
-            return vec![proposal(
-                vec![true],
-                format!(
-                    "Hammerstein: a static map of the input '{}' {tail}",
-                    names[0]
-                ),
-            )];
+            return delay_variants(&delay)
+                .iter()
+                .map(|d| {
+                    proposal(
+                        &[true],
+                        d,
+                        format!(
+                            "Hammerstein: a static map of the input '{}' {}",
+                            names[0],
+                            tail(d)
+                        ),
+                    )
+                })
+                .collect();
         }
         let mut out: Vec<Proposal> = (0..ni)
             .map(|j| {
+                let flags: Vec<bool> = (0..ni).map(|i| i == j).collect();
                 proposal(
-                    (0..ni).map(|i| i == j).collect(),
+                    &flags,
+                    &delay,
                     format!(
-                        "Hammerstein on input '{}' only: a static map of '{}' {tail}; the other inputs stay linear",
-                        names[j], names[j]
+                        "Hammerstein on input '{}' only: a static map of '{}' {}; the other inputs stay linear",
+                        names[j],
+                        names[j],
+                        tail(&delay)
                     ),
                 )
             })
             .collect();
-        out.push(proposal(
-            vec![true; ni],
-            format!("Hammerstein: a static map of every input {tail}"),
-        ));
+        out.extend(delay_variants(&delay).iter().map(|d| {
+            proposal(
+                &vec![true; ni],
+                d,
+                format!("Hammerstein: a static map of every input {}", tail(d)),
+            )
+        }));
         out
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {

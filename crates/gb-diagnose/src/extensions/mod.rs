@@ -48,6 +48,29 @@ pub(crate) fn plain_linear_structure(ctx: &Context) -> Option<(usize, String)> {
     Some(io_structure(p, ctx.fit.n_inputs()))
 }
 
+/// The delay list `d` (`a/b`, one per input) and the same list shifted by
+/// one sample either way (every input together; no negative delay): the
+/// block-oriented candidates re-check the baseline's delay, which a linear
+/// fit can misjudge when the nonlinearity dominates the response.
+pub(crate) fn delay_variants(d: &str) -> Vec<String> {
+    let parsed: Option<Vec<usize>> = d.split('/').map(|v| v.parse().ok()).collect();
+    let Some(v) = parsed else {
+        return vec![d.to_string()];
+    };
+    let join = |w: Vec<usize>| {
+        w.iter()
+            .map(|x| x.to_string())
+            .collect::<Vec<_>>()
+            .join("/")
+    };
+    let mut out = vec![d.to_string()];
+    if v.iter().all(|&x| x >= 1) {
+        out.push(join(v.iter().map(|x| x - 1).collect()));
+    }
+    out.push(join(v.iter().map(|x| x + 1).collect()));
+    out
+}
+
 /// Fit the recipe of a proposal's spec (`greybox fit --model SPEC`) on at
 /// most `cap` samples of the fit block.
 pub(crate) fn fit_spec(

@@ -1,6 +1,6 @@
 //! `nonlinearity`: a Wiener model (the linear dynamics, then a static map
 //! of the output).
-use super::{fit_spec, plain_linear_structure};
+use super::{delay_variants, fit_spec, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -8,7 +8,8 @@ use gb_core::FittedModel;
 
 /// The current linear dynamics followed by a static map of the output
 /// (cubic spline or piecewise linear, knots at quantiles, the structure
-/// chosen on a hold-out of the fit block), trained output-error.
+/// chosen on a hold-out of the fit block), trained output-error; one
+/// candidate per delay of [`delay_variants`].
 pub struct Wiener;
 
 impl Extension for Wiener {
@@ -22,16 +23,19 @@ impl Extension for Wiener {
         let Some((order, delay)) = plain_linear_structure(ctx) else {
             return vec![];
         };
-        vec![Proposal {
-            cause: Cause::Nonlinearity,
-            lineage: Lineage::Other {
-                spec: format!("wiener:order={order},delay={delay}"),
-                order,
-            },
-            text: format!(
-                "Wiener: the linear dynamics of order {order}, then a static map of the output (cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
-            ),
-        }]
+        delay_variants(&delay)
+            .into_iter()
+            .map(|d| Proposal {
+                cause: Cause::Nonlinearity,
+                lineage: Lineage::Other {
+                    spec: format!("wiener:order={order},delay={d}"),
+                    order,
+                },
+                text: format!(
+                    "Wiener: the linear dynamics of order {order} (input delay {d}), then a static map of the output (cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
+                ),
+            })
+            .collect()
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         fit_spec(&p.lineage, ctx, ctx.policy().nonlinear_fit_samples)
