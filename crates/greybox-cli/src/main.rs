@@ -7,6 +7,7 @@ use std::process::ExitCode;
 mod bench;
 mod cmd_diagnose;
 mod cmd_fit;
+mod cmd_physics;
 mod cmd_simulate;
 mod cmd_tools;
 mod io;
@@ -188,6 +189,9 @@ pub(crate) struct FitArgs {
     /// Model SPEC: NAME[+COMPONENT...][:KEY=VALUE,...] (see below).
     #[arg(long, default_value = "linear")]
     pub(crate) model: String,
+    /// Your own equations: a TOML model file (states, parameters, equations, outputs; see docs/physics.md), fitted with standard errors and 95 % intervals.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "model")]
+    pub(crate) model_file: Option<PathBuf>,
     /// Dynamic order n (the option order=N of the SPEC).
     #[arg(long)]
     pub(crate) order: Option<usize>,
@@ -226,7 +230,7 @@ pub(crate) struct FitArgs {
     /// `--model lmn-state-space` only: known upper limit of the output (sensor range), e.g. 10.
     #[arg(long, value_name = "Y")]
     pub(crate) output_max: Option<f64>,
-    /// `--model lmn` only: a further training record, fitted as a separate experiment (no regressor spans two records); repeatable.
+    /// `--model lmn` and `--model-file` only: a further training record, fitted as a separate experiment (no regressor spans two records); repeatable.
     #[arg(long = "experiment", value_name = "FILE")]
     pub(crate) experiments: Vec<PathBuf>,
     /// `--model lmn` only: growth criterion, aicc or bic.

