@@ -56,7 +56,7 @@ enum Command {
     Fit(Box<FitArgs>),
     /// Simulate a saved model on the inputs of a CSV file (free run).
     #[command(
-        after_help = "Example:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50"
+        after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit"
     )]
     Simulate(SimulateArgs),
     /// Write train.csv and validate.csv for a generated system (fixed seed = same files).
@@ -262,6 +262,9 @@ pub(crate) struct SimulateArgs {
     /// The first N measured outputs initialise the state (estimated by least squares when N exceeds the model's lags); errors are reported on samples N.. only.
     #[arg(long, default_value_t = 0)]
     pub(crate) init_window: usize,
+    /// Add y_sim_lo and y_sim_hi: the 95 % prediction band (parameter uncertainty propagated plus noise); models fitted with --model-file only.
+    #[arg(long)]
+    pub(crate) bands: bool,
 }
 
 #[derive(Args)]

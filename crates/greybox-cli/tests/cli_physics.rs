@@ -222,3 +222,88 @@ fn bad_model_files_and_columns_exit_2_with_file_and_line() {
     assert_eq!(o.status.code(), Some(2));
     assert!(!out.exists());
 }
+
+/// The column `name` of a CSV written by `simulate`.
+fn column(csv: &str, name: &str) -> Vec<f64> {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let j = header.iter().position(|h| *h == name).unwrap();
+    lines
+        .map(|l| l.split(',').nth(j).unwrap().parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn bands_cover_about_95_percent_of_held_out_noisy_samples() {
+    let d = tmp("bands");
+    let (train, test) = (d.join("train.csv"), d.join("test.csv"));
+    msd_csv(&train, 1500, 11, 0.02, 0.0);
+    msd_csv(&test, 3000, 12, 0.02, 0.0);
+    let model = d.join("msd.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "-o",
+        model.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        model.to_str().unwrap(),
+        test.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+        "--bands",
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    assert!(so.contains("band covers"), "{so}");
+    let csv = std::fs::read_to_string(&sim).unwrap();
+    let (y, lo, hi, ys) = (
+        column(&csv, "y"),
+        column(&csv, "y_sim_lo"),
+        column(&csv, "y_sim_hi"),
+        column(&csv, "y_sim"),
+    );
+    let inside = (0..y.len())
+        .filter(|&t| lo[t] <= y[t] && y[t] <= hi[t])
+        .count();
+    let share = inside as f64 / y.len() as f64;
+    assert!(
+        (0.85..=0.995).contains(&share),
+        "band covers {:.1} % of held-out samples",
+        100.0 * share
+    );
+    assert!((0..y.len()).all(|t| lo[t] < ys[t] && ys[t] < hi[t]));
+    // the band is no wider than noise and parameter spread need
+    let width = (0..y.len()).map(|t| hi[t] - lo[t]).sum::<f64>() / y.len() as f64;
+    assert!(width < 4.0 * 1.96 * 0.02, "mean width {width}");
+
+    // a model without a covariance: one-line error, no output
+    let lin = d.join("lin.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--input",
+        "F",
+        "-o",
+        lin.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+    let out = d.join("lin_sim.csv");
+    assert_bad(
+        &[
+            "simulate",
+            lin.to_str().unwrap(),
+            test.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--bands",
+        ],
+        "--bands needs a physics model",
+        &out,
+    );
+}
