@@ -71,7 +71,7 @@ pub fn load_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile) -> Result<Rec
 
 /// The sample time of the fit and where it comes from: the model file's
 /// `sample_time`, else the data's `t` column, else an error saying so.
-fn sample_time_of(mf: &ModelFile, r: &Record, data: &Path) -> Result<(f64, String)> {
+pub fn sample_time_of(mf: &ModelFile, r: &Record, data: &Path) -> Result<(f64, String)> {
     match (mf.spec.sample_time, r.sample_time) {
         (Some(ts), _) => Ok((ts, format!("from {}", mf.name))),
         (None, Some(ts)) => Ok((ts, format!("from the t column of {}", data.display()))),
@@ -107,7 +107,7 @@ pub fn fit(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
     let bar = Bar::spinner(quiet, &format!("fitting {}", mf.name));
     let t0 = std::time::Instant::now();
     let model = mf
-        .fit(&data, &bar)
+        .fit_growing(&data, &bar)
         .map_err(|e| format!("{}: {e}", a.train.display()))?;
     bar.finish();
     let fitted = model.to_fitted().map_err(|e| e.to_string())?;
@@ -125,4 +125,27 @@ pub fn fit(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
     fitted.save(&a.out).map_err(|e| e.to_string())?;
     println!("saved to {}", a.out.display());
     Ok(())
+}
+
+/// The training (and validation) records of `diagnose --model-file` with
+/// the model file's spec, its sample time set (file, else data).
+pub fn diagnose_data(
+    path: &Path,
+    train: &Path,
+    validate: Option<&Path>,
+    s: &SignalArgs,
+) -> Result<(gb_model::physics::PhysicsSpec, Record, Option<Record>)> {
+    let mf = read_model_file(path)?;
+    let tr = load_for_model(train, s, &mf)?;
+    let (ts, from) = sample_time_of(&mf, &tr, train)?;
+    println!(
+        "the baseline is the model file {} (sample time {ts:.6e} s, {from})",
+        mf.name
+    );
+    let val = validate
+        .map(|v| load_for_model(v, s, &mf).map(|r| r.with_sample_time(ts)))
+        .transpose()?;
+    let mut spec = mf.spec;
+    spec.sample_time = Some(ts);
+    Ok((spec, tr.with_sample_time(ts), val))
 }

@@ -48,7 +48,7 @@ struct Cli {
 enum Command {
     /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
     #[command(
-        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm"
+        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm\n  greybox diagnose train.csv --validate val.csv --model-file examples/models/msd.toml"
     )]
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure (a SPEC of the model registry).
@@ -165,6 +165,9 @@ pub(crate) struct DiagnoseArgs {
     /// Order of the engineer's linear output-error model, or `auto`.
     #[arg(long, default_value = "2")]
     pub(crate) order: String,
+    /// Your own equations (TOML model file, docs/physics.md) as the baseline instead of the linear output-error model; extensions add terms to its state equations.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "example")]
+    pub(crate) model_file: Option<PathBuf>,
     /// Write the report as JSON.
     #[arg(long, value_name = "FILE")]
     pub(crate) json: Option<PathBuf>,

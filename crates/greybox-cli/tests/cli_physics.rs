@@ -307,3 +307,64 @@ fn bands_cover_about_95_percent_of_held_out_noisy_samples() {
         &out,
     );
 }
+
+/// The NRMSE of a `baseline:` or `final:` line of the diagnosis.
+fn nrmse_of(out: &str, prefix: &str) -> f64 {
+    let line = out
+        .lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no '{prefix}' line in\n{out}"));
+    let w: Vec<&str> = line.split_whitespace().collect();
+    let i = w.iter().position(|x| *x == "NRMSE").unwrap();
+    w[i + 1].parse().unwrap()
+}
+
+#[test]
+fn diagnose_model_file_names_a_missing_cubic_spring_and_gains_on_held_out_data() {
+    let d = tmp("diagnose");
+    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    // a hardening spring k3·x³ the linear msd file lacks
+    msd_csv(&train, 3000, 21, 0.01, 6.0);
+    msd_csv(&val, 2000, 22, 0.01, 6.0);
+    let json = d.join("report.json");
+    let o = run(&[
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    println!("{so}");
+    assert!(
+        so.contains("the user's model file 'mass-spring-damper'"),
+        "{so}"
+    );
+    assert!(so.contains("causes: nonlinearity"), "{so}");
+    // the extension is in the equation of v, the physical parameters named
+    let accepted = so
+        .lines()
+        .find(|l| l.contains(" yes "))
+        .unwrap_or_else(|| panic!("no accepted step\n{so}"));
+    assert!(accepted.contains("dv/dt +="), "{accepted}");
+    let (base, fin) = (nrmse_of(&so, "baseline:"), nrmse_of(&so, "final:"));
+    assert!(
+        fin < 0.5 * base,
+        "held-out NRMSE {base:.4} -> {fin:.4}: less than the stated 50 % gain"
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(r["baseline"]["class"], "physics");
+    assert!(r["baseline"]["parameter_values"]
+        .as_str()
+        .unwrap()
+        .contains("k = "));
+    assert!(r["final"]["parameter_values"]
+        .as_str()
+        .unwrap()
+        .contains("a3_v_x = "));
+}
