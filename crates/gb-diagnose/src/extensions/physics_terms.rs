@@ -5,48 +5,141 @@ use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::{fit_physics, parameters_text, physics_of};
 use crate::{Cause, DiagnoseError};
-use gb_core::FittedModel;
-use gb_model::physics::{Parameter, PhysicsSpec, TermTarget};
+use gb_core::{FittedModel, Init};
+use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 
-/// For every state equation `ẋᵢ = fᵢ(x, u, θ)` and every state `x_s`, the
-/// candidate `ẋᵢ = fᵢ + aᵢₛ₂ x_s² + aᵢₛ₃ x_s³` (new free parameters
-/// `a2_i_s`, `a3_i_s`, started at 0), refitted by output error from the
-/// current estimates with every physical parameter free again. The
-/// physical parameters keep their names in the extended model.
+/// For every state equation `ẋᵢ = fᵢ(x, u, θ)` and every state `x_s`, two
+/// candidates, each with new free parameters started at 0 and every
+/// physical parameter refitted from the current estimates:
+///
+/// * `poly`: `ẋᵢ += a2·z² + a3·z³` with `z = (x_s − c)/h` normalised by the
+///   midpoint `c` and half-range `h` of the simulated state (a smooth
+///   nonlinear spring, damper or flow law);
+/// * `hinge`: `ẋᵢ += b_hi·max(x_s − q₉₀, 0) + b_lo·max(q₁₀ − x_s, 0)` with
+///   the 10 % and 90 % quantiles of the simulated state (a limit: an
+///   overflow, an end stop, a saturation).
+///
+/// The normalisation comes from the current model's simulation on the fit
+/// record of each fit (the fold's under cross-validation). The physical
+/// parameters keep their names in the extended model.
 pub struct PhysicsTerms;
 
-/// The marker of an added term in a lineage spec: `+ poly(s) in d(i)/dt`.
-fn marker(eq: &str, var: &str) -> String {
-    format!(" + poly({var}) in d{eq}/dt")
+/// The two kinds of added terms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Poly,
+    Hinge,
 }
 
-/// The equation and variable of a proposal, from its lineage spec.
-fn target(p: &Proposal) -> Option<(String, String)> {
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::Poly => "poly",
+            Kind::Hinge => "hinge",
+        }
+    }
+    /// The new parameters' names for equation `eq` and variable `var`.
+    fn parameters(self, eq: &str, var: &str) -> [String; 2] {
+        match self {
+            Kind::Poly => [format!("a2_{eq}_{var}"), format!("a3_{eq}_{var}")],
+            Kind::Hinge => [format!("b_hi_{eq}_{var}"), format!("b_lo_{eq}_{var}")],
+        }
+    }
+}
+
+/// The marker of an added term in a lineage spec: ` + poly(x) in dv/dt`.
+fn marker(kind: Kind, eq: &str, var: &str) -> String {
+    format!(" + {}({var}) in d{eq}/dt", kind.name())
+}
+
+/// The kind, equation and variable of a proposal, from its lineage spec.
+fn target(p: &Proposal) -> Option<(Kind, String, String)> {
     let Lineage::Other { spec, .. } = &p.lineage else {
         return None;
     };
-    let last = spec.rsplit(" + poly(").next()?;
-    let (var, rest) = last.split_once(") in d")?;
+    let last = spec.rsplit(" + ").next()?;
+    let (kind, rest) = last.split_once('(')?;
+    let kind = [Kind::Poly, Kind::Hinge]
+        .into_iter()
+        .find(|k| k.name() == kind)?;
+    let (var, rest) = rest.split_once(") in d")?;
     let eq = rest.strip_suffix("/dt")?;
-    Some((eq.to_string(), var.to_string()))
+    Some((kind, eq.to_string(), var.to_string()))
 }
 
-/// `spec` with `a2·var² + a3·var³` added to the equation of `eq`; `None`
-/// when those parameters exist already.
-fn extended(spec: &PhysicsSpec, eq: &str, var: &str) -> Option<PhysicsSpec> {
-    let i = spec.states.iter().position(|s| s.name == eq)?;
-    let (a2, a3) = (format!("a2_{eq}_{var}"), format!("a3_{eq}_{var}"));
-    if spec.parameters.iter().any(|p| p.name == a2 || p.name == a3) {
-        return None;
+/// Whether `spec` can take the terms (their parameters are new).
+fn applies(spec: &PhysicsSpec, kind: Kind, eq: &str, var: &str) -> bool {
+    let names = kind.parameters(eq, var);
+    !spec.parameters.iter().any(|p| names.contains(&p.name))
+}
+
+/// The value at quantile `q` of `v` (sorted copy, nearest rank).
+fn quantile(v: &[f64], q: f64) -> f64 {
+    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    s.sort_by(f64::total_cmp);
+    if s.is_empty() {
+        return 0.0;
     }
-    let mut s = spec.clone();
-    s.parameters.push(Parameter::new(&a2, 0.0));
-    s.parameters.push(Parameter::new(&a3, 0.0));
-    s.add_term(TermTarget::State(i), &format!("{a2}*{var}^2"))
-        .ok()?;
-    s.add_term(TermTarget::State(i), &format!("{a3}*{var}^3"))
-        .ok()?;
-    Some(s)
+    s[((q * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)]
+}
+
+/// The terms of `kind` in the state trajectory `x` (of `var`), as
+/// expressions of the new parameters.
+fn terms(kind: Kind, names: &[String; 2], var: &str, x: &[f64]) -> [String; 2] {
+    match kind {
+        Kind::Poly => {
+            let (lo, hi) = (quantile(x, 0.0), quantile(x, 1.0));
+            let c = 0.5 * (lo + hi);
+            let h = (0.5 * (hi - lo)).max(1e-12 * c.abs().max(1.0));
+            let z = format!("(({var}-({c}))/{h})");
+            [format!("{}*{z}^2", names[0]), format!("{}*{z}^3", names[1])]
+        }
+        Kind::Hinge => {
+            let (q10, q90) = (quantile(x, 0.1), quantile(x, 0.9));
+            [
+                format!("{}*max({var}-({q90}),0)", names[0]),
+                format!("{}*max(({q10})-{var},0)", names[1]),
+            ]
+        }
+    }
+}
+
+/// `cur`'s spec started at its estimates with the terms of `kind` in the
+/// equation of `eq`, normalised on `cur`'s simulation of `fit`.
+fn extended(
+    cur: &PhysicsModel,
+    fit: &gb_core::Record,
+    kind: Kind,
+    eq: &str,
+    var: &str,
+) -> Result<PhysicsSpec, DiagnoseError> {
+    let bad = |m: String| DiagnoseError::InvalidArgument(format!("physics-terms: {m}"));
+    let spec = cur.spec();
+    let i = spec
+        .states
+        .iter()
+        .position(|s| s.name == eq)
+        .ok_or_else(|| bad(format!("no state '{eq}'")))?;
+    let j = spec
+        .states
+        .iter()
+        .position(|s| s.name == var)
+        .ok_or_else(|| bad(format!("no state '{var}'")))?;
+    let x = cur
+        .state_trajectory(&fit.inputs, Init::Stored)
+        .map_err(gb_core::CoreError::from)?;
+    let mut s = cur
+        .with_start_at_values()
+        .map_err(gb_core::CoreError::from)?
+        .spec()
+        .clone();
+    let names = kind.parameters(eq, var);
+    for (n, t) in names.iter().zip(terms(kind, &names, var, &x[j])) {
+        s.parameters.push(Parameter::new(n, 0.0));
+        s.add_term(TermTarget::State(i), &t)
+            .map_err(gb_core::CoreError::from)?;
+    }
+    Ok(s)
 }
 
 impl Extension for PhysicsTerms {
@@ -65,23 +158,31 @@ impl Extension for PhysicsTerms {
         };
         let spec = m.spec();
         let mut out = vec![];
-        for eq in &spec.states {
-            for var in &spec.states {
-                if extended(spec, &eq.name, &var.name).is_none() {
-                    continue;
+        for kind in [Kind::Poly, Kind::Hinge] {
+            for eq in &spec.states {
+                for var in &spec.states {
+                    let (e, v) = (eq.name.as_str(), var.name.as_str());
+                    if !applies(spec, kind, e, v) {
+                        continue;
+                    }
+                    let [p1, p2] = kind.parameters(e, v);
+                    let text = match kind {
+                        Kind::Poly => format!(
+                            "d{e}/dt += {p1}·z² + {p2}·z³, z = {v} normalised to [-1, 1] on its simulated range"
+                        ),
+                        Kind::Hinge => format!(
+                            "d{e}/dt += {p1}·max({v} − q90, 0) + {p2}·max(q10 − {v}, 0) at the quantiles of the simulated {v}"
+                        ),
+                    };
+                    out.push(Proposal {
+                        cause: Cause::Nonlinearity,
+                        lineage: Lineage::Other {
+                            spec: format!("{base}{}", marker(kind, e, v)),
+                            order: spec.states.len(),
+                        },
+                        text: format!("{text} in the user's model, every parameter refitted"),
+                    });
                 }
-                let mark = marker(&eq.name, &var.name);
-                out.push(Proposal {
-                    cause: Cause::Nonlinearity,
-                    lineage: Lineage::Other {
-                        spec: format!("{base}{mark}"),
-                        order: spec.states.len(),
-                    },
-                    text: format!(
-                        "d{0}/dt += a2_{0}_{1}·{1}² + a3_{0}_{1}·{1}³ in the user's model, every parameter refitted",
-                        eq.name, var.name
-                    ),
-                });
             }
         }
         out
@@ -91,15 +192,8 @@ impl Extension for PhysicsTerms {
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-terms: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
-        let (eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
-        let mut start = cur.spec().clone();
-        for (par, v) in start.parameters.iter_mut().zip(cur.parameters()) {
-            par.value = v.clamp(par.lower, par.upper);
-        }
-        for (st, v) in start.states.iter_mut().zip(cur.initial_state()) {
-            st.initial = v.clamp(st.lower, st.upper);
-        }
-        let s = extended(&start, &eq, &var).ok_or_else(|| bad("the terms exist already"))?;
+        let (kind, eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
+        let s = extended(cur, ctx.fit, kind, &eq, &var)?;
         fit_physics(&s, ctx.fit, ctx.observer)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
