@@ -12,9 +12,13 @@ use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 /// candidates, each with new free parameters started at 0 and every
 /// physical parameter refitted from the current estimates:
 ///
-/// * `poly`: `ẋᵢ += a2·z² + a3·z³` with `z = (x_s − c)/h` normalised by the
-///   midpoint `c` and half-range `h` of the simulated state (a smooth
-///   nonlinear spring, damper or flow law);
+/// * `poly`: `ẋᵢ += a2·z² + a3·z³` with `z = x_s/h` scaled by the largest
+///   |x_s| of the simulated state (a smooth nonlinear spring, damper or
+///   flow law; no constant or linear part, which the physical parameters
+///   own);
+/// * `centred`: `ẋᵢ += c2·w² + c3·w³` with `w = (x_s − mid)/half` centred
+///   on the simulated range (a law whose offset and slope come with it,
+///   e.g. a flow that changes with the level);
 /// * `hinge`: `ẋᵢ += b_hi·max(x_s − q₉₀, 0) + b_lo·max(q₁₀ − x_s, 0)` with
 ///   the 10 % and 90 % quantiles of the simulated state (a limit: an
 ///   overflow, an end stop, a saturation).
@@ -28,13 +32,17 @@ pub struct PhysicsTerms;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kind {
     Poly,
+    Centred,
     Hinge,
 }
 
 impl Kind {
+    const ALL: [Kind; 3] = [Kind::Poly, Kind::Centred, Kind::Hinge];
+
     fn name(self) -> &'static str {
         match self {
             Kind::Poly => "poly",
+            Kind::Centred => "centred",
             Kind::Hinge => "hinge",
         }
     }
@@ -42,6 +50,7 @@ impl Kind {
     fn parameters(self, eq: &str, var: &str) -> [String; 2] {
         match self {
             Kind::Poly => [format!("a2_{eq}_{var}"), format!("a3_{eq}_{var}")],
+            Kind::Centred => [format!("c2_{eq}_{var}"), format!("c3_{eq}_{var}")],
             Kind::Hinge => [format!("b_hi_{eq}_{var}"), format!("b_lo_{eq}_{var}")],
         }
     }
@@ -59,9 +68,7 @@ fn target(p: &Proposal) -> Option<(Kind, String, String)> {
     };
     let last = spec.rsplit(" + ").next()?;
     let (kind, rest) = last.split_once('(')?;
-    let kind = [Kind::Poly, Kind::Hinge]
-        .into_iter()
-        .find(|k| k.name() == kind)?;
+    let kind = Kind::ALL.into_iter().find(|k| k.name() == kind)?;
     let (var, rest) = rest.split_once(") in d")?;
     let eq = rest.strip_suffix("/dt")?;
     Some((kind, eq.to_string(), var.to_string()))
@@ -88,11 +95,20 @@ fn quantile(v: &[f64], q: f64) -> f64 {
 fn terms(kind: Kind, names: &[String; 2], var: &str, x: &[f64]) -> [String; 2] {
     match kind {
         Kind::Poly => {
+            let h = x
+                .iter()
+                .filter(|v| v.is_finite())
+                .fold(0.0_f64, |m, v| m.max(v.abs()))
+                .max(1e-300);
+            let z = format!("({var}/{h})");
+            [format!("{}*{z}^2", names[0]), format!("{}*{z}^3", names[1])]
+        }
+        Kind::Centred => {
             let (lo, hi) = (quantile(x, 0.0), quantile(x, 1.0));
             let c = 0.5 * (lo + hi);
             let h = (0.5 * (hi - lo)).max(1e-12 * c.abs().max(1.0));
-            let z = format!("(({var}-({c}))/{h})");
-            [format!("{}*{z}^2", names[0]), format!("{}*{z}^3", names[1])]
+            let w = format!("(({var}-({c}))/{h})");
+            [format!("{}*{w}^2", names[0]), format!("{}*{w}^3", names[1])]
         }
         Kind::Hinge => {
             let (q10, q90) = (quantile(x, 0.1), quantile(x, 0.9));
@@ -158,7 +174,7 @@ impl Extension for PhysicsTerms {
         };
         let spec = m.spec();
         let mut out = vec![];
-        for kind in [Kind::Poly, Kind::Hinge] {
+        for kind in Kind::ALL {
             for eq in &spec.states {
                 for var in &spec.states {
                     let (e, v) = (eq.name.as_str(), var.name.as_str());
@@ -168,7 +184,10 @@ impl Extension for PhysicsTerms {
                     let [p1, p2] = kind.parameters(e, v);
                     let text = match kind {
                         Kind::Poly => format!(
-                            "d{e}/dt += {p1}·z² + {p2}·z³, z = {v} normalised to [-1, 1] on its simulated range"
+                            "d{e}/dt += {p1}·z² + {p2}·z³, z = {v}/max|{v}| of its simulation"
+                        ),
+                        Kind::Centred => format!(
+                            "d{e}/dt += {p1}·w² + {p2}·w³, w = ({v} − mid)/half-range of its simulation"
                         ),
                         Kind::Hinge => format!(
                             "d{e}/dt += {p1}·max({v} − q90, 0) + {p2}·max(q10 − {v}, 0) at the quantiles of the simulated {v}"
