@@ -8,7 +8,8 @@ use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 
-/// For every state equation `ẋᵢ = fᵢ(x, u, θ)` and every state `x_s`, two
+/// For every state equation `ẋᵢ = fᵢ(x, u, θ)` with a free parameter (a
+/// definition such as `ẋ = v` is left alone) and every state `x_s`, three
 /// candidates, each with new free parameters started at 0 and every
 /// physical parameter refitted from the current estimates:
 ///
@@ -28,7 +29,7 @@ use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 /// parameters keep their names in the extended model.
 pub struct PhysicsTerms;
 
-/// The two kinds of added terms.
+/// The kinds of added terms.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Kind {
     Poly,
@@ -74,10 +75,24 @@ fn target(p: &Proposal) -> Option<(Kind, String, String)> {
     Some((kind, eq.to_string(), var.to_string()))
 }
 
-/// Whether `spec` can take the terms (their parameters are new).
+/// Whether `spec` can take the terms: their parameters are new, and the
+/// equation of `eq` has a free parameter (an equation without one, such as
+/// `ẋ = v`, is a definition, not a law the data could correct).
 fn applies(spec: &PhysicsSpec, kind: Kind, eq: &str, var: &str) -> bool {
     let names = kind.parameters(eq, var);
-    !spec.parameters.iter().any(|p| names.contains(&p.name))
+    if spec.parameters.iter().any(|p| names.contains(&p.name)) {
+        return false;
+    }
+    let Some(i) = spec.states.iter().position(|s| s.name == eq) else {
+        return false;
+    };
+    let symbols: Vec<&str> = spec.equations[i]
+        .iter()
+        .flat_map(|t| t.split(|c: char| !(c.is_alphanumeric() || c == '_')))
+        .collect();
+    spec.parameters
+        .iter()
+        .any(|p| !p.fixed && symbols.contains(&p.name.as_str()))
 }
 
 /// The value at quantile `q` of `v` (sorted copy, nearest rank).
