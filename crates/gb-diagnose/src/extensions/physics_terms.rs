@@ -13,7 +13,7 @@ use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 /// candidates, each with new free parameters started at 0 and every
 /// physical parameter refitted from the current estimates:
 ///
-/// * `poly`: `ẋᵢ += a2·z² + a3·z³` with `z = x_s/h` scaled by the largest
+/// * `poly`: `ẋᵢ += a2·s² + a3·s³` with `s = x_s/h` scaled by the largest
 ///   |x_s| of the simulated state (a smooth nonlinear spring, damper or
 ///   flow law; no constant or linear part, which the physical parameters
 ///   own);
@@ -115,8 +115,8 @@ fn terms(kind: Kind, names: &[String; 2], var: &str, x: &[f64]) -> [String; 2] {
                 .filter(|v| v.is_finite())
                 .fold(0.0_f64, |m, v| m.max(v.abs()))
                 .max(1e-300);
-            let z = format!("({var}/{h})");
-            [format!("{}*{z}^2", names[0]), format!("{}*{z}^3", names[1])]
+            let s = format!("({var}/{h})");
+            [format!("{}*{s}^2", names[0]), format!("{}*{s}^3", names[1])]
         }
         Kind::Centred => {
             let (lo, hi) = (quantile(x, 0.0), quantile(x, 1.0));
@@ -199,7 +199,7 @@ impl Extension for PhysicsTerms {
                     let [p1, p2] = kind.parameters(e, v);
                     let text = match kind {
                         Kind::Poly => format!(
-                            "d{e}/dt += {p1}·z² + {p2}·z³, z = {v}/max|{v}| of its simulation"
+                            "d{e}/dt += {p1}·s² + {p2}·s³, s = {v}/max|{v}| of its simulation"
                         ),
                         Kind::Centred => format!(
                             "d{e}/dt += {p1}·w² + {p2}·w³, w = ({v} − mid)/half-range of its simulation"
