@@ -132,7 +132,8 @@ impl PhysicsFit {
 
 impl PhysicsFit {
     /// The fit from the start values, and the fit continued over growing
-    /// prefixes of the first record (⅛, ½, then all records), each started
+    /// prefixes of the first record (1/32, 1/8, 1/2, then all records;
+    /// prefixes shorter than 50 samples skipped), each started
     /// from the last one's estimates; the one with the smaller training
     /// RMSE wins. Output-error costs of oscillating systems have local
     /// minima away from the start that a short prefix does not have (the
@@ -146,7 +147,7 @@ impl PhysicsFit {
         let first = data.first();
         let n = first.len();
         let mut start = self.model.clone();
-        for part in [8, 2] {
+        for part in [32, 8, 2] {
             if n / part < 50 {
                 continue;
             }
