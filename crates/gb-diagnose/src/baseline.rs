@@ -43,11 +43,18 @@ pub struct StructureChoice {
     pub orders: Vec<(usize, f64)>,
     /// How decisions are made (select-block bootstrap or cross-validation).
     pub decision: String,
+    /// The baseline is the user's model file (its name, states and fitted
+    /// parameters in words); the delay/order fields are then unused.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub user_model: Option<String>,
 }
 
 impl StructureChoice {
     /// One line for the text report.
     pub fn text(&self) -> String {
+        if let Some(u) = &self.user_model {
+            return u.clone();
+        }
         let v = |d: &[usize]| {
             let s: Vec<String> = d.iter().map(|x| x.to_string()).collect();
             format!("[{}]", s.join(","))

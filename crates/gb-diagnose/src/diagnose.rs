@@ -37,6 +37,10 @@ pub struct DiagnoseOptions {
     pub fit: FitOptions,
     /// LOLIMOT options.
     pub lolimot: LolimotOptions,
+    /// The engineer's own equations (a model file): the baseline instead
+    /// of the linear output-error model; its records' signal names must be
+    /// the model's.
+    pub physics: Option<gb_model::physics::PhysicsSpec>,
 }
 
 impl Default for DiagnoseOptions {
@@ -47,6 +51,7 @@ impl Default for DiagnoseOptions {
             policy: DecisionPolicy::default(),
             fit: FitOptions::default(),
             lolimot: LolimotOptions::default(),
+            physics: None,
         }
     }
 }
@@ -336,7 +341,8 @@ pub fn diagnose(
     let pol = &opts.policy;
     d.check(pol.min_fit, pol.min_block)?;
     let obs: &dyn Observer = obs.unwrap_or(&Silent);
-    if d.select.end - d.fit.start >= pol.long_record {
+    // the physics baseline fits long records whole (its fits are cheap)
+    if opts.physics.is_none() && d.select.end - d.fit.start >= pol.long_record {
         return crate::long::diagnose_long(d, opts, obs);
     }
     search(d, opts, obs, None)
@@ -352,7 +358,10 @@ pub(crate) fn search(
     let total = 1 + opts.max_steps;
     obs.progress(0, total, "fitting the baseline");
     let plan0 = Plan::new(d, &opts.policy);
-    let base = baseline(d, &plan0, opts)?;
+    let base = match &opts.physics {
+        Some(spec) => crate::physics::physics_baseline(d, &plan0, spec, obs)?,
+        None => baseline(d, &plan0, opts)?,
+    };
     let plan = base.plan;
     let mut choice = base.choice;
     choice.decision = plan.describe(d);

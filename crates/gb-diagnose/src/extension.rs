@@ -6,8 +6,8 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PolyNoe, PreisachColumns,
-    StudentTNoise, Wiener, WienerHammerstein,
+    Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PhysicsTerms, PolyNoe,
+    PreisachColumns, StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -171,6 +171,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &PreisachColumns,
     &LinearOrder,
     &StudentTNoise,
+    &PhysicsTerms,
     &HiddenState,
 ];
 

@@ -38,6 +38,7 @@ pub mod extensions;
 pub mod generator;
 pub mod html;
 mod long;
+mod physics;
 mod plan;
 mod policy;
 mod report;

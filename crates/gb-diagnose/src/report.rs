@@ -66,6 +66,10 @@ pub struct ModelSummary {
     /// The model integrates its output (models the increments, a pole at 1).
     #[serde(default)]
     pub integrating: bool,
+    /// A physics model's parameters with their standard errors, in words
+    /// (empty for the other classes).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub parameter_values: String,
 }
 
 impl ModelSummary {
@@ -91,6 +95,8 @@ impl ModelSummary {
                 })
                 .unwrap_or_default(),
             integrating: e.model.dynamics.class() == gb_model::INTEGRATING_CLASS,
+            parameter_values: crate::physics::physics_of(&e.model)
+                .map_or(String::new(), crate::physics::parameters_text),
         }
     }
 }
@@ -214,6 +220,9 @@ impl Report {
             "final: {}  NRMSE {:.4}  nll {:.3}",
             r.final_model.model, r.final_model.nrmse, r.final_model.nll
         );
+        if !r.final_model.parameter_values.is_empty() {
+            let _ = writeln!(s, "       {}", r.final_model.parameter_values);
+        }
         s
     }
 }

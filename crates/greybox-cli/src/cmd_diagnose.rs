@@ -3,6 +3,7 @@ use crate::io::load;
 use crate::progress::Bar;
 use crate::{DiagnoseArgs, Result};
 use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions, OrderChoice};
+use gb_model::physics::PhysicsSpec;
 
 fn parse_order(s: &str, max: usize) -> Result<OrderChoice> {
     if s == "auto" {
@@ -15,8 +16,23 @@ fn parse_order(s: &str, max: usize) -> Result<OrderChoice> {
 }
 
 /// The data of the diagnosis: an example, or the training file (with the
-/// validation file, or split into blocks).
-fn data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
+/// validation file, or split into blocks); with `--model-file` the records
+/// carry the model's signal names and the spec comes along.
+fn data(a: &DiagnoseArgs) -> Result<(DiagnoseData, Option<PhysicsSpec>)> {
+    if let (Some(mf), Some(train)) = (&a.model_file, &a.train) {
+        let (spec, tr, val) =
+            crate::cmd_physics::diagnose_data(mf, train, a.validate.as_deref(), &a.signals)?;
+        let d = match val {
+            Some(v) => DiagnoseData::with_validation(tr, v).map_err(|e| e.to_string())?,
+            None => DiagnoseData::from_single(tr),
+        };
+        return Ok((d, Some(spec)));
+    }
+    Ok((plain_data(a)?, None))
+}
+
+/// The data of a diagnosis with the linear baseline.
+fn plain_data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
     if let Some(name) = &a.example {
         let g = systems::generate(name, 1, 8000, 4000).map_err(|e| e.to_string())?;
         println!(
@@ -63,10 +79,11 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
     if a.max_steps == 0 || a.max_steps > 4 {
         return Err(format!("--max-steps must be 1..=4, got {}", a.max_steps));
     }
-    let data = data(&a)?;
+    let (data, physics) = data(&a)?;
     let opts = DiagnoseOptions {
         order,
         max_steps: a.max_steps,
+        physics,
         ..defaults
     };
     let bar = Bar::new(quiet, 1 + a.max_steps, "");

@@ -7,7 +7,7 @@ use gb_core::{Init, ModelSpec, Records};
 /// The `--help` text of `fit`: the spec grammar, every recipe, examples.
 pub fn help() -> String {
     format!(
-        "{}\nExpert flags map to options: --order, --weights, --splits, --prune, --focus, --max-leaves, --degree, --dead-time, --input-lags, --output-lags, --criterion, --partition, --output-max, --resonances, --sample-rate, --ridge (comma lists become a/b).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model 'lmn:weights=tree,splits=oblique,prune=true,max_leaves=10' -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm\n  greybox fit train.csv --model state-space+hysteresis -o m.gbm\n  greybox fit mr.csv --model state-space+damper --input D --input V --input Y --output F --resonances 150,120 -o mr.gbm",
+        "{}\nExpert flags map to options: --order, --weights, --splits, --prune, --focus, --max-leaves, --degree, --dead-time, --input-lags, --output-lags, --criterion, --partition, --output-max, --resonances, --sample-rate, --ridge (comma lists become a/b).\n\nExamples:\n  greybox fit train.csv --model lmn --order 2 --input u --output y -o model.gbm\n  greybox fit train.csv --model 'lmn:weights=tree,splits=oblique,prune=true,max_leaves=10' -o model.gbm\n  greybox fit silverbox_train.csv --model lmn --order 4 --dead-time 0 --partition y1 --max-leaves 12 -o sb.gbm\n  greybox fit run1.csv --experiment run2.csv --model lmn --input a --input b --dead-time 2,0 --input-lags 3,1 --output-lags 2 -o m.gbm\n  greybox fit train.csv --model state-space+hysteresis -o m.gbm\n  greybox fit mr.csv --model state-space+damper --input D --input V --input Y --output F --resonances 150,120 -o mr.gbm\n  greybox fit train.csv --model-file examples/models/msd.toml -o msd.gbm   # your own equations (docs/physics.md)",
         gb_model::recipes::help()
     )
 }
@@ -45,6 +45,9 @@ fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
 
 /// Fit, save, and print the model, its notes and the training NRMSE.
 pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
+    if let Some(path) = &a.model_file {
+        return crate::cmd_physics::fit(&a, path, quiet);
+    }
     let spec = spec_of(&a)?;
     gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
     let first = load(&a.train, &a.signals)?;

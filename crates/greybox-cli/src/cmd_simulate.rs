@@ -36,12 +36,59 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         _ => Init::Stored,
     };
     let sim = m.simulate(&inputs, init).map_err(|e| e.to_string())?;
+    let bands = if a.bands {
+        Some(bands(&m, &inputs, init, y.as_deref(), a.init_window)?)
+    } else {
+        None
+    };
+    let extra: Vec<(&str, &[f64])> = bands
+        .as_ref()
+        .map(|b| vec![("y_sim_lo", b.lo.as_slice()), ("y_sim_hi", b.hi.as_slice())])
+        .unwrap_or_default();
     write_simulation(
         &a.out,
         &m.input_names,
         &inputs,
         y.as_deref(),
         &sim,
+        &extra,
         a.init_window,
     )
+}
+
+/// The 95 % prediction band of a physics model (parameter draws from its
+/// covariance through the simulation, plus its noise σ̂); prints the share
+/// of measured samples `n0..` inside it. Other classes: an error.
+fn bands(
+    m: &gb_core::FittedModel,
+    inputs: &[Vec<f64>],
+    init: Init<'_>,
+    y: Option<&[f64]>,
+    n0: usize,
+) -> Result<gb_model::physics::Bands> {
+    if m.dynamics.class() != gb_model::physics::CLASS {
+        return Err(format!(
+            "--bands needs a physics model (fitted with --model-file: it has a parameter covariance); this model is of class '{}'",
+            m.dynamics.class()
+        ));
+    }
+    let b = gb_model::physics::prediction_bands(m, inputs, init, Default::default())
+        .map_err(|e| e.to_string())?;
+    println!(
+        "95 % prediction band from {} parameter draws ({} diverged, left out) and the noise σ̂ {:.4e}",
+        b.draws,
+        b.failed,
+        m.noise.sd()
+    );
+    if let Some(y) = y {
+        let k = y.len().saturating_sub(n0);
+        let inside = (n0..y.len())
+            .filter(|&t| b.lo[t] <= y[t] && y[t] <= b.hi[t])
+            .count();
+        println!(
+            "band covers {inside} of {k} measured samples ({:.1} %)",
+            100.0 * inside as f64 / k.max(1) as f64
+        );
+    }
+    Ok(b)
 }

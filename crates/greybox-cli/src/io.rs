@@ -63,14 +63,16 @@ pub fn sample_time(t: &CsvTable) -> Result<Option<(String, f64)>> {
     Ok(Some((name.clone(), dt)))
 }
 
-/// Writes the inputs, the measured output (if any) and `y_sim` to `out`
-/// (atomically), then prints the errors over samples `n0..`.
+/// Writes the inputs, the measured output (if any), `y_sim` and the
+/// `extra` columns to `out` (atomically), then prints the errors over
+/// samples `n0..`.
 pub fn write_simulation(
     out: &Path,
     in_names: &[String],
     inputs: &[Vec<f64>],
     y: Option<&[f64]>,
     sim: &[f64],
+    extra: &[(&str, &[f64])],
     n0: usize,
 ) -> Result<()> {
     let mut names: Vec<&str> = in_names.iter().map(String::as_str).collect();
@@ -81,6 +83,10 @@ pub fn write_simulation(
     }
     names.push("y_sim");
     cols.push(sim);
+    for (n, c) in extra {
+        names.push(n);
+        cols.push(c);
+    }
     gb_core::write_csv_atomic(out, &names, &cols).map_err(|e| e.to_string())?;
     if let Some(y) = y {
         let n0 = n0.min(y.len().saturating_sub(1));

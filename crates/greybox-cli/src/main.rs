@@ -7,6 +7,7 @@ use std::process::ExitCode;
 mod bench;
 mod cmd_diagnose;
 mod cmd_fit;
+mod cmd_physics;
 mod cmd_simulate;
 mod cmd_tools;
 mod io;
@@ -47,7 +48,7 @@ struct Cli {
 enum Command {
     /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
     #[command(
-        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm"
+        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm\n  greybox diagnose train.csv --validate val.csv --model-file examples/models/msd.toml"
     )]
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure (a SPEC of the model registry).
@@ -55,7 +56,7 @@ enum Command {
     Fit(Box<FitArgs>),
     /// Simulate a saved model on the inputs of a CSV file (free run).
     #[command(
-        after_help = "Example:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50"
+        after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit"
     )]
     Simulate(SimulateArgs),
     /// Write train.csv and validate.csv for a generated system (fixed seed = same files).
@@ -167,6 +168,9 @@ pub(crate) struct DiagnoseArgs {
     /// Order of the engineer's linear output-error model, or `auto`.
     #[arg(long, default_value = "2")]
     pub(crate) order: String,
+    /// Your own equations (TOML model file, docs/physics.md) as the baseline instead of the linear output-error model; extensions add terms to its state equations.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "example")]
+    pub(crate) model_file: Option<PathBuf>,
     /// Write the report as JSON.
     #[arg(long, value_name = "FILE")]
     pub(crate) json: Option<PathBuf>,
@@ -191,6 +195,9 @@ pub(crate) struct FitArgs {
     /// Model SPEC: NAME[+COMPONENT...][:KEY=VALUE,...] (see below).
     #[arg(long, default_value = "linear")]
     pub(crate) model: String,
+    /// Your own equations: a TOML model file (states, parameters, equations, outputs; see docs/physics.md), fitted with standard errors and 95 % intervals.
+    #[arg(long, value_name = "FILE.toml", conflicts_with = "model")]
+    pub(crate) model_file: Option<PathBuf>,
     /// Dynamic order n (the option order=N of the SPEC).
     #[arg(long)]
     pub(crate) order: Option<usize>,
@@ -229,7 +236,7 @@ pub(crate) struct FitArgs {
     /// `--model lmn-state-space` only: known upper limit of the output (sensor range), e.g. 10.
     #[arg(long, value_name = "Y")]
     pub(crate) output_max: Option<f64>,
-    /// `--model lmn` only: a further training record, fitted as a separate experiment (no regressor spans two records); repeatable.
+    /// `--model lmn` and `--model-file` only: a further training record, fitted as a separate experiment (no regressor spans two records); repeatable.
     #[arg(long = "experiment", value_name = "FILE")]
     pub(crate) experiments: Vec<PathBuf>,
     /// `--model lmn` only: growth criterion, aicc or bic.
@@ -261,6 +268,9 @@ pub(crate) struct SimulateArgs {
     /// The first N measured outputs initialise the state (estimated by least squares when N exceeds the model's lags); errors are reported on samples N.. only.
     #[arg(long, default_value_t = 0)]
     pub(crate) init_window: usize,
+    /// Add y_sim_lo and y_sim_hi: the 95 % prediction band (parameter uncertainty propagated plus noise); models fitted with --model-file only.
+    #[arg(long)]
+    pub(crate) bands: bool,
 }
 
 #[derive(Args)]

@@ -308,4 +308,16 @@ impl ModelFile {
             .identify(data, obs)
             .map_err(|e| self.locate(e))
     }
+
+    /// As [`fit`](Self::fit), keeping the better of the direct fit and the
+    /// fit continued over growing prefixes
+    /// ([`PhysicsFit::identify_growing`]).
+    pub fn fit_growing(&self, data: &Records, obs: &dyn Observer) -> PhysicsResult<PhysicsModel> {
+        PhysicsFitParams::new(self.spec.clone())
+            .source(self.text.clone())
+            .check()
+            .map_err(|e| self.locate(e))?
+            .identify_growing(data, obs)
+            .map_err(|e| self.locate(e))
+    }
 }

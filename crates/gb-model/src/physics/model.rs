@@ -137,6 +137,29 @@ impl PhysicsModel {
             .map_err(PhysicsError::Diverged)
     }
 
+    /// The state trajectory of a free-run simulation on inputs `u` started
+    /// as `init` says: `x[i][t]`, state `i` at the start of sample `t`.
+    pub fn state_trajectory(&self, u: &[Vec<f64>], init: Init<'_>) -> PhysicsResult<Vec<Vec<f64>>> {
+        let us: Vec<&[f64]> = u.iter().map(Vec::as_slice).collect();
+        let x0 = self.resolve_init(&us, init)?;
+        let ts = self.sample_time()?;
+        let lanes = Lanes::default();
+        let mut it = Integrator::new(&self.compiled, &self.theta, ts, self.spec.substeps, &lanes);
+        it.reset(&x0, &lanes);
+        let len = u.first().map_or(0, Vec::len);
+        let mut x = vec![Vec::with_capacity(len); x0.len()];
+        for t in 0..len {
+            for (xi, v) in x.iter_mut().zip(it.state()) {
+                xi.push(*v);
+            }
+            it.set_input(us.iter().map(|s| s[t]));
+            if !it.step() {
+                return Err(PhysicsError::Diverged(t));
+            }
+        }
+        Ok(x)
+    }
+
     /// The initial state that best explains the measured outputs `y` of an
     /// init window (least squares over every state's initial value, the
     /// parameters fixed; the stored state is the start).

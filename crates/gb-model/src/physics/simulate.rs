@@ -96,6 +96,11 @@ impl<'c> Integrator<'c> {
 
     /// Set the held input of this sample.
     #[inline]
+    /// The current state.
+    pub(crate) fn state(&self) -> &[f64] {
+        &self.x
+    }
+
     pub(crate) fn set_input(&mut self, u: impl Iterator<Item = f64>) {
         let n = self.c.n;
         for (j, v) in u.enumerate() {

@@ -1,0 +1,377 @@
+//! `--model-file` end to end on generated data with a known truth (fixed
+//! seeds): the printed intervals cover the truth, the bands cover held-out
+//! noisy samples, the diagnosis of a linear msd file on data with a cubic
+//! spring names the cause and gains on held-out data, and bad model files
+//! fail with `file:line` and exit 2.
+use gb_core::{DynamicModel, Init};
+use gb_model::physics::{ModelFile, PhysicsModel};
+use rand::Rng;
+use rand_distr::{Distribution, Normal};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+const TS: f64 = 0.05;
+/// m, c, k of the truth.
+const TRUTH: [f64; 3] = [1.0, 0.4, 4.0];
+
+fn example(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../examples/models")
+        .join(name)
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("greybox-physics-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_greybox"))
+        .args(args)
+        .output()
+        .expect("run greybox")
+}
+
+fn text(o: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&o.stdout).to_string(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+/// Random force steps held 5–40 samples.
+fn steps(n: usize, rng: &mut impl Rng) -> Vec<f64> {
+    let mut u = Vec::with_capacity(n);
+    while u.len() < n {
+        let level: f64 = Normal::new(0.0, 1.0).unwrap().sample(rng);
+        let hold = rng.random_range(5..40);
+        u.extend(std::iter::repeat_n(level, hold));
+    }
+    u.truncate(n);
+    u
+}
+
+/// The msd truth (with `cubic`·x³ added to the spring force when
+/// nonzero), simulated with 20 RK4 steps per sample, plus white noise of
+/// standard deviation `sd`; written as `t,F,y` to `path`. Returns the
+/// noise-free output.
+fn msd_csv(path: &Path, n: usize, seed: u64, sd: f64, cubic: f64) -> Vec<f64> {
+    let mut rng = gb_core::rng::seeded(seed);
+    let u = steps(n, &mut rng);
+    let mut spec = ModelFile::read(&example("msd.toml")).unwrap().spec;
+    spec.substeps = 20;
+    spec.sample_time = Some(TS);
+    let mut theta = TRUTH.to_vec();
+    if cubic != 0.0 {
+        spec.parameters
+            .push(gb_model::physics::Parameter::new("k3", cubic));
+        spec.add_term(gb_model::physics::TermTarget::State(1), "-k3/m*x^3")
+            .unwrap();
+        theta.push(cubic);
+    }
+    let truth = PhysicsModel::new(spec)
+        .unwrap()
+        .with_values(theta, vec![0.0, 0.0])
+        .unwrap();
+    let clean = truth
+        .simulate(std::slice::from_ref(&u), Init::Stored)
+        .unwrap();
+    let noise = Normal::new(0.0, sd).unwrap();
+    let mut s = String::from("t,F,y\n");
+    for (k, (f, y)) in u.iter().zip(&clean).enumerate() {
+        let v = y + noise.sample(&mut rng);
+        s.push_str(&format!("{},{f},{v}\n", k as f64 * TS));
+    }
+    std::fs::write(path, s).unwrap();
+    clean
+}
+
+/// The estimate and 95 % interval of parameter `name` in `fit`'s output.
+fn interval_of(out: &str, name: &str) -> (f64, f64, f64) {
+    let line = out
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some(name))
+        .unwrap_or_else(|| panic!("no line for {name} in\n{out}"));
+    let nums: Vec<f64> = line
+        .replace(['[', ']', ','], " ")
+        .split_whitespace()
+        .filter_map(|w| w.parse().ok())
+        .collect();
+    assert!(nums.len() >= 4, "{line}");
+    (nums[0], nums[2], nums[3])
+}
+
+#[test]
+fn fit_model_file_prints_intervals_that_cover_the_truth() {
+    let d = tmp("fit");
+    let data = d.join("train.csv");
+    msd_csv(&data, 2000, 3, 0.02, 0.0);
+    let out = d.join("msd.gbm");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    assert!(
+        so.contains("sample time: 5.000000e-2 s (from the t column"),
+        "{so}"
+    );
+    for (name, truth) in ["m", "c", "k"].iter().zip(TRUTH) {
+        let (v, lo, hi) = interval_of(&so, name);
+        assert!(lo < v && v < hi, "{name}: {v} not in [{lo}, {hi}]");
+        assert!(
+            lo <= truth && truth <= hi,
+            "{name}: truth {truth} not in [{lo}, {hi}]\n{so}"
+        );
+        // informative: the interval is narrow
+        assert!(hi - lo < 0.1 * truth, "{name}: [{lo}, {hi}] too wide");
+    }
+    assert!(so.contains("training NRMSE"), "{so}");
+    assert!(out.exists());
+    // the saved model simulates
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        out.to_str().unwrap(),
+        data.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+}
+
+/// A failing call: exit 2, one line on stderr containing `needle`, no
+/// output file.
+fn assert_bad(args: &[&str], needle: &str, out: &Path) {
+    let o = run(args);
+    let (_, e) = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{args:?}: {e}");
+    assert!(!e.contains("panicked"), "{e}");
+    assert!(e.contains(needle), "expected '{needle}' in: {e}");
+    assert_eq!(e.trim_end().lines().count(), 1, "not one line: {e}");
+    assert!(!out.exists(), "output {} written", out.display());
+}
+
+#[test]
+fn bad_model_files_and_columns_exit_2_with_file_and_line() {
+    let d = tmp("bad");
+    let data = d.join("train.csv");
+    msd_csv(&data, 300, 1, 0.02, 0.0);
+    let good = std::fs::read_to_string(example("msd.toml")).unwrap();
+    let out = d.join("m.gbm");
+    let (ds, os) = (data.to_str().unwrap(), out.to_str().unwrap());
+    // an unknown symbol in the equation of v (line of `v = [...]`)
+    let line = good.lines().position(|l| l.starts_with("v = [")).unwrap() + 1;
+    let bad = d.join("bad.toml");
+    std::fs::write(&bad, good.replace("-c/m*v", "-cc/m*v")).unwrap();
+    let bs = bad.to_str().unwrap();
+    assert_bad(
+        &["fit", ds, "--model-file", bs, "-o", os],
+        &format!("bad.toml:{line}:"),
+        &out,
+    );
+    assert_bad(&["fit", ds, "--model-file", bs, "-o", os], "'cc'", &out);
+    // a syntax error
+    std::fs::write(&bad, good.replace("-c/m*v", "-c/m*(v")).unwrap();
+    assert_bad(
+        &["fit", ds, "--model-file", bs, "-o", os],
+        &format!("bad.toml:{line}:"),
+        &out,
+    );
+    // the model's input is not a column
+    std::fs::write(
+        &bad,
+        good.replace("inputs = [\"F\"]", "inputs = [\"force\"]")
+            .replace("\"F/m\"", "\"force/m\""),
+    )
+    .unwrap();
+    assert_bad(
+        &["fit", ds, "--model-file", bs, "-o", os],
+        "input 'force' is not a column",
+        &out,
+    );
+    // no sample time anywhere
+    let no_t = d.join("no_t.csv");
+    let csv = std::fs::read_to_string(&data).unwrap();
+    let stripped: String = csv
+        .lines()
+        .map(|l| l.split_once(',').map_or(l, |(_, r)| r).to_string() + "\n")
+        .collect();
+    std::fs::write(&no_t, stripped).unwrap();
+    assert_bad(
+        &[
+            "fit",
+            no_t.to_str().unwrap(),
+            "--model-file",
+            example("msd.toml").to_str().unwrap(),
+            "-o",
+            os,
+        ],
+        "no sample_time",
+        &out,
+    );
+    // --model and --model-file exclude each other
+    let o = run(&["fit", ds, "--model", "linear", "--model-file", bs, "-o", os]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!out.exists());
+}
+
+/// The column `name` of a CSV written by `simulate`.
+fn column(csv: &str, name: &str) -> Vec<f64> {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let j = header.iter().position(|h| *h == name).unwrap();
+    lines
+        .map(|l| l.split(',').nth(j).unwrap().parse().unwrap())
+        .collect()
+}
+
+#[test]
+fn bands_cover_about_95_percent_of_held_out_noisy_samples() {
+    let d = tmp("bands");
+    let (train, test) = (d.join("train.csv"), d.join("test.csv"));
+    msd_csv(&train, 1500, 11, 0.02, 0.0);
+    msd_csv(&test, 3000, 12, 0.02, 0.0);
+    let model = d.join("msd.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "-o",
+        model.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        model.to_str().unwrap(),
+        test.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+        "--bands",
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    assert!(so.contains("band covers"), "{so}");
+    let csv = std::fs::read_to_string(&sim).unwrap();
+    let (y, lo, hi, ys) = (
+        column(&csv, "y"),
+        column(&csv, "y_sim_lo"),
+        column(&csv, "y_sim_hi"),
+        column(&csv, "y_sim"),
+    );
+    let inside = (0..y.len())
+        .filter(|&t| lo[t] <= y[t] && y[t] <= hi[t])
+        .count();
+    let share = inside as f64 / y.len() as f64;
+    assert!(
+        (0.85..=0.995).contains(&share),
+        "band covers {:.1} % of held-out samples",
+        100.0 * share
+    );
+    assert!((0..y.len()).all(|t| lo[t] < ys[t] && ys[t] < hi[t]));
+    // the band is no wider than noise and parameter spread need
+    let width = (0..y.len()).map(|t| hi[t] - lo[t]).sum::<f64>() / y.len() as f64;
+    assert!(width < 4.0 * 1.96 * 0.02, "mean width {width}");
+
+    // a model without a covariance: one-line error, no output
+    let lin = d.join("lin.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--input",
+        "F",
+        "-o",
+        lin.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+    let out = d.join("lin_sim.csv");
+    assert_bad(
+        &[
+            "simulate",
+            lin.to_str().unwrap(),
+            test.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--bands",
+        ],
+        "--bands needs a physics model",
+        &out,
+    );
+}
+
+/// The NRMSE of a `baseline:` or `final:` line of the diagnosis.
+fn nrmse_of(out: &str, prefix: &str) -> f64 {
+    let line = out
+        .lines()
+        .find(|l| l.starts_with(prefix))
+        .unwrap_or_else(|| panic!("no '{prefix}' line in\n{out}"));
+    let w: Vec<&str> = line.split_whitespace().collect();
+    let i = w.iter().position(|x| *x == "NRMSE").unwrap();
+    w[i + 1].parse().unwrap()
+}
+
+#[test]
+fn diagnose_model_file_names_a_missing_cubic_spring_and_gains_on_held_out_data() {
+    let d = tmp("diagnose");
+    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    // a hardening spring k3·x³ the linear msd file lacks
+    msd_csv(&train, 3000, 21, 0.01, 6.0);
+    msd_csv(&val, 2000, 22, 0.01, 6.0);
+    let json = d.join("report.json");
+    let o = run(&[
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    println!("{so}");
+    assert!(
+        so.contains("the user's model file 'mass-spring-damper'"),
+        "{so}"
+    );
+    assert!(so.contains("causes: nonlinearity"), "{so}");
+    // the extension is in the equation of v, the physical parameters named
+    let accepted = so
+        .lines()
+        .find(|l| l.contains(" yes "))
+        .unwrap_or_else(|| panic!("no accepted step\n{so}"));
+    assert!(accepted.contains("dv/dt +="), "{accepted}");
+    let (base, fin) = (nrmse_of(&so, "baseline:"), nrmse_of(&so, "final:"));
+    assert!(
+        fin < 0.5 * base,
+        "held-out NRMSE {base:.4} -> {fin:.4}: less than the stated 50 % gain"
+    );
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    assert_eq!(r["baseline"]["class"], "physics");
+    assert!(r["baseline"]["parameter_values"]
+        .as_str()
+        .unwrap()
+        .contains("k = "));
+    // the added term is in dv/dt and in x; the physical parameters stay
+    // named, k close to the linear stiffness of the truth
+    let fin_params = r["final"]["parameter_values"].as_str().unwrap();
+    assert!(fin_params.contains("3_v_x = "), "{fin_params}");
+    let k: f64 = fin_params
+        .split(", ")
+        .find_map(|p| p.strip_prefix("k = "))
+        .and_then(|v| v.split(' ').next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no k in {fin_params}"));
+    assert!((k - TRUTH[2]).abs() < 0.05 * TRUTH[2], "k = {k}");
+}
