@@ -1,10 +1,13 @@
 """Bad input raises ValueError with the CLI's message; nothing panics."""
 from __future__ import annotations
 
+import subprocess
+
 import numpy as np
 import pytest
 
 import greybox
+from conftest import cli_path
 
 
 def data(n: int = 600):
@@ -35,10 +38,40 @@ def test_length_mismatch():
         greybox.diagnose(u[:-1], y)
 
 
-def test_too_short():
+def cli_error(cli_bin, *args) -> str:
+    r = subprocess.run([str(cli_bin), "--quiet", *map(str, args)], capture_output=True, text=True)
+    assert r.returncode != 0
+    return r.stderr.strip().splitlines()[-1].removeprefix("greybox: error: ")
+
+
+def test_too_short_with_the_clis_message(cli, tmp_path):
     u, y = data(30)
-    with pytest.raises(ValueError, match="samples"):
+    csv = tmp_path / "short.csv"
+    np.savetxt(csv, np.c_[u, y], delimiter=",", header="u,y", comments="")
+    with pytest.raises(ValueError) as e:
         greybox.diagnose(u, y)
+    assert str(e.value) == cli_error(cli_path(), "diagnose", csv) == "fit block: 15 samples, at least 60 are needed"
+    csv3 = tmp_path / "three.csv"
+    np.savetxt(csv3, np.c_[u[:3], y[:3]], delimiter=",", header="u,y", comments="")
+    with pytest.raises(ValueError) as e:
+        greybox.fit(u[:3], y[:3], "linear")
+    # the CLI names the file first
+    assert cli_error(cli_path(), "fit", csv3, "--model", "linear", "-o", tmp_path / "m.gbm") == f"{csv3}: {e.value}"
+
+
+def test_dataframe_like_columns_name_the_inputs():
+    class Frame:
+        """What greybox uses of a pandas DataFrame: columns and __array__."""
+
+        def __init__(self, a):
+            self.a, self.columns = a, ["valve", "pump"]
+
+        def __array__(self, dtype=None, copy=None):
+            return self.a.astype(dtype or np.float64)
+
+    u, y = data()
+    m = greybox.fit(Frame(np.c_[u, -u]), y, "linear")
+    assert m.input_names == ["valve", "pump"]
 
 
 def test_bad_options():
