@@ -121,7 +121,7 @@ class Model:
         s = None if state is None else as_vector(state, "state")
         self._stepper = self._core.stepper(s)
 
-    def step(self, u_t: Any) -> float:
+    def step(self, u_t: Any) -> Union[float, List[float]]:
         """Advance one sample with the inputs ``u_t`` (a number, or one value
         per input); returns the output (a list for several outputs). Starts
         from rest unless ``reset`` was called."""
@@ -130,7 +130,7 @@ class Model:
         assert self._stepper is not None
         u = np.atleast_1d(np.asarray(u_t, dtype=np.float64)).tolist()
         y = self._stepper.step(u)
-        return y[0] if len(y) == 1 else y  # type: ignore[return-value]
+        return y[0] if len(y) == 1 else y
 
     def save(self, path: PathLike) -> None:
         """Write the model file (the CLI's ``.gbm`` format) atomically."""
