@@ -132,3 +132,34 @@ def test_simulation_regressor():
     assert pred.shape == (500,)
     assert est.score(u[1500:], y[1500:]) > 0.9
     np.testing.assert_array_equal(pred, est.model_.simulate(u[1500:], init=y[1500 : 1500 + est.model_.history_len]))
+
+
+def test_fits_release_the_gil():
+    """Another Python thread keeps running while a fit is busy in Rust: the
+    main thread spins through most of the fit's duration."""
+    import threading
+    import time
+
+    u, y = narx_data(4000)
+    started, done = threading.Event(), threading.Event()
+    span = []
+
+    def work():
+        started.set()
+        t0 = time.perf_counter()
+        greybox.fit(u, y, "lmn", max_leaves=8)
+        span.append(time.perf_counter() - t0)
+        done.set()
+
+    t = threading.Thread(target=work)
+    t.start()
+    first = last = None
+    while not done.is_set():
+        if started.is_set():
+            now = time.perf_counter()
+            first = now if first is None else first
+            last = now
+    t.join()
+    assert first is not None and last is not None
+    # with the GIL held the main thread would stop when the fit enters Rust
+    assert last - first > 0.5 * span[0], (last - first, span[0])
