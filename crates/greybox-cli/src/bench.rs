@@ -848,7 +848,7 @@ pub fn run(o: &BenchOptions) -> Result<usize, String> {
                         fmt_val(row.linear, row.unit),
                         row.fit_s,
                         row.class.as_ref().map_or(String::new(), |c| format!(
-                            "; best class {} (fit {:.1} s)",
+                            "; hand-built {} (fit {:.1} s)",
                             c.0.map_or("diverged".into(), |v| fmt_val(v, row.unit)),
                             c.3
                         ))
