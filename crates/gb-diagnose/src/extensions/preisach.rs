@@ -19,14 +19,27 @@ impl Extension for PreisachColumns {
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         match ctx.current.lineage.io() {
-            Some(p) if !p.hysteresis => vec![Proposal {
-                cause: Cause::Hysteresis,
-                lineage: Lineage::Io(gb_lmn::IoNetworkParams {
-                    hysteresis: true,
-                    ..p.clone()
-                }),
-                text: "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input, at lags 1..n+1, weights linear, trained output-error".into(),
-            }],
+            Some(p) if !p.hysteresis => {
+                // a hysteretic force inside continuous dynamics reaches the
+                // sampled output through one lag more than the linear part
+                let max = ctx.policy().max_order;
+                let mut orders = vec![p.order];
+                if p.order < max {
+                    orders.push(p.order + 1);
+                }
+                orders
+                    .into_iter()
+                    .map(|order| Proposal {
+                        cause: Cause::Hysteresis,
+                        lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                            hysteresis: true,
+                            order,
+                            ..p.clone()
+                        }),
+                        text: format!("Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input, at lags 1..{}, weights linear, regressor order {order}, trained output-error", order + 1),
+                    })
+                    .collect()
+            }
             _ => vec![],
         }
     }
