@@ -1,6 +1,7 @@
 //! Speed of the physics model class (issue 17): fitting
 //! `examples/models/msd.toml` on 10 000 samples (goal ≤ 1 s) and simulating
-//! the fitted 2-state model (goal ≥ 5 M samples/s).
+//! the fitted 2-state model (goal ≥ 5 M samples/s; the file's 4 RK4
+//! sub-steps per sample, and 1 sub-step for the cost of one RK4 step).
 //!
 //! The record is generated with a fixed seed: the msd truth (m = 1,
 //! c = 0.4, k = 4, 20 RK4 sub-steps per sample, 20 Hz) driven by random
@@ -79,6 +80,19 @@ fn bench(c: &mut Criterion) {
     g.sample_size(10);
     g.bench_function(format!("msd_4substeps/{n}"), |b| {
         b.iter(|| black_box(fitted.simulate(&u, Init::Stored).expect("simulate")))
+    });
+    // the same model with one RK4 step per sample: the cost per step
+    let mut spec = fitted.spec().clone();
+    spec.substeps = 1;
+    let one_step = PhysicsModel::new(spec)
+        .expect("the fitted model compiles")
+        .with_values(
+            fitted.parameters().to_vec(),
+            fitted.initial_state().to_vec(),
+        )
+        .expect("the fitted values fit");
+    g.bench_function(format!("msd_1substep/{n}"), |b| {
+        b.iter(|| black_box(one_step.simulate(&u, Init::Stored).expect("simulate")))
     });
     g.finish();
 }
