@@ -47,8 +47,9 @@ fn tabled(dg: &Diagnosis) -> Vec<(&'static str, &PhysicsModel)> {
     v
 }
 
-/// The physics section: the tables, then the band plot. Writes nothing
-/// when no model of the diagnosis is a physics model.
+/// The physics section: the tables, then the band plot (of a physics final
+/// model). Writes nothing when neither the baseline nor the final model is
+/// a physics model.
 pub(super) fn physics_section(
     body: &mut String,
     dg: &Diagnosis,
@@ -169,6 +170,7 @@ fn fit_notes(body: &mut String, r: &FitReport) {
     body.push_str("</ul>\n");
 }
 
+/// `s` with its first letter upper-case.
 fn capitalised(s: &str) -> String {
     let mut c = s.chars();
     c.next()
