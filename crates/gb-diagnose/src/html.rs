@@ -6,6 +6,9 @@
 //! What the page shows, in the order an engineer reads it (MATLAB's
 //! `compare` and `resid` are the models):
 //! 1. measured vs simulated output (baseline and final), full record and a zoom;
+//!    For a physics model (the engineer's model file): its parameter table
+//!    (estimates, standard errors, 95 % intervals, warnings, correlated
+//!    pairs) and the final model's 95 % prediction band ([`physics`]);
 //! 2. residuals vs time, residual auto-correlation and input
 //!    cross-correlation with 95 % bands, the higher-order correlation tests
 //!    r_{u²'e}, r_{u²'e²} (Billings & Voon 1986);
@@ -21,6 +24,8 @@ use crate::{introducing, stats, DiagnoseData, DiagnoseError, Diagnosis};
 use gb_core::{ModelView, ViewData};
 use plotters::prelude::*;
 use std::fmt::Write as _;
+
+mod physics;
 
 const W: u32 = 860;
 const H: u32 = 320;
@@ -311,6 +316,10 @@ pub fn plot_ids(d: &Diagnosis) -> Vec<String> {
         .iter()
         .map(|s| format!("plot-{s}"))
         .collect();
+    if physics::has_band_plot(d) {
+        v.insert(2, physics::BANDS_ID.to_string());
+        v.insert(3, physics::BANDS_ZOOM_ID.to_string());
+    }
     for j in 0..d.model.input_names.len() {
         v.push(format!("plot-ccf-{j}"));
         v.push(format!("plot-hoc-{j}"));
@@ -764,6 +773,7 @@ pub fn render_html(dg: &Diagnosis, d: &DiagnoseData, title: &str) -> Result<Stri
     let mut body = String::new();
     summary_section(&mut body, &dg.report, title);
     compare_section(&mut body, dg, &s)?;
+    physics::physics_section(&mut body, dg, d, &s)?;
     residual_section(&mut body, dg, &s)?;
     evidence_section(&mut body, dg)?;
     extension_section(&mut body, dg)?;

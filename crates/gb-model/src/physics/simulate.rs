@@ -132,11 +132,10 @@ impl<'c> Integrator<'c> {
         }
     }
 
+    /// `k[stage] = f(state slots, u)`: the tape run on the state already
+    /// in the first `n` slots.
     #[inline(always)]
-    fn rhs(&mut self, stage: usize, from_xt: bool) {
-        let n = self.c.n;
-        let src = if from_xt { &self.xt } else { &self.x };
-        self.fs.v[..n].copy_from_slice(src);
+    fn rhs(&mut self, stage: usize) {
         self.c.f.run(&mut self.fs);
         let k = &mut self.k[stage];
         for (i, ki) in k.iter_mut().enumerate() {
@@ -144,28 +143,35 @@ impl<'c> Integrator<'c> {
         }
     }
 
+    /// The stage point `x + a·k[stage]`, written straight into the state
+    /// slots of `f` (no copy per stage).
+    #[inline(always)]
+    fn stage_slots(&mut self, stage: usize, a: f64) {
+        let k = &self.k[stage];
+        for ((v, x), ki) in self.fs.v.iter_mut().zip(&self.x).zip(k) {
+            *v = x + a * ki;
+        }
+    }
+
     /// One sample: `substeps` RK4 steps with the held input. `false`
     /// when the state left the finite numbers.
     #[inline]
     pub(crate) fn step(&mut self) -> bool {
-        let h = self.h;
+        let (h, n) = (self.h, self.c.n);
+        self.fs.v[..n].copy_from_slice(&self.x);
         for _ in 0..self.substeps {
-            self.rhs(0, false);
-            for (i, xt) in self.xt.iter_mut().enumerate() {
-                *xt = self.x[i] + 0.5 * h * self.k[0][i];
-            }
-            self.rhs(1, true);
-            for (i, xt) in self.xt.iter_mut().enumerate() {
-                *xt = self.x[i] + 0.5 * h * self.k[1][i];
-            }
-            self.rhs(2, true);
-            for (i, xt) in self.xt.iter_mut().enumerate() {
-                *xt = self.x[i] + h * self.k[2][i];
-            }
-            self.rhs(3, true);
+            self.rhs(0);
+            self.stage_slots(0, 0.5 * h);
+            self.rhs(1);
+            self.stage_slots(1, 0.5 * h);
+            self.rhs(2);
+            self.stage_slots(2, h);
+            self.rhs(3);
             let [k1, k2, k3, k4] = &self.k;
-            for (i, x) in self.x.iter_mut().enumerate() {
+            // the new state, also into the slots of the next sub-step
+            for (i, (x, v)) in self.x.iter_mut().zip(&mut self.fs.v).enumerate() {
                 *x += h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+                *v = *x;
             }
         }
         self.x.iter().all(|v| v.is_finite())
