@@ -29,14 +29,6 @@ pub struct StructureChoice {
     /// The delays confirmed by the output-error fit, with their decision
     /// NRMSE (at the reference order).
     pub delay_candidates: Vec<(Vec<usize>, f64)>,
-    /// The baseline has a direct feedthrough behind its dead time (n + 1
-    /// numerator terms after a delay ≥ 1).
-    #[serde(default)]
-    pub feedthrough: bool,
-    /// The same delays with a direct feedthrough behind the dead time, with
-    /// their decision NRMSE.
-    #[serde(default)]
-    pub feedthrough_candidates: Vec<(Vec<usize>, f64)>,
     /// The baseline integrates: it models the increments of the output.
     pub integrating: bool,
     /// The real pole of the ARX model closest to 1.
@@ -72,26 +64,10 @@ impl StructureChoice {
             .iter()
             .map(|(d, e)| format!("{} {:.4}", v(d), e))
             .collect();
-        let ft: Vec<String> = self
-            .feedthrough_candidates
-            .iter()
-            .map(|(d, e)| format!("{}+D {:.4}", v(d), e))
-            .collect();
-        let cands = if ft.is_empty() {
-            cands.join(", ")
-        } else {
-            format!(
-                "{}; with a feedthrough behind the dead time {}",
-                cands.join(", "),
-                ft.join(", ")
-            )
-        };
         let mut s = format!(
             "delay {} samples{} estimated on the training data (scan 0..={}: ARX {}, output-error {}; decision NRMSE {})",
             v(&self.delay),
-            if self.feedthrough {
-                " with a direct feedthrough behind the dead time"
-            } else if self.delay.contains(&0) {
+            if self.delay.contains(&0) {
                 " (0 = direct feedthrough)"
             } else {
                 ""
@@ -99,7 +75,7 @@ impl StructureChoice {
             self.delay_bound,
             v(&self.arx_delay),
             v(&self.oe_delay),
-            cands
+            cands.join(", ")
         );
         if self.integrating {
             s.push_str(&format!(
@@ -269,21 +245,19 @@ fn around(v: &[usize], bound: usize, out: &mut Vec<Vec<usize>>) {
     }
 }
 
-/// The linear output-error model of `order` with `delay` (and a direct
-/// feedthrough behind the dead time when `feedthrough`), assessed.
+/// The linear output-error model of `order` with `delay`, assessed.
 fn fit_structure(
     plan: &Plan,
     d: &DiagnoseData,
     opts: &DiagnoseOptions,
     order: usize,
-    (delay, feedthrough): (&[usize], bool),
+    delay: &[usize],
     poles: Option<&LocalModelNetwork>,
 ) -> Result<Evaluated, DiagnoseError> {
     let p = IoNetworkParams {
         fit: opts.fit.clone(),
         lolimot: opts.lolimot.clone(),
         delay: delay.to_vec(),
-        feedthrough,
         ..IoNetworkParams::linear(order)
     };
     let lineage = Lineage::Io(p.clone());
@@ -317,8 +291,8 @@ pub(crate) fn baseline(
     let plan = if (scan.real_pole - 1.0).abs() < pol.integrator_pole {
         let inc_plan = plan0.integrating(true);
         let (plain, inc) = rayon::join(
-            || fit_structure(plan0, d, opts, n_ref, (&scan.best, false), None),
-            || fit_structure(&inc_plan, d, opts, n_ref, (&scan.best, false), None),
+            || fit_structure(plan0, d, opts, n_ref, &scan.best, None),
+            || fit_structure(&inc_plan, d, opts, n_ref, &scan.best, None),
         );
         let e =
             |r: &Result<Evaluated, _>| r.as_ref().map_or(f64::INFINITY, |e| e.scores.nrmse_select);
@@ -341,41 +315,28 @@ pub(crate) fn baseline(
     if !cands.contains(&ones) {
         cands.push(ones);
     }
-    // every delay with a dead time also with a feedthrough behind it
-    let cands: Vec<(Vec<usize>, bool)> = cands
-        .iter()
-        .flat_map(|v| {
-            let ft = v.iter().any(|&x| x >= 1).then(|| (v.clone(), true));
-            std::iter::once((v.clone(), false)).chain(ft)
-        })
-        .collect();
-    let mut fits: Vec<((Vec<usize>, bool), Evaluated)> = cands
+    let mut fits: Vec<(Vec<usize>, Evaluated)> = cands
         .par_iter()
-        .filter_map(|(v, ft)| {
-            fit_structure(&plan, d, opts, n_ref, (v, *ft), poles.as_ref())
+        .filter_map(|v| {
+            fit_structure(&plan, d, opts, n_ref, v, poles.as_ref())
                 .ok()
-                .map(|e| ((v.clone(), *ft), e))
+                .map(|e| (v.clone(), e))
         })
         .collect();
-    let listed = |with: bool| -> Vec<(Vec<usize>, f64)> {
-        fits.iter()
-            .filter(|((_, ft), _)| *ft == with)
-            .map(|((v, _), e)| (v.clone(), e.scores.nrmse_select))
-            .collect()
-    };
-    choice.delay_candidates = listed(false);
-    choice.feedthrough_candidates = listed(true);
+    choice.delay_candidates = fits
+        .iter()
+        .map(|(v, e)| (v.clone(), e.scores.nrmse_select))
+        .collect();
     let pick = pick_delay(&fits, pol.delay_tolerance).ok_or_else(|| {
         DiagnoseError::Core(gb_core::CoreError::Unstable(
             "no baseline gave a stable model".into(),
         ))
     })?;
-    let ((delay, feedthrough), eval) = fits.swap_remove(pick);
+    let (delay, eval) = fits.swap_remove(pick);
     choice.delay = delay.clone();
-    choice.feedthrough = feedthrough;
     let eval = match opts.order {
         OrderChoice::Fixed(_) => eval,
-        OrderChoice::Auto => auto_order(d, &plan, opts, (&delay, feedthrough), eval, &mut choice)?,
+        OrderChoice::Auto => auto_order(d, &plan, opts, &delay, eval, &mut choice)?,
     };
     Ok(Baseline { eval, plan, choice })
 }
@@ -383,7 +344,7 @@ pub(crate) fn baseline(
 /// The delay candidate with the smallest decision NRMSE, or one with fewer
 /// parameters (strictly proper rather than direct feedthrough) within
 /// `tolerance` of it.
-fn pick_delay<K>(fits: &[(K, Evaluated)], tolerance: f64) -> Option<usize> {
+fn pick_delay(fits: &[(Vec<usize>, Evaluated)], tolerance: f64) -> Option<usize> {
     let best = fits
         .iter()
         .map(|(_, e)| e.scores.nrmse_select)
@@ -431,7 +392,7 @@ fn auto_order(
     d: &DiagnoseData,
     plan: &Plan,
     opts: &DiagnoseOptions,
-    delay: (&[usize], bool),
+    delay: &[usize],
     at_ref: Evaluated,
     choice: &mut StructureChoice,
 ) -> Result<Evaluated, DiagnoseError> {
