@@ -51,3 +51,11 @@ fn state_space_with_overflowing_size_is_an_error() {
     let bytes = include_bytes!("fuzz_regressions/model_file-state-space-overflow.bin");
     assert!(gb_model::registry::from_bytes(bytes, "x.gbs").is_err());
 }
+
+/// A crash of the forked `model_file` run (fixed by the checks above).
+#[test]
+fn fork_run_crash_loads_without_panic() {
+    load_and_simulate(include_bytes!(
+        "fuzz_regressions/model_file-fork-2bc6591e.bin"
+    ));
+}
