@@ -345,6 +345,19 @@ impl LocalModelNetwork {
                 "parameters do not match the structure".into(),
             ));
         }
+        let nz = self.z_index.len();
+        if self.z_lower.len() != nz
+            || self.z_upper.len() != nz
+            || self.z_index.iter().any(|&i| i >= self.spec.n_dynamic())
+            || self
+                .leaves
+                .iter()
+                .any(|l| l.lower.len() != nz || l.upper.len() != nz)
+        {
+            return Err(LmnError::Dimension(
+                "parameters do not match the structure".into(),
+            ));
+        }
         Ok(())
     }
 

@@ -229,7 +229,24 @@ impl Partition {
     /// dimensions (after deserialisation).
     pub fn is_consistent(&self, p: usize, nz: usize) -> bool {
         let nn = self.nodes.len();
-        if nn == 0 {
+        if nn == 0 || self.nodes[0].parent.is_some() {
+            return false;
+        }
+        // A tree: every node but the root is the child of exactly one node,
+        // the one its `parent` names (a shared child would make the
+        // traversals exponential, a wrong parent index out of range).
+        let mut referenced = vec![0u8; nn];
+        for (i, n) in self.nodes.iter().enumerate() {
+            if let Some(s) = &n.split {
+                for c in [s.left, s.right] {
+                    if c <= i || c >= nn || self.nodes[c].parent != Some(i) {
+                        return false;
+                    }
+                    referenced[c] = referenced[c].saturating_add(1);
+                }
+            }
+        }
+        if referenced[1..].iter().any(|&r| r != 1) {
             return false;
         }
         for (i, n) in self.nodes.iter().enumerate() {

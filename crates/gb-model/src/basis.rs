@@ -32,6 +32,10 @@ pub const TABLE_RESOLUTION: usize = 10;
 /// Largest number of arguments of one expansion.
 pub const MAX_DIMS: usize = 4;
 
+/// Most grid cells one (level, kinds) group of coefficients may span (the
+/// dense evaluation grid over the bounding box of its shifts).
+pub const MAX_GROUP_CELLS: u128 = 1 << 26;
+
 /// One stored coefficient `c_λ` with its atom indices.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Coefficient {
@@ -436,6 +440,28 @@ impl SparseExpansion {
             return Err(ModelError::InvalidArgument(format!(
                 "coefficient must be finite with level in -30..=30, got {} at level {}",
                 c.value, c.level
+            )));
+        }
+        // Each (level, kinds) group is evaluated on a dense grid over the
+        // bounding box of its shifts: refuse a coefficient that would make it
+        // absurdly large (a corrupt model file), instead of aborting on the
+        // allocation.
+        let mut cells: u128 = 1;
+        for dd in 0..d {
+            let (mut lo, mut hi) = (c.shifts[dd], c.shifts[dd]);
+            for o in &self.coefficients {
+                if o.level == c.level && o.kinds == c.kinds {
+                    lo = lo.min(o.shifts[dd]);
+                    hi = hi.max(o.shifts[dd]);
+                }
+            }
+            let len = (i128::from(hi) - i128::from(lo) + 1) as u128;
+            cells = cells.saturating_mul(len);
+        }
+        if cells > MAX_GROUP_CELLS {
+            return Err(ModelError::InvalidArgument(format!(
+                "coefficient shifts {:?} at level {} spread the atoms of one level over {cells} grid cells (at most {MAX_GROUP_CELLS})",
+                c.shifts, c.level
             )));
         }
         if let Some(old) = self

@@ -190,18 +190,24 @@ impl SparseStateSpace {
         if n == 0 {
             return Err(ModelError::InvalidArgument("at least one state".into()));
         }
-        dim("A", self.a.len(), n * n)?;
-        dim("B", self.b.len(), n * m)?;
+        // A corrupt file can name any sizes: the products must not overflow.
+        let (Some(nn), Some(nm)) = (n.checked_mul(n), n.checked_mul(m)) else {
+            return Err(ModelError::Dimension(format!(
+                "{n} states and {m} inputs are too many"
+            )));
+        };
+        dim("A", self.a.len(), nn)?;
+        dim("B", self.b.len(), nm)?;
         dim("C", self.c.len(), n)?;
         dim("D", self.d.len(), m)?;
         dim("x0", self.x0.len(), n)?;
-        dim("structure A", self.structure.a.len(), n * n)?;
-        dim("structure B", self.structure.b.len(), n * m)?;
+        dim("structure A", self.structure.a.len(), nn)?;
+        dim("structure B", self.structure.b.len(), nm)?;
         dim("structure C", self.structure.c.len(), n)?;
         dim("structure D", self.structure.d.len(), m)?;
         dim("structure x0", self.structure.x0.len(), n)?;
         dim("process noise", self.process_noise.len(), n)?;
-        if !self.signal_names.is_empty() && self.signal_names.len() != m + 1 {
+        if !self.signal_names.is_empty() && self.signal_names.len() != m.saturating_add(1) {
             return Err(ModelError::Dimension(format!(
                 "{} signal names for {m} inputs and one output",
                 self.signal_names.len()
