@@ -114,6 +114,16 @@ fn frame<'a, 'b>(
         .map_err(draw_err)
 }
 
+/// The series legend of every plot: upper right, on a translucent box.
+fn legend<'a, 'b: 'a>(ch: &mut Chart<'a, 'b>) -> Result<(), DiagnoseError> {
+    ch.configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(RGBColor(180, 180, 180))
+        .position(SeriesLabelPosition::UpperRight)
+        .draw()
+        .map_err(draw_err)
+}
+
 /// A 2-D chart of line/point/stem series with optional horizontal lines
 /// (confidence bands), as an SVG string.
 fn chart(
@@ -196,12 +206,7 @@ fn chart(
             }
         }
         if series.iter().any(|s| !s.name.is_empty()) {
-            ch.configure_series_labels()
-                .background_style(WHITE.mix(0.85))
-                .border_style(RGBColor(180, 180, 180))
-                .position(SeriesLabelPosition::UpperRight)
-                .draw()
-                .map_err(draw_err)?;
+            legend(&mut ch)?;
         }
         root.present().map_err(draw_err)?;
     }

@@ -5,7 +5,7 @@
 //! the measured output with the final model's simulation and its 95 %
 //! prediction band on the report block (drawn from the stored covariance;
 //! nothing is refitted).
-use super::{draw_err, esc, figure, frame, snap, tick, Signals, BAND, FINAL, MEASURED};
+use super::{draw_err, esc, figure, frame, legend, snap, tick, Signals, BAND, FINAL, MEASURED};
 use crate::curves::{range, thin};
 use crate::physics::physics_of;
 use crate::{DiagnoseError, Diagnosis};
@@ -316,12 +316,7 @@ fn band_chart(
                 )
             });
         }
-        ch.configure_series_labels()
-            .background_style(WHITE.mix(0.85))
-            .border_style(RGBColor(180, 180, 180))
-            .position(SeriesLabelPosition::UpperRight)
-            .draw()
-            .map_err(draw_err)?;
+        legend(&mut ch)?;
         root.present().map_err(draw_err)?;
     }
     Ok(buf)
