@@ -29,6 +29,14 @@ pub struct StructureChoice {
     /// The delays confirmed by the output-error fit, with their decision
     /// NRMSE (at the reference order).
     pub delay_candidates: Vec<(Vec<usize>, f64)>,
+    /// The baseline has a direct feedthrough behind its dead time (n + 1
+    /// numerator terms after a delay ≥ 1).
+    #[serde(default)]
+    pub feedthrough: bool,
+    /// The same delays with a direct feedthrough behind the dead time, with
+    /// their decision NRMSE.
+    #[serde(default)]
+    pub feedthrough_candidates: Vec<(Vec<usize>, f64)>,
     /// The baseline integrates: it models the increments of the output.
     pub integrating: bool,
     /// The real pole of the ARX model closest to 1.
@@ -64,10 +72,26 @@ impl StructureChoice {
             .iter()
             .map(|(d, e)| format!("{} {:.4}", v(d), e))
             .collect();
+        let ft: Vec<String> = self
+            .feedthrough_candidates
+            .iter()
+            .map(|(d, e)| format!("{}+D {:.4}", v(d), e))
+            .collect();
+        let cands = if ft.is_empty() {
+            cands.join(", ")
+        } else {
+            format!(
+                "{}; with a feedthrough behind the dead time {}",
+                cands.join(", "),
+                ft.join(", ")
+            )
+        };
         let mut s = format!(
             "delay {} samples{} estimated on the training data (scan 0..={}: ARX {}, output-error {}; decision NRMSE {})",
             v(&self.delay),
-            if self.delay.contains(&0) {
+            if self.feedthrough {
+                " with a direct feedthrough behind the dead time"
+            } else if self.delay.contains(&0) {
                 " (0 = direct feedthrough)"
             } else {
                 ""
@@ -75,7 +99,7 @@ impl StructureChoice {
             self.delay_bound,
             v(&self.arx_delay),
             v(&self.oe_delay),
-            cands.join(", ")
+            cands
         );
         if self.integrating {
             s.push_str(&format!(
@@ -245,19 +269,21 @@ fn around(v: &[usize], bound: usize, out: &mut Vec<Vec<usize>>) {
     }
 }
 
-/// The linear output-error model of `order` with `delay`, assessed.
+/// The linear output-error model of `order` with `delay` (and a direct
+/// feedthrough behind the dead time when `feedthrough`), assessed.
 fn fit_structure(
     plan: &Plan,
     d: &DiagnoseData,
     opts: &DiagnoseOptions,
     order: usize,
-    delay: &[usize],
+    (delay, feedthrough): (&[usize], bool),
     poles: Option<&LocalModelNetwork>,
 ) -> Result<Evaluated, DiagnoseError> {
     let p = IoNetworkParams {
         fit: opts.fit.clone(),
         lolimot: opts.lolimot.clone(),
         delay: delay.to_vec(),
+        feedthrough,
         ..IoNetworkParams::linear(order)
     };
     let lineage = Lineage::Io(p.clone());
@@ -291,8 +317,8 @@ pub(crate) fn baseline(
     let plan = if (scan.real_pole - 1.0).abs() < pol.integrator_pole {
         let inc_plan = plan0.integrating(true);
         let (plain, inc) = rayon::join(
-            || fit_structure(plan0, d, opts, n_ref, &scan.best, None),
-            || fit_structure(&inc_plan, d, opts, n_ref, &scan.best, None),
+            || fit_structure(plan0, d, opts, n_ref, (&scan.best, false), None),
+            || fit_structure(&inc_plan, d, opts, n_ref, (&scan.best, false), None),
         );
         let e =
             |r: &Result<Evaluated, _>| r.as_ref().map_or(f64::INFINITY, |e| e.scores.nrmse_select);
@@ -315,54 +341,82 @@ pub(crate) fn baseline(
     if !cands.contains(&ones) {
         cands.push(ones);
     }
-    let mut fits: Vec<(Vec<usize>, Evaluated)> = cands
-        .par_iter()
-        .filter_map(|v| {
-            fit_structure(&plan, d, opts, n_ref, v, poles.as_ref())
-                .ok()
-                .map(|e| (v.clone(), e))
+    // every delay with a dead time also with a feedthrough behind it
+    let cands: Vec<(Vec<usize>, bool)> = cands
+        .iter()
+        .flat_map(|v| {
+            let ft = v.iter().any(|&x| x >= 1).then(|| (v.clone(), true));
+            std::iter::once((v.clone(), false)).chain(ft)
         })
         .collect();
-    choice.delay_candidates = fits
-        .iter()
-        .map(|(v, e)| (v.clone(), e.scores.nrmse_select))
+    let mut fits: Vec<((Vec<usize>, bool), Evaluated)> = cands
+        .par_iter()
+        .filter_map(|(v, ft)| {
+            fit_structure(&plan, d, opts, n_ref, (v, *ft), poles.as_ref())
+                .ok()
+                .map(|e| ((v.clone(), *ft), e))
+        })
         .collect();
-    let pick = pick_delay(&fits, pol.delay_tolerance).ok_or_else(|| {
+    let listed = |with: bool| -> Vec<(Vec<usize>, f64)> {
+        fits.iter()
+            .filter(|((_, ft), _)| *ft == with)
+            .map(|((v, _), e)| (v.clone(), e.scores.nrmse_select))
+            .collect()
+    };
+    choice.delay_candidates = listed(false);
+    choice.feedthrough_candidates = listed(true);
+    let pick = pick_structure(&fits, pol).ok_or_else(|| {
         DiagnoseError::Core(gb_core::CoreError::Unstable(
             "no baseline gave a stable model".into(),
         ))
     })?;
-    let (delay, eval) = fits.swap_remove(pick);
+    let ((delay, feedthrough), eval) = fits.swap_remove(pick);
     choice.delay = delay.clone();
+    choice.feedthrough = feedthrough;
     let eval = match opts.order {
         OrderChoice::Fixed(_) => eval,
-        OrderChoice::Auto => auto_order(d, &plan, opts, &delay, eval, &mut choice)?,
+        OrderChoice::Auto => auto_order(d, &plan, opts, (&delay, feedthrough), eval, &mut choice)?,
     };
     Ok(Baseline { eval, plan, choice })
 }
 
-/// The delay candidate with the smallest decision NRMSE, or one with fewer
-/// parameters (strictly proper rather than direct feedthrough) within
-/// `tolerance` of it.
-fn pick_delay(fits: &[(Vec<usize>, Evaluated)], tolerance: f64) -> Option<usize> {
-    let best = fits
-        .iter()
-        .map(|(_, e)| e.scores.nrmse_select)
-        .fold(f64::INFINITY, f64::min);
-    fits.iter()
-        .enumerate()
-        .filter(|(_, (_, e))| e.scores.nrmse_select <= best * tolerance + 1e-15)
-        .min_by(|a, b| {
-            let pa = a.1 .1.model.dynamics.n_parameters();
-            let pb = b.1 .1.model.dynamics.n_parameters();
-            pa.cmp(&pb).then(
-                a.1 .1
-                    .scores
-                    .nrmse_select
-                    .total_cmp(&b.1 .1.scores.nrmse_select),
-            )
-        })
-        .map(|(i, _)| i)
+/// The strictly proper delay candidate [`pick_delay`] keeps, unless a
+/// candidate with a feedthrough behind its dead time lowers its decision
+/// NRMSE by at least the policy's `feedthrough_gain` (an extra numerator
+/// term must earn its place by more than the noise of the choice: a small
+/// gain from it is more often a nonlinearity partly absorbed than a
+/// feedthrough).
+fn pick_structure(
+    fits: &[((Vec<usize>, bool), Evaluated)],
+    pol: &crate::DecisionPolicy,
+) -> Option<usize> {
+    let scored = |with: bool| -> Vec<(usize, f64, usize)> {
+        fits.iter()
+            .enumerate()
+            .filter(|(_, ((_, ft), _))| *ft == with)
+            .map(|(i, (_, e))| (i, e.scores.nrmse_select, e.model.dynamics.n_parameters()))
+            .collect()
+    };
+    let Some(p) = pick_delay(&scored(false), pol.delay_tolerance) else {
+        return pick_delay(&scored(true), pol.delay_tolerance);
+    };
+    let e_p = fits[p].1.scores.nrmse_select;
+    match pick_delay(&scored(true), 1.0) {
+        Some(f) if fits[f].1.scores.nrmse_select <= e_p * (1.0 - pol.feedthrough_gain) => Some(f),
+        _ => Some(p),
+    }
+}
+
+/// Of the candidates `(index, decision NRMSE, parameters)`, the one with
+/// the smallest decision NRMSE, or one with fewer parameters (strictly
+/// proper rather than direct feedthrough) within `tolerance` of it; its
+/// index.
+fn pick_delay(c: &[(usize, f64, usize)], tolerance: f64) -> Option<usize> {
+    let best = c.iter().map(|x| x.1).fold(f64::INFINITY, f64::min);
+    c.iter()
+        .filter(|x| x.1 <= best * tolerance + 1e-15)
+        .min_by(|a, b| a.2.cmp(&b.2).then(a.1.total_cmp(&b.1)))
+        .map(|x| x.0)
 }
 
 /// The orders `--order auto` tries, in stages: the policy's `auto_orders`,
@@ -392,7 +446,7 @@ fn auto_order(
     d: &DiagnoseData,
     plan: &Plan,
     opts: &DiagnoseOptions,
-    delay: &[usize],
+    delay: (&[usize], bool),
     at_ref: Evaluated,
     choice: &mut StructureChoice,
 ) -> Result<Evaluated, DiagnoseError> {

@@ -1,6 +1,6 @@
 //! Whether a candidate pays: moving-block-bootstrap intervals of its gain on
 //! the select block, and the choice among the candidates of an iteration.
-use crate::evaluate::{Evaluated, Lineage};
+use crate::evaluate::{residuals_on, Evaluated, Lineage};
 use crate::extension::{io_model, Context, Extension, GainMetric, Proposal, Role};
 use crate::plan::{assess, core};
 use crate::{stats, Cause, DecisionPolicy, DiagnoseError};
@@ -97,7 +97,8 @@ pub(crate) fn score(
         GainMetric::Nrmse => {
             let (g, ci) =
                 relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
-            (g, ci, ci[0] > 0.0 && g >= pol.min_gain)
+            let pays = ci[0] > 0.0 && g >= pol.min_gain;
+            (g, ci, pays && pays_from_a_fresh_start(&fitted, ctx, seed))
         }
     };
     let pays = pays && ext.admits(ctx, &fitted);
@@ -109,6 +110,38 @@ pub(crate) fn score(
         ci,
         pays,
     }
+}
+
+/// Under the select-block plan, whether `cand` also pays against the
+/// current model when the select block is simulated as a record of its
+/// own: from its own start, the state (and any hysteresis memory) set from
+/// its first `w` outputs, the way a model meets new data, and scored after
+/// a burn-in of a third of the block. The select block
+/// is otherwise simulated on from the fit block, whose history a candidate
+/// with long memory (play operators, a Preisach operator on the output)
+/// may need to look right; such a candidate must pay both ways. Folds of
+/// the cross-validation are already simulated from their own start.
+fn pays_from_a_fresh_start(cand: &Evaluated, ctx: &Context, seed: u64) -> bool {
+    if ctx.plan.cv() {
+        return true;
+    }
+    let d = ctx.data;
+    let rec = d.train.slice(d.select.clone());
+    // the first third is a burn-in: both models' transients from the fresh
+    // start (a slow resonance, a filter started at rest) die out there
+    let scored = rec.len() / 3..rec.len();
+    let w = ctx.plan.w;
+    let (Ok(before), Ok(after)) = (
+        residuals_on(&ctx.current.model, &rec, &scored, w),
+        residuals_on(&cand.model, &rec, &scored, w),
+    ) else {
+        return false;
+    };
+    let ok = |e: &[f64]| !e.is_empty() && e.iter().all(|v| v.is_finite());
+    if !ok(&before.e) || !ok(&after.e) {
+        return false;
+    }
+    pays_against(&before.e, &after.e, ctx.policy(), seed.wrapping_add(7919))
 }
 
 /// Whether `after` pays significantly against `before` (select residuals).

@@ -37,6 +37,10 @@ pub(crate) struct Plan {
     pub fit_y: Record,
     /// The folds (empty: decisions on the select block).
     pub folds: Vec<Fold>,
+    /// Why decisions use cross-validation although the select block is
+    /// long enough for the bootstrap (it is not representative of the
+    /// training record).
+    pub shift: Option<String>,
 }
 
 /// A fit for the plan's record (`None`) or for fold `k` (`Some(k)`).
@@ -44,9 +48,12 @@ pub(crate) type FitFn<'a> = dyn Fn(Option<usize>) -> Result<FittedModel, Diagnos
 
 impl Plan {
     /// The plan of `d`: cross-validation when the select block has fewer
-    /// than the policy's `bootstrap_min_samples`.
+    /// than the policy's `bootstrap_min_samples`, or when it is not
+    /// representative of the training record ([`block_shift`]: a sweep, a
+    /// drifting level).
     pub fn new(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
-        if d.select.len() >= pol.bootstrap_min_samples {
+        let shift = block_shift(d, pol);
+        if d.select.len() >= pol.bootstrap_min_samples && shift.is_none() {
             let fit_y = d.fit_record();
             return Self {
                 w: pol.init_window_for(d.select.len().min(d.report_range.len())),
@@ -54,6 +61,7 @@ impl Plan {
                 fit: fit_y.clone(),
                 fit_y,
                 folds: vec![],
+                shift: None,
             };
         }
         let train = d.fit.start..d.select.end;
@@ -90,6 +98,7 @@ impl Plan {
             fit: fit_y.clone(),
             fit_y,
             folds,
+            shift: shift.filter(|_| d.select.len() >= pol.bootstrap_min_samples),
         }
     }
 
@@ -111,6 +120,7 @@ impl Plan {
                     test: f.test.clone(),
                 })
                 .collect(),
+            shift: self.shift.clone(),
         }
     }
 
@@ -146,8 +156,11 @@ impl Plan {
     /// The decision data in words.
     pub fn describe(&self, d: &DiagnoseData) -> String {
         if self.cv() {
+            let why = self.shift.as_ref().map_or(String::new(), |s| {
+                format!(" (the select block is not representative of the training record: {s})")
+            });
             format!(
-                "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest), init window {}",
+                "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest), init window {}{why}",
                 self.folds.len(),
                 self.fit_y.len(),
                 self.w
@@ -190,6 +203,74 @@ impl Plan {
             noise,
         )?)
     }
+}
+
+/// How the select block differs from the fit block, when it differs enough
+/// that a decision on it would not speak for the training record: for the
+/// output and each input `x`, with `m`, `s` the mean and standard deviation
+/// of `x` over the fit block,
+///
+/// - the level ratio `rms(x_S − m) / s`,
+/// - the pace ratio `(rms(Δx_S)/rms(x_S − m_S)) / (rms(Δx_F)/s)` (a sweep
+///   moves its frequency, the ratio of the rms increment to the rms value
+///   follows it),
+/// - the share of select samples outside the fit block's range widened by
+///   a tenth of its width (a drifting level leaves it).
+///
+/// A ratio beyond `block_shift_ratio` (either way) or a share above
+/// `block_shift_outside` names the signal and the figure.
+pub(crate) fn block_shift(d: &DiagnoseData, pol: &DecisionPolicy) -> Option<String> {
+    let (f, s) = (d.fit.clone(), d.select.clone());
+    if f.len() < 20 || s.len() < 20 {
+        return None;
+    }
+    let names = d
+        .train
+        .input_names
+        .iter()
+        .chain(std::iter::once(&d.train.output_name));
+    let signals = d
+        .train
+        .inputs
+        .iter()
+        .chain(std::iter::once(&d.train.output));
+    for (name, x) in names.zip(signals) {
+        let (xf, xs) = (&x[f.clone()], &x[s.clone()]);
+        let (mf, sf) = (metrics::mean(xf), metrics::std(xf));
+        if !(sf > 0.0 && sf.is_finite()) {
+            continue;
+        }
+        let level =
+            (xs.iter().map(|v| (v - mf).powi(2)).sum::<f64>() / xs.len() as f64).sqrt() / sf;
+        let pace = |v: &[f64], sd: f64| {
+            let d2 = v.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum::<f64>();
+            (d2 / (v.len() - 1) as f64).sqrt() / sd.max(1e-300)
+        };
+        let pace_ratio = pace(xs, metrics::std(xs)) / pace(xf, sf).max(1e-300);
+        let (lo, hi) = xf
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                (a.min(v), b.max(v))
+            });
+        let pad = 0.1 * (hi - lo);
+        let outside =
+            xs.iter().filter(|&&v| v < lo - pad || v > hi + pad).count() as f64 / xs.len() as f64;
+        let r = pol.block_shift_ratio;
+        let off = |q: f64| !(q.is_finite() && q <= r && q >= 1.0 / r);
+        if off(level) {
+            return Some(format!("'{name}' level ratio {level:.2}"));
+        }
+        if off(pace_ratio) {
+            return Some(format!("'{name}' pace ratio {pace_ratio:.2}"));
+        }
+        if outside > pol.block_shift_outside {
+            return Some(format!(
+                "{:.0} % of '{name}' outside the fit block's range",
+                100.0 * outside
+            ));
+        }
+    }
+    None
 }
 
 /// The dynamics a model extends: the increments model of an integrating
@@ -269,4 +350,49 @@ fn fold_scores(
         report: Residuals::default(),
         folds: vec![],
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::block_shift;
+    use crate::{DecisionPolicy, DiagnoseData};
+    use gb_core::Record;
+    use rand::Rng;
+
+    /// Fit/select/report 50/25/25 of `u`, with the output a smoothed `u`.
+    fn data(u: Vec<f64>) -> DiagnoseData {
+        let mut y = vec![0.0; u.len()];
+        for k in 1..u.len() {
+            y[k] = 0.8 * y[k - 1] + 0.2 * u[k - 1];
+        }
+        let rec = Record::new(vec!["u".into()], "y".into(), vec![u], y).expect("record");
+        DiagnoseData::from_single(rec)
+    }
+
+    #[test]
+    fn a_stationary_record_is_representative_and_a_sweep_or_a_drift_is_not() {
+        let pol = DecisionPolicy::default();
+        let mut rng = gb_core::rng::seeded(3);
+        let n = 4000;
+        let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        assert_eq!(block_shift(&data(noise.clone()), &pol), None);
+        // a linear chirp 0.002 -> 0.2 cycles/sample: the select block is
+        // much faster than the fit block
+        let sweep: Vec<f64> = (0..n)
+            .map(|k| {
+                let t = k as f64;
+                (2.0 * std::f64::consts::PI * (0.002 * t + 0.099 * t * t / n as f64)).sin()
+            })
+            .collect();
+        let why = block_shift(&data(sweep), &pol).expect("a sweep shifts");
+        assert!(why.contains("pace"), "{why}");
+        // the same noise on a ramp: the select block leaves the fit range
+        let drift: Vec<f64> = noise
+            .iter()
+            .enumerate()
+            .map(|(k, v)| v + 4.0 * k as f64 / n as f64)
+            .collect();
+        let why = block_shift(&data(drift), &pol).expect("a drift shifts");
+        assert!(why.contains("level") || why.contains("outside"), "{why}");
+    }
 }

@@ -28,11 +28,14 @@ use crate::DiagnoseError;
 /// | `max_order` | 30 | highest linear order the dynamics extension and `--order auto` reach (in the ladder 1…6, 8, 10, 12, 16, 20, 24, 30, and by doubling: n → n+1, n+2, 2n) |
 /// | `max_delay`, `max_delay_divisor` | 20, 6 | input delays scanned for the baseline: 0 ..= min(20, fit samples / 6) |
 /// | `delay_tolerance` | 1.01 | among the delay candidates confirmed by the output-error fit, the one with fewer parameters (strictly proper rather than feedthrough) is kept when within 1 % of the best decision NRMSE |
+/// | `feedthrough_gain` | 0.1 | a delay candidate with a direct feedthrough behind its dead time (n + 1 numerator terms) replaces the strictly proper choice only when it lowers the decision NRMSE by ≥ 10 % (smaller gains of an extra numerator term are as often a nonlinearity partly absorbed) |
 /// | `structure_scan_samples` | 50 000 | most fit samples of the ARX delay / integrator scan |
 /// | `delay_scan_samples` | 4000 | most fit samples of the output-error delay scan (one fit per delay and input at the reference order) |
 /// | `integrator_pole` | 0.02 | an integrator is suspected when the ARX model has a real pole within 0.02 of 1 … |
 /// | `integrator_gain` | 0.05 | … and kept when the increments model lowers the decision NRMSE of the baseline by ≥ 5 % |
 /// | `bootstrap_min_samples` | 300 | with fewer select samples the bootstrap of the select block is not trusted (fewer than 12 blocks of 25): decisions use blocked cross-validation over the training record instead |
+/// | `block_shift_ratio` | 1.5 | decisions also use blocked cross-validation when the select block is not representative of the fit block: the level (rms about the fit block's mean) or the pace (rms increment over rms) of the output or an input differs by more than this factor either way (a sweep, a changing amplitude) … |
+/// | `block_shift_outside` | 0.05 | … or more than this share of the select block's samples of a signal lie outside the fit block's range widened by a tenth (a drifting level): a gain measured there would not speak for the record |
 /// | `cv_folds` | 4 | contiguous folds of the cross-validation; each fold is scored by the structure refitted on the longer contiguous rest of the record (no regressor spans a gap), the pooled held-out residuals take the select block's place in every decision rule |
 /// | `long_record` | 100 000 | training records this long are searched on a subsample … |
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
@@ -95,6 +98,9 @@ pub struct DecisionPolicy {
     pub max_delay_divisor: usize,
     /// Parsimony tolerance of the delay choice.
     pub delay_tolerance: f64,
+    /// Smallest relative decision-NRMSE gain of a feedthrough behind the
+    /// dead time.
+    pub feedthrough_gain: f64,
     /// Most fit samples of the ARX structure scan.
     pub structure_scan_samples: usize,
     /// Most fit samples of the output-error delay scan.
@@ -105,6 +111,12 @@ pub struct DecisionPolicy {
     pub integrator_gain: f64,
     /// Fewest select samples for the bootstrap (else cross-validation).
     pub bootstrap_min_samples: usize,
+    /// Level/pace ratio of the select to the fit block beyond which
+    /// decisions use cross-validation.
+    pub block_shift_ratio: f64,
+    /// Share of select samples outside the fit block's range beyond which
+    /// decisions use cross-validation.
+    pub block_shift_outside: f64,
     /// Folds of the blocked cross-validation.
     pub cv_folds: usize,
     /// Training samples from which the structure is searched on a subsample.
@@ -149,11 +161,14 @@ impl Default for DecisionPolicy {
             max_delay: 20,
             max_delay_divisor: 6,
             delay_tolerance: 1.01,
+            feedthrough_gain: 0.1,
             structure_scan_samples: 50_000,
             delay_scan_samples: 4000,
             integrator_pole: 0.02,
             integrator_gain: 0.05,
             bootstrap_min_samples: 300,
+            block_shift_ratio: 1.5,
+            block_shift_outside: 0.05,
             cv_folds: 4,
             long_record: 100_000,
             search_samples: 20_000,
@@ -212,6 +227,15 @@ impl DecisionPolicy {
         let open_unit = |x: f64| x > 0.0 && x < 1.0;
         if !open_unit(self.integrator_pole) || !(0.0..1.0).contains(&self.integrator_gain) {
             return bad("integrator_pole in (0,1), integrator_gain in [0,1)");
+        }
+        if !(0.0..1.0).contains(&self.feedthrough_gain) {
+            return bad("feedthrough_gain in [0,1)");
+        }
+        if self.block_shift_ratio.is_nan()
+            || self.block_shift_ratio <= 1.0
+            || !(0.0..=1.0).contains(&self.block_shift_outside)
+        {
+            return bad("block_shift_ratio > 1, block_shift_outside in [0,1]");
         }
         if !(2..=20).contains(&self.cv_folds) || self.structure_scan_samples < 100 {
             return bad("cv_folds in 2..=20, structure_scan_samples >= 100");
@@ -292,6 +316,22 @@ mod tests {
             },
             DecisionPolicy {
                 max_order: 31,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                feedthrough_gain: 1.0,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                block_shift_ratio: 1.0,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                block_shift_ratio: f64::NAN,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                block_shift_outside: 1.5,
                 ..p.clone()
             },
         ] {

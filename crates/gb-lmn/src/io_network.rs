@@ -28,6 +28,11 @@ pub struct IoNetworkParams {
     pub order: usize,
     /// Dead time per input (empty: 1 for every input).
     pub delay: Vec<usize>,
+    /// A direct feedthrough behind the dead time: every input with a dead
+    /// time d ≥ 1 gets n + 1 numerator terms `b₀ u(k−d) + … + b_n u(k−d−n)`
+    /// (a biproper transfer function after the dead time, as delay 0 always
+    /// has), not n.
+    pub feedthrough: bool,
     /// LOLIMOT local model network instead of one linear model.
     pub network: bool,
     /// Play-operator / discrete Preisach columns.
@@ -48,6 +53,7 @@ impl IoNetworkParams {
         Self {
             order,
             delay: vec![],
+            feedthrough: false,
             network: false,
             hysteresis: false,
             robust: false,
@@ -81,7 +87,7 @@ impl IoNetworkParams {
             spec.nk = self.delay.clone();
             // direct feedthrough: b₀ u(k) + … + b_n u(k−n), order n biproper
             for (b, &d) in spec.nb.iter_mut().zip(&self.delay) {
-                if d == 0 {
+                if d == 0 || self.feedthrough {
                     *b = self.order + 1;
                 }
             }
