@@ -50,6 +50,7 @@ pub mod physics;
 pub mod recipes;
 pub mod registry;
 mod smc;
+mod smc_states;
 mod structures;
 mod views;
 
@@ -66,7 +67,8 @@ pub use model::{
     HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, StateSpaceStepper,
     Structure, Target, FORMAT_VERSION, MAGIC,
 };
-pub use smc::{Smc, SmcParams, SmcReport};
+pub use smc::{PosteriorParameter, Smc, SmcParams, SmcReport, SMC_MAX_STATES};
+pub use smc_states::{StateBand, StateEstimate, SMOOTHING_TRAJECTORIES};
 pub use structures::{
     fit_state_space, hysteretic_mechanical_start, second_order, second_order_parameters,
 };

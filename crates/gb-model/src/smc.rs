@@ -18,7 +18,7 @@ use crate::model::{NoiseModel, SimScratch, SparseStateSpace};
 use gb_core::{Observer, SubTask};
 use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig};
 use gb_smc::noise::Noise;
-use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel};
+use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel, TransitionDensity};
 use serde::{Deserialize, Serialize};
 use std::cell::RefCell;
 
@@ -39,7 +39,46 @@ pub(crate) struct NoisyModel<'a> {
     measurement: Noise,
 }
 
-impl NoisyModel<'_> {
+impl<'a> NoisyModel<'a> {
+    /// `model` with its own noise on `inputs` (`hyst`: its Preisach outputs).
+    pub(crate) fn new(
+        model: &SparseStateSpace,
+        inputs: &'a [Vec<f64>],
+        hyst: &'a [Vec<f64>],
+    ) -> Result<Self> {
+        check_size(model)?;
+        Ok(NoisyModel {
+            model: model.clone(),
+            inputs,
+            hyst,
+            process: model
+                .process_noise
+                .iter()
+                .map(Noise::from_model)
+                .collect::<std::result::Result<Vec<_>, _>>()?,
+            measurement: Noise::from_model(&model.measurement_noise)?,
+        })
+    }
+
+    /// The noise-free transition `F(x_{t-1}, u_{t-1})` (the state at `t` before `v_t`).
+    fn predict(&self, t: usize, prev: &[f64; SMC_MAX_STATES]) -> [f64; SMC_MAX_STATES] {
+        let n = self.model.n_states;
+        let mut u = [0.0; 8];
+        let mut h = [0.0; 8];
+        let (nu, nh) = (self.model.n_inputs, self.model.hysteresis.len());
+        self.row(t - 1, &mut u[..nu], &mut h[..nh]);
+        SCRATCH.with(|s| {
+            let mut s = s.borrow_mut();
+            s.x.clear();
+            s.x.extend_from_slice(&prev[..n]);
+            s.xn.resize(n, 0.0);
+            self.model.advance(&u[..nu], &h[..nh], &mut s);
+            let mut x = [0.0; SMC_MAX_STATES];
+            x[..n].copy_from_slice(&s.x[..n]);
+            x
+        })
+    }
+
     fn row(&self, t: usize, u: &mut [f64], h: &mut [f64]) {
         for (j, v) in u.iter_mut().enumerate() {
             *v = self.inputs[j][t];
@@ -69,23 +108,11 @@ impl StateSpaceModel for NoisyModel<'_> {
         _u: &[f64],
         rng: &mut SmcRng,
     ) -> Self::State {
-        let n = self.model.n_states;
-        let mut u = [0.0; 8];
-        let mut h = [0.0; 8];
-        let (nu, nh) = (self.model.n_inputs, self.model.hysteresis.len());
-        self.row(t - 1, &mut u[..nu], &mut h[..nh]);
-        SCRATCH.with(|s| {
-            let mut s = s.borrow_mut();
-            s.x.clear();
-            s.x.extend_from_slice(&prev[..n]);
-            s.xn.resize(n, 0.0);
-            self.model.advance(&u[..nu], &h[..nh], &mut s);
-            let mut x = [0.0; SMC_MAX_STATES];
-            for i in 0..n {
-                x[i] = s.x[i] + self.process[i].sample(rng);
-            }
-            x
-        })
+        let mut x = self.predict(t, prev);
+        for (xi, v) in x.iter_mut().zip(&self.process) {
+            *xi += v.sample(rng);
+        }
+        x
     }
 
     fn log_observation(&self, t: usize, x: &Self::State, y: &f64, _u: &[f64]) -> f64 {
@@ -103,6 +130,47 @@ impl StateSpaceModel for NoisyModel<'_> {
             self.measurement.log_pdf(y - yh)
         })
     }
+}
+
+/// `log f(x_t | x_{t-1}) = Σ_i log p_{v_i}(x_{t,i} − F_i(x_{t-1}, u_{t-1}))`, bounded
+/// by `Σ_i log p_{v_i}(0)` for the unimodal families centred at 0 (Gaussian,
+/// Student-t, Laplace): the rejection backward sampler of the smoother.
+impl TransitionDensity for NoisyModel<'_> {
+    fn log_transition_density(
+        &self,
+        t: usize,
+        prev: &Self::State,
+        x: &Self::State,
+        _u: &[f64],
+    ) -> f64 {
+        let m = self.predict(t, prev);
+        self.process
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v.log_pdf(x[i] - m[i]))
+            .sum()
+    }
+
+    fn log_transition_bound(&self, _t: usize, _u: &[f64]) -> Option<f64> {
+        self.process
+            .iter()
+            .map(|v| match v {
+                Noise::Gaussian { .. } | Noise::StudentT { .. } | Noise::Laplace { .. } => {
+                    Some(v.log_pdf(0.0))
+                }
+                _ => None,
+            })
+            .sum()
+    }
+}
+
+fn check_size(model: &SparseStateSpace) -> Result<()> {
+    if model.n_states > SMC_MAX_STATES || model.n_inputs > 8 || model.hysteresis.len() > 8 {
+        return Err(ModelError::InvalidArgument(format!(
+            "the SMC path supports up to {SMC_MAX_STATES} states, 8 inputs and 8 Preisach components"
+        )));
+    }
+    Ok(())
 }
 
 /// Options of the SMC path (validated by [`SmcParams::check`]).
@@ -196,8 +264,8 @@ impl SmcParams {
                 "process_fraction must be > 0".into(),
             ));
         }
-        gb_smc::noise::Noise::from_model(&self.measurement)?;
-        gb_smc::noise::Noise::from_model(&self.process)?;
+        Noise::from_model(&self.measurement)?;
+        Noise::from_model(&self.process)?;
         Ok(Smc { params: self })
     }
 }
@@ -219,6 +287,65 @@ pub struct SmcReport {
     pub posterior_mean: Vec<f64>,
     /// Posterior standard deviations of `θ`.
     pub posterior_sd: Vec<f64>,
+    /// Posterior summaries in natural units (process and measurement noise
+    /// scales, the sampled coefficients), from the draws after burn-in.
+    #[serde(default)]
+    pub parameters: Vec<PosteriorParameter>,
+}
+
+/// Posterior summary of one sampled quantity, with its chain diagnostics.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PosteriorParameter {
+    /// `process_scale[x1]`, …, `measurement_scale`, `coef[k]`.
+    pub name: String,
+    /// Posterior mean.
+    pub mean: f64,
+    /// 2.5 % quantile.
+    pub lo: f64,
+    /// 97.5 % quantile.
+    pub hi: f64,
+    /// Effective sample size of the draws after burn-in (Geyer).
+    pub ess: f64,
+    /// Split-R̂ of the draws after burn-in (four quarters of the one chain).
+    pub rhat: f64,
+}
+
+impl SmcReport {
+    /// True when every sampled quantity has split-R̂ ≤ `max_rhat` and
+    /// ESS ≥ `min_ess`.
+    pub fn mixed(&self, max_rhat: f64, min_ess: f64) -> bool {
+        self.parameters
+            .iter()
+            .all(|p| p.rhat <= max_rhat && p.ess >= min_ess)
+    }
+}
+
+/// Summary and diagnostics of draws `x` (after burn-in) of one quantity.
+/// Split-R̂ treats the four quarters as chains: each is halved again, so the
+/// statistic compares eight segments (a drift or a stuck start shows).
+fn posterior_parameter(name: String, x: &[f64]) -> PosteriorParameter {
+    let n = x.len().max(1) as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    let mut v = x.to_vec();
+    v.sort_unstable_by(f64::total_cmp);
+    let q = |p: f64| {
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        let pos = p * (v.len() - 1) as f64;
+        let (lo, hi) = (pos.floor() as usize, pos.ceil() as usize);
+        v[lo] + (pos - lo as f64) * (v[hi] - v[lo])
+    };
+    let k = x.len() / 4;
+    let quarters: Vec<&[f64]> = (0..4).map(|i| &x[i * k..(i + 1) * k]).collect();
+    PosteriorParameter {
+        name,
+        mean,
+        lo: q(0.025),
+        hi: q(0.975),
+        ess: gb_smc::diagnostics::effective_sample_size(x),
+        rhat: gb_smc::diagnostics::split_rhat(&quarters),
+    }
 }
 
 struct Problem<'a> {
@@ -234,6 +361,43 @@ struct Problem<'a> {
 }
 
 impl Problem<'_> {
+    /// The draws after `burn_in` in natural units: each state's process
+    /// scale `s_i e^{θ_0}`, the measurement scale `s_w e^{θ_1}`, the coefficients.
+    fn posterior_parameters(&self, chain: &[f64], burn_in: usize) -> Vec<PosteriorParameter> {
+        let d = 2 + self.cols.len();
+        let rows = chain.len() / d;
+        let start = burn_in.min(rows.saturating_sub(1));
+        let draws = |j: usize, scale: f64| -> Vec<f64> {
+            (start..rows)
+                .map(|k| {
+                    let v = chain[k * d + j];
+                    if j < 2 {
+                        scale * v.exp()
+                    } else {
+                        v
+                    }
+                })
+                .collect()
+        };
+        let mut out: Vec<PosteriorParameter> = self
+            .proc_scale
+            .iter()
+            .enumerate()
+            .map(|(i, s)| posterior_parameter(format!("process_scale[x{}]", i + 1), &draws(0, *s)))
+            .collect();
+        out.push(posterior_parameter(
+            "measurement_scale".into(),
+            &draws(1, self.meas_scale),
+        ));
+        for k in 0..self.cols.len() {
+            out.push(posterior_parameter(
+                format!("coef[{}]", k + 1),
+                &draws(2 + k, 1.0),
+            ));
+        }
+        out
+    }
+
     fn model_at(&self, theta: &[f64]) -> Option<SparseStateSpace> {
         let mut m = self.base.clone();
         set_params(&mut m, &self.cols, &theta[2..]).ok()?;
@@ -262,10 +426,10 @@ impl<'a> ParametricModel for Problem<'a> {
         let process = m
             .process_noise
             .iter()
-            .map(gb_smc::noise::Noise::from_model)
+            .map(Noise::from_model)
             .collect::<std::result::Result<Vec<_>, _>>()
             .ok()?;
-        let measurement = gb_smc::noise::Noise::from_model(&m.measurement_noise).ok()?;
+        let measurement = Noise::from_model(&m.measurement_noise).ok()?;
         Some(NoisyModel {
             model: m,
             inputs: self.inputs,
@@ -296,23 +460,9 @@ impl Smc {
         inputs: &[Vec<f64>],
         y: &[f64],
     ) -> Result<f64> {
-        if model.n_states > SMC_MAX_STATES || model.n_inputs > 8 || model.hysteresis.len() > 8 {
-            return Err(ModelError::InvalidArgument(format!(
-                "the SMC path supports up to {SMC_MAX_STATES} states, 8 inputs and 8 Preisach components"
-            )));
-        }
+        check_size(model)?;
         let hyst = model.hysteresis_outputs(inputs)?;
-        let nm = NoisyModel {
-            model: model.clone(),
-            inputs,
-            hyst: &hyst,
-            process: model
-                .process_noise
-                .iter()
-                .map(gb_smc::noise::Noise::from_model)
-                .collect::<std::result::Result<Vec<_>, _>>()?,
-            measurement: gb_smc::noise::Noise::from_model(&model.measurement_noise)?,
-        };
+        let nm = NoisyModel::new(model, inputs, &hyst)?;
         let pf = FilterConfig::new(self.params.particles)
             .seed(self.params.seed)
             .build()?;
@@ -335,11 +485,7 @@ impl Smc {
                 "outputs must be finite and as long as the inputs".into(),
             ));
         }
-        if oe.n_states > SMC_MAX_STATES || oe.n_inputs > 8 || oe.hysteresis.len() > 8 {
-            return Err(ModelError::InvalidArgument(format!(
-                "the SMC path supports up to {SMC_MAX_STATES} states, 8 inputs and 8 Preisach components"
-            )));
-        }
+        check_size(oe)?;
         // scales from the deterministic simulation
         let (yh, xs) = oe.simulate_states(inputs)?;
         let n = oe.n_states;
@@ -409,6 +555,7 @@ impl Smc {
         let post = problem
             .model_at(&mean)
             .ok_or_else(|| ModelError::Numerical("posterior mean model".into()))?;
+        let parameters = problem.posterior_parameters(&res.chain, p.burn_in);
         let ll_oe = self.log_likelihood(&start, inputs, y)?;
         let ll_smc = self
             .log_likelihood(&post, inputs, y)
@@ -429,6 +576,7 @@ impl Smc {
                 acceptance_rate: res.acceptance_rate,
                 posterior_mean: mean,
                 posterior_sd: sd,
+                parameters,
             },
         ))
     }

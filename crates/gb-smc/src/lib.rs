@@ -25,6 +25,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod diagnostics;
 pub mod error;
 pub mod estimation;
 pub mod filter;

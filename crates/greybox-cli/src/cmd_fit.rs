@@ -13,7 +13,7 @@ pub fn help() -> String {
 }
 
 /// The spec with the expert flags added as options.
-fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
+pub(crate) fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
     let mut s: ModelSpec = a
         .model
         .parse()
@@ -45,6 +45,9 @@ fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
 
 /// Fit, save, and print the model, its notes and the training NRMSE.
 pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
+    if a.smc.is_smc()? {
+        return crate::cmd_smc::fit(&a, quiet);
+    }
     if let Some(path) = &a.model_file {
         return crate::cmd_physics::fit(&a, path, quiet);
     }

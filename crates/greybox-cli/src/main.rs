@@ -9,6 +9,7 @@ mod cmd_diagnose;
 mod cmd_fit;
 mod cmd_physics;
 mod cmd_simulate;
+mod cmd_smc;
 mod cmd_tools;
 mod io;
 mod progress;
@@ -59,6 +60,11 @@ enum Command {
         after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit"
     )]
     Simulate(SimulateArgs),
+    /// Estimate the hidden states of a saved state-space model by a particle filter (95 % bands).
+    #[command(
+        after_help = "Examples:\n  greybox fit train.csv --model state-space --method smc -o ss.gbm\n  greybox filter ss.gbm test.csv -o states.csv --smooth --particles 2000 --seed 3"
+    )]
+    Filter(cmd_smc::FilterArgs),
     /// Write train.csv and validate.csv for a generated system (fixed seed = same files).
     #[command(
         after_help = "Systems: linear, msd-linear, msd-nonlinear, duffing, saturation, deadzone, preisach, bouc-wen, backlash, two-mass, student-t, shock-absorber\n\nExample:\n  greybox generate duffing -o duffing/ --seed 3"
@@ -251,6 +257,8 @@ pub(crate) struct FitArgs {
     /// `--model state-space+damper` only: sample rate in Hz (default: from a `t` column of the training file).
     #[arg(long, value_name = "HZ")]
     pub(crate) sample_rate: Option<f64>,
+    #[command(flatten)]
+    pub(crate) smc: cmd_smc::SmcArgs,
     /// `--model state-space+damper` only: Tikhonov weight on the wavelet coefficients (output units squared per squared coefficient; default: 0 or 1000, chosen on the last 20 % of the training record).
     #[arg(long, value_name = "RHO")]
     pub(crate) ridge: Option<f64>,
@@ -320,6 +328,7 @@ fn main() -> ExitCode {
         Command::Diagnose(a) => cmd_diagnose::run(a, quiet),
         Command::Fit(a) => cmd_fit::run(*a, quiet),
         Command::Simulate(a) => cmd_simulate::run(a),
+        Command::Filter(a) => cmd_smc::filter(a, quiet),
         Command::Generate(a) => cmd_tools::generate(a),
         Command::Denoise(a) => cmd_tools::denoise(a),
         Command::Wavelet(a) => cmd_tools::wavelet(a),

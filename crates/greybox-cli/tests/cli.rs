@@ -646,3 +646,286 @@ fn bench_quick_runs_a_benchmark_and_writes_its_block() {
     assert_eq!(text.matches("greybox bench: begin").count(), 1);
     assert!(text.contains("hand-written text stays"));
 }
+
+// ---- sequential Monte Carlo: `filter` and `fit --method smc` ----
+
+/// A mass-spring-damper (k = 4, c = 0.6, h = 0.05) with a random force:
+/// `p⁺ = p + h v + v₁`, `v⁺ = v + h(u − k p − c v) + v₂`, `y = p + w`, with
+/// σ = (0.002, 0.02) and σ_w = 0.01. Returns the true model (a state-space
+/// model file of the class, with its noise) and a record with the true
+/// hidden states, simulated in the class's convention (`x_0 = v_0`).
+fn msd_with_random_force(
+    n: usize,
+    seed: u64,
+) -> (gb_core::FittedModel, Vec<f64>, Vec<f64>, Vec<[f64; 2]>) {
+    use rand_distr::{Distribution, StandardNormal};
+    let (h, k, c) = (0.05, 4.0, 0.6);
+    let a = [1.0, h, -h * k, 1.0 - h * c];
+    let b = [0.0, h];
+    let sd = [0.002, 0.02];
+    let sd_w = 0.01;
+    let mut m =
+        gb_model::SparseStateSpace::linear(a.to_vec(), b.to_vec(), vec![1.0, 0.0], vec![0.0])
+            .unwrap();
+    m.process_noise = sd
+        .iter()
+        .map(|&sd| gb_core::NoiseModel::Gaussian { sd })
+        .collect();
+    m.measurement_noise = gb_core::NoiseModel::Gaussian { sd: sd_w };
+    let mut r = gb_core::rng::seeded(seed);
+    let mut g = || -> f64 { StandardNormal.sample(&mut r) };
+    let u: Vec<f64> = (0..n)
+        .map(|t| 2.0 * (0.031 * t as f64).sin() + (0.11 * t as f64).sin())
+        .collect();
+    let mut x = [sd[0] * g(), sd[1] * g()];
+    let (mut y, mut xs) = (Vec::new(), Vec::new());
+    for t in 0..n {
+        if t > 0 {
+            x = [
+                a[0] * x[0] + a[1] * x[1] + b[0] * u[t - 1] + sd[0] * g(),
+                a[2] * x[0] + a[3] * x[1] + b[1] * u[t - 1] + sd[1] * g(),
+            ];
+        }
+        xs.push(x);
+        y.push(x[0] + sd_w * g());
+    }
+    let fm = gb_core::FittedModel::new(
+        vec!["u".into()],
+        vec!["y".into()],
+        Box::new(m),
+        gb_core::NoiseModel::Gaussian { sd: sd_w },
+    )
+    .unwrap();
+    (fm, u, y, xs)
+}
+
+fn write_record(path: &Path, u: &[f64], y: &[f64]) {
+    let mut s = String::from("u,y\n");
+    for (a, b) in u.iter().zip(y) {
+        s.push_str(&format!("{a},{b}\n"));
+    }
+    write(path, &s);
+}
+
+/// `greybox filter` on the true model of a generated system: the CSV has
+/// the input, the output and x{i}_{mean,lo,hi} (and the smoothed columns with
+/// --smooth); the true position and the true hidden velocity lie inside the
+/// 95 % filter and smoother bands for at least 90 % of the samples (a band
+/// that ignored the process noise, or means off by a sample, fall far below);
+/// the log-likelihood is printed and the same seed gives the same file.
+#[test]
+fn filter_bands_contain_the_true_hidden_state() {
+    let d = tmp("filter");
+    let (fm, u, y, xs) = msd_with_random_force(400, 11);
+    let model = d.join("msd.gbm");
+    fm.save(&model).unwrap();
+    let data = d.join("data.csv");
+    write_record(&data, &u, &y);
+    let out = d.join("states.csv");
+    let args = [
+        "filter",
+        model.to_str().unwrap(),
+        data.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--smooth",
+        "--particles",
+        "1000",
+        "--seed",
+        "5",
+    ];
+    let o = run(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    let ll = s
+        .lines()
+        .find_map(|l| l.strip_prefix("log-likelihood: "))
+        .and_then(|v| v.trim().parse::<f64>().ok())
+        .expect(&s);
+    assert!(ll.is_finite(), "{s}");
+    let t = gb_core::CsvTable::read(&out).unwrap();
+    let want = [
+        "u",
+        "y",
+        "x1_mean",
+        "x1_lo",
+        "x1_hi",
+        "x2_mean",
+        "x2_lo",
+        "x2_hi",
+        "x1_smooth_mean",
+        "x1_smooth_lo",
+        "x1_smooth_hi",
+        "x2_smooth_mean",
+        "x2_smooth_lo",
+        "x2_smooth_hi",
+    ];
+    assert_eq!(t.names, want);
+    assert_eq!(t.n_rows(), 400);
+    for (state, tag) in [(0, ""), (1, ""), (0, "smooth_"), (1, "smooth_")] {
+        let lo = t.column(&format!("x{}_{tag}lo", state + 1)).unwrap();
+        let hi = t.column(&format!("x{}_{tag}hi", state + 1)).unwrap();
+        let inside = xs
+            .iter()
+            .enumerate()
+            .filter(|(i, x)| lo[*i] <= x[state] && x[state] <= hi[*i])
+            .count();
+        let share = inside as f64 / xs.len() as f64;
+        eprintln!(
+            "x{} {tag}band: {:.1} % of the true states inside",
+            state + 1,
+            100.0 * share
+        );
+        assert!(share >= 0.90, "x{} {tag}: {share}", state + 1);
+    }
+    // same seed, same file
+    let first = std::fs::read(&out).unwrap();
+    let o = run(&args);
+    assert!(o.status.success());
+    assert_eq!(std::fs::read(&out).unwrap(), first);
+}
+
+/// Bad input to `filter`: one line, exit 2, no output file.
+#[test]
+fn filter_bad_input_is_one_line_exit_2_no_output() {
+    let d = tmp("filter-bad");
+    let (fm, u, y, _) = msd_with_random_force(300, 12);
+    let model = d.join("msd.gbm");
+    fm.save(&model).unwrap();
+    let data = d.join("data.csv");
+    write_record(&data, &u, &y);
+    let out = d.join("states.csv");
+    let (m, ds, os) = (
+        model.to_str().unwrap(),
+        data.to_str().unwrap(),
+        out.to_str().unwrap(),
+    );
+    // missing files
+    assert_bad(&["filter", "nope.gbm", ds, "-o", os], "nope.gbm", &out);
+    assert_bad(&["filter", m, "nope.csv", "-o", os], "nope.csv", &out);
+    // the model's input column is missing
+    let other = d.join("other.csv");
+    write(&other, "a,y\n1,2\n3,4\n");
+    assert_bad(&["filter", m, other.to_str().unwrap(), "-o", os], "u", &out);
+    // a non-finite output
+    let nan = d.join("nan.csv");
+    write(&nan, "u,y\n1,0.1\n2,nan\n3,0.2\n");
+    assert_bad(
+        &["filter", m, nan.to_str().unwrap(), "-o", os],
+        "nan.csv",
+        &out,
+    );
+    // a model of another class
+    let lin = d.join("lin.gbm");
+    let o = run(&["fit", ds, "--model", "linear", "-o", lin.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_bad(
+        &["filter", lin.to_str().unwrap(), ds, "-o", os],
+        "state-space class",
+        &out,
+    );
+    // a state-space model without process noise (an output-error fit)
+    let mut oe = fm.clone();
+    let mut ss = oe
+        .dynamics
+        .as_any()
+        .downcast_ref::<gb_model::SparseStateSpace>()
+        .unwrap()
+        .clone();
+    ss.process_noise = vec![gb_core::NoiseModel::Gaussian { sd: 0.0 }; 2];
+    oe.dynamics = Box::new(ss);
+    let oe_path = d.join("oe.gbm");
+    oe.save(&oe_path).unwrap();
+    assert_bad(
+        &["filter", oe_path.to_str().unwrap(), ds, "-o", os],
+        "no process noise",
+        &out,
+    );
+    // zero particles is refused by the argument parser (exit 2)
+    let o = run(&["filter", m, ds, "-o", os, "--particles", "0"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(!out.exists());
+    // --method smc for another class, an unknown method
+    let fit_out = d.join("fit.gbm");
+    let fo = fit_out.to_str().unwrap();
+    assert_bad(
+        &["fit", ds, "--model", "linear", "--method", "smc", "-o", fo],
+        "--method smc needs --model state-space",
+        &fit_out,
+    );
+    assert_bad(
+        &["fit", ds, "--method", "mcmc", "-o", fo],
+        "expected oe or smc",
+        &fit_out,
+    );
+}
+
+/// `fit --model state-space --method smc` prints the posterior of the noise
+/// scales and coefficients with 95 % intervals, ESS and split-R̂, the
+/// acceptance rate, and — for a chain of 40 iterations — the warning that it
+/// has not mixed; the saved model filters.
+#[test]
+fn fit_method_smc_reports_the_posterior_and_warns_on_short_chains() {
+    let d = tmp("fit-smc");
+    let (_, u, y, _) = msd_with_random_force(400, 13);
+    let data = d.join("train.csv");
+    write_record(&data, &u, &y);
+    let model = d.join("smc.gbm");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model",
+        "state-space",
+        "--method",
+        "smc",
+        "--particles",
+        "50",
+        "--iterations",
+        "40",
+        "-o",
+        model.to_str().unwrap(),
+    ]);
+    let s = stdout(&o);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for needle in [
+        "acceptance rate",
+        "process_scale[x1]",
+        "process_scale[x2]",
+        "measurement_scale",
+        "ESS",
+        "R̂",
+        "warning: the chain has not mixed",
+    ] {
+        assert!(s.contains(needle), "'{needle}' missing in:\n{s}");
+    }
+    // every posterior line: lo <= mean <= hi
+    let posterior = s.lines().filter(|l| {
+        l.trim_start().starts_with("process_scale")
+            || l.trim_start().starts_with("measurement_scale")
+    });
+    for l in posterior {
+        let nums: Vec<f64> = l
+            .split(|c: char| c == '[' || c == ']' || c == ',' || c.is_whitespace())
+            .filter_map(|w| w.parse::<f64>().ok())
+            .collect();
+        assert!(
+            nums.len() >= 3 && nums[1] <= nums[0] && nums[0] <= nums[2],
+            "{l}"
+        );
+    }
+    let out = d.join("states.csv");
+    let o = run(&[
+        "filter",
+        model.to_str().unwrap(),
+        data.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--particles",
+        "100",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(gb_core::CsvTable::read(&out)
+        .unwrap()
+        .names
+        .contains(&"x2_hi".to_string()));
+}

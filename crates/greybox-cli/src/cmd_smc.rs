@@ -1,0 +1,216 @@
+//! The sequential Monte Carlo commands of the wavelet-sparse state-space
+//! class: `greybox filter` (hidden-state estimates with 95 % bands) and
+//! `greybox fit --method smc` (PMMH posterior of the noise scales and the
+//! largest coefficients, with chain diagnostics).
+use crate::io::load;
+use crate::progress::Bar;
+use crate::{FitArgs, Result};
+use clap::Args;
+use gb_core::{CsvTable, Records};
+use gb_model::{SmcParams, SparseStateSpace};
+use std::path::{Path, PathBuf};
+
+/// Largest acceptable split-R̂ before the fit warns that the chain has not mixed.
+const MAX_RHAT: f64 = 1.1;
+/// Smallest acceptable effective sample size of every sampled quantity.
+const MIN_ESS: f64 = 100.0;
+
+#[derive(Args)]
+pub(crate) struct FilterArgs {
+    /// Model file of the state-space class with process noise (`greybox fit --model state-space --method smc`).
+    pub(crate) model: PathBuf,
+    /// Data with the model's input columns and its output column.
+    pub(crate) data: PathBuf,
+    /// Output CSV: the inputs, the output, then x1_mean,x1_lo,x1_hi,... (95 % band of the filter), and with --smooth x1_smooth_mean,x1_smooth_lo,x1_smooth_hi,...
+    #[arg(short = 'o', long = "out", value_name = "FILE")]
+    pub(crate) out: PathBuf,
+    /// Also smooth: p(x_t | all data) by backward simulation (up to 200 trajectories).
+    #[arg(long)]
+    pub(crate) smooth: bool,
+    /// Particles of the filter.
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    pub(crate) particles: u64,
+    /// Random seed (same seed, same result).
+    #[arg(long, default_value_t = 1)]
+    pub(crate) seed: u64,
+    /// Output column (default: the model's output name).
+    #[arg(long, value_name = "COLUMN")]
+    pub(crate) output: Option<String>,
+}
+
+/// The `fit` options of the SMC path (flattened into `fit`).
+#[derive(Args, Default)]
+pub(crate) struct SmcArgs {
+    /// Identification method: oe (output error, the default) or smc (PMMH on the noise scales and the largest wavelet coefficients, from the output-error fit; `--model state-space` only).
+    #[arg(long, value_name = "oe|smc", default_value = "oe")]
+    pub(crate) method: String,
+    /// `--method smc`: particles of the filter.
+    #[arg(long, value_name = "N", default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub(crate) particles: u64,
+    /// `--method smc`: PMMH iterations (the first quarter is burn-in).
+    #[arg(long, value_name = "N", default_value_t = 2000, value_parser = clap::value_parser!(u64).range(8..=10_000_000))]
+    pub(crate) iterations: u64,
+    /// `--method smc`: random seed.
+    #[arg(long, value_name = "S", default_value_t = 1)]
+    pub(crate) seed: u64,
+}
+
+impl SmcArgs {
+    /// `--method smc` (an unknown method is an error).
+    pub(crate) fn is_smc(&self) -> Result<bool> {
+        match self.method.as_str() {
+            "oe" => Ok(false),
+            "smc" => Ok(true),
+            m => Err(format!("--method '{m}': expected oe or smc")),
+        }
+    }
+}
+
+/// The state-space model of a model file, or an error naming its class.
+fn state_space<'a>(path: &Path, m: &'a gb_core::FittedModel) -> Result<&'a SparseStateSpace> {
+    m.dynamics
+        .as_any()
+        .downcast_ref::<SparseStateSpace>()
+        .ok_or_else(|| {
+            format!(
+                "{}: `filter` needs a model of the state-space class (greybox fit --model state-space --method smc), this one is '{}'",
+                path.display(),
+                m.dynamics.class()
+            )
+        })
+}
+
+/// `greybox filter`: filtered (and smoothed) states with 95 % bands, and the
+/// particle log-likelihood of the data.
+pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
+    let m = gb_model::registry::load(&a.model).map_err(|e| e.to_string())?;
+    let ss = state_space(&a.model, &m)?;
+    if !ss.process_noise.iter().all(|n| n.is_valid()) {
+        return Err(format!(
+            "{}: the model has no process noise (an output-error fit), so the filter would only repeat the simulation; fit it with `greybox fit --model state-space --method smc`",
+            a.model.display()
+        ));
+    }
+    let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
+    let inputs: Vec<Vec<f64>> = m
+        .input_names
+        .iter()
+        .map(|n| t.column(n).map(<[f64]>::to_vec))
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| e.to_string())?;
+    let out_name = a.output.clone().unwrap_or_else(|| m.output_name().into());
+    let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
+    let particles = usize::try_from(a.particles).map_err(|e| e.to_string())?;
+    let smc = SmcParams::new()
+        .particles(particles)
+        .seed(a.seed)
+        .check()
+        .map_err(|e| e.to_string())?;
+    let bar = Bar::spinner(quiet, &format!("filtering with {particles} particles"));
+    let est = smc
+        .filter_states(ss, &inputs, &y, a.smooth)
+        .map_err(|e| format!("{}: {e}", a.data.display()))?;
+    bar.finish();
+    let mut names: Vec<String> = m.input_names.clone();
+    names.push(out_name.clone());
+    let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
+    cols.push(&y);
+    let mut bands = vec![("", &est.filtered)];
+    if let Some(s) = &est.smoothed {
+        bands.push(("smooth_", s));
+    }
+    for (tag, b) in &bands {
+        for i in 0..ss.n_states {
+            for (kind, c) in [("mean", &b.mean[i]), ("lo", &b.lo[i]), ("hi", &b.hi[i])] {
+                names.push(format!("x{}_{tag}{kind}", i + 1));
+                cols.push(c);
+            }
+        }
+    }
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    gb_core::write_csv_atomic(&a.out, &refs, &cols).map_err(|e| e.to_string())?;
+    let mean_ess = est.ess.iter().sum::<f64>() / est.ess.len().max(1) as f64;
+    println!(
+        "{} samples, {} states, {particles} particles (mean ESS {mean_ess:.0}){}",
+        y.len(),
+        ss.n_states,
+        if a.smooth { ", smoothed" } else { "" }
+    );
+    println!("log-likelihood: {:.4}", est.log_likelihood);
+    println!("states written to {}", a.out.display());
+    Ok(())
+}
+
+/// `greybox fit --model state-space --method smc`: the output-error fit of
+/// the recipe, then PMMH from it; prints the posterior of every sampled
+/// quantity with its 95 % interval, ESS and split-R̂, and warns when the
+/// chain has not mixed.
+pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
+    if a.model_file.is_some() {
+        return Err(
+            "--method smc is not available for --model-file (physics) models; use --model state-space"
+                .into(),
+        );
+    }
+    let spec = crate::cmd_fit::spec_of(a)?;
+    if spec.name != "state-space" || spec.has("damper") {
+        return Err(format!(
+            "--method smc needs --model state-space (or state-space+preisach, state-space+hysteresis), got '{spec}'"
+        ));
+    }
+    gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
+    let d = load(&a.train, &a.signals)?;
+    let data = Records::new(vec![d]).map_err(|e| e.to_string())?;
+    let d = data.first();
+    let bar = Bar::spinner(quiet, &format!("fitting {spec} (output error)"));
+    let mut fitted = gb_model::recipes::fit(&spec, &data, &bar)
+        .map_err(|e| format!("{}: {e}", a.train.display()))?
+        .model;
+    bar.finish();
+    let oe = state_space(&a.train, &fitted)?.clone();
+    let iterations = usize::try_from(a.smc.iterations).map_err(|e| e.to_string())?;
+    let particles = usize::try_from(a.smc.particles).map_err(|e| e.to_string())?;
+    let smc = SmcParams::new()
+        .particles(particles)
+        .iterations(iterations, iterations / 4)
+        .seed(a.smc.seed)
+        .check()
+        .map_err(|e| e.to_string())?;
+    let bar = Bar::new(quiet, iterations + 1, "PMMH");
+    let (model, rep) = smc
+        .fit(&oe, &d.inputs, &d.output, &bar)
+        .map_err(|e| format!("{}: {e}", a.train.display()))?;
+    bar.finish();
+    fitted.dynamics = Box::new(model);
+    fitted.save(&a.out).map_err(|e| e.to_string())?;
+    println!("model: {}", fitted.describe());
+    println!(
+        "SMC: {particles} particles, {iterations} PMMH iterations (burn-in {}), acceptance rate {:.3}",
+        iterations / 4,
+        rep.acceptance_rate
+    );
+    println!(
+        "log-likelihood (particle filter): output-error model {:.2}, posterior mean {:.2}; kept: {:?}",
+        rep.log_likelihood_oe, rep.log_likelihood_smc, rep.path
+    );
+    println!("posterior (mean, 95 % interval, effective sample size, split-R̂):");
+    for p in &rep.parameters {
+        println!(
+            "  {:<22} {:>12.5e}  [{:.5e}, {:.5e}]  ESS {:>6.0}  R̂ {:.3}",
+            p.name, p.mean, p.lo, p.hi, p.ess, p.rhat
+        );
+    }
+    if !rep.mixed(MAX_RHAT, MIN_ESS) {
+        let rhat = rep.parameters.iter().map(|p| p.rhat).fold(0.0, f64::max);
+        let ess = rep
+            .parameters
+            .iter()
+            .map(|p| p.ess)
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "warning: the chain has not mixed (largest split-R̂ {rhat:.2}, limit {MAX_RHAT}; smallest ESS {ess:.0}, limit {MIN_ESS:.0}): the intervals are not reliable; run more --iterations"
+        );
+    }
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
