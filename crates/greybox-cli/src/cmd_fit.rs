@@ -2,7 +2,8 @@
 use crate::io::load;
 use crate::progress::Bar;
 use crate::{FitArgs, Result};
-use gb_core::{Init, ModelSpec, Records};
+use gb_core::{Init, ModelSpec, Record, Records};
+use gb_diagnose::{DiagnoseData, DiagnoseOptions, OrderChoice};
 
 /// The `--help` text of `fit`: the spec grammar, every recipe, examples.
 pub fn help() -> String {
@@ -24,7 +25,7 @@ fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
             s.set_default(k, v);
         }
     };
-    set("order", a.order.map(|v| v.to_string()));
+    set("order", a.order.clone().filter(|o| o != "auto"));
     set("weights", a.weights.clone());
     set("splits", a.splits.clone());
     set("prune", a.prune.then(|| "true".to_string()));
@@ -43,12 +44,59 @@ fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
     Ok(s)
 }
 
+/// `--order auto`: the order, input delay and integrator of the
+/// diagnosis' baseline chosen on `train` (its fit and select blocks), set
+/// as the spec's `order` and, where the recipe has one, `delay` options
+/// (options the spec names stay); prints the choice and the candidates'
+/// decision NRMSEs.
+fn auto_structure(mut spec: ModelSpec, train: &Record, quiet: bool) -> Result<ModelSpec> {
+    let recipe = gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
+    let has = |k: &str| {
+        recipe
+            .options
+            .iter()
+            .any(|o| o.split(['=', ':']).next() == Some(k))
+    };
+    if !has("order") {
+        return Err(format!(
+            "--order auto: model spec '{spec}' has no order option"
+        ));
+    }
+    let opts = DiagnoseOptions {
+        order: OrderChoice::Auto,
+        ..DiagnoseOptions::default()
+    };
+    let d = DiagnoseData::from_single(train.clone());
+    let bar = Bar::spinner(quiet, "choosing order and delay");
+    let c = gb_diagnose::choose_structure(&d, &opts).map_err(|e| e.to_string())?;
+    bar.finish();
+    let delay: Vec<String> = c.choice.delay.iter().map(|v| v.to_string()).collect();
+    println!(
+        "order auto: order {}, delay [{}] chosen on the training data ({}; NRMSE {:.4})",
+        c.order,
+        delay.join(","),
+        c.choice.decision,
+        c.nrmse_select
+    );
+    println!("  {}", c.choice.text());
+    if c.choice.integrating {
+        println!("  note: the output integrates; `diagnose` models its increments, `fit` fits the output itself");
+    }
+    spec.set_default("order", c.order.to_string());
+    if has("delay") {
+        spec.set_default("delay", delay.join("/"));
+    } else {
+        println!("  note: model spec '{spec}' has no delay option; the delay is not used");
+    }
+    Ok(spec)
+}
+
 /// Fit, save, and print the model, its notes and the training NRMSE.
 pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     if let Some(path) = &a.model_file {
         return crate::cmd_physics::fit(&a, path, quiet);
     }
-    let spec = spec_of(&a)?;
+    let mut spec = spec_of(&a)?;
     gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
     let first = load(&a.train, &a.signals)?;
     let mut records = vec![first];
@@ -59,6 +107,9 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
         records.push(e);
     }
     let data = Records::new(records).map_err(|e| e.to_string())?;
+    if a.order.as_deref() == Some("auto") {
+        spec = auto_structure(spec, data.first(), quiet)?;
+    }
     let bar = Bar::spinner(quiet, &format!("fitting {spec}"));
     let fitted = gb_model::recipes::fit(&spec, &data, &bar).map_err(|e| match e {
         // a bad option is the spec's fault, not the file's

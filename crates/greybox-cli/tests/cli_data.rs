@@ -1,0 +1,165 @@
+//! The binary on data questions: `fit --order auto` (order and input delay
+//! read from the training data).
+use rand::Rng;
+use rand_distr::{Distribution, StandardNormal};
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_greybox"))
+}
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("greybox-data-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(args: &[&str]) -> Output {
+    bin().args(args).output().expect("run greybox")
+}
+
+fn ok(args: &[&str]) -> String {
+    let o = run(args);
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "args {args:?}: {}\n{out}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    out
+}
+
+/// Input held for 1..=8 samples at normal levels (seeded), length `n`.
+fn steps_input(n: usize, seed: u64) -> Vec<f64> {
+    let mut r = gb_core::rng::seeded(seed);
+    let mut u = Vec::with_capacity(n);
+    while u.len() < n {
+        let v: f64 = StandardNormal.sample(&mut r);
+        let hold = r.random_range(1..=8);
+        u.extend(std::iter::repeat_n(v, hold));
+    }
+    u.truncate(n);
+    u
+}
+
+/// y(k) = 2.3031 y(k−1) − 1.9853 y(k−2) + 0.6503 y(k−3)
+///        + u(k−3) + 0.5 u(k−4) + 0.25 u(k−5) + white noise (1 % of y's
+/// spread): poles 0.9 and 0.85·e^{±0.6i}, the input acts after 3 samples.
+fn third_order_delay_3(path: &Path, n: usize, seed: u64) {
+    let u = steps_input(n, seed);
+    let mut y = vec![0.0; n];
+    let a = [2.303071, -1.985264, 0.65025];
+    let b = [1.0, 0.5, 0.25];
+    for k in 5..n {
+        y[k] = a[0] * y[k - 1] + a[1] * y[k - 2] + a[2] * y[k - 3];
+        for (j, bj) in b.iter().enumerate() {
+            y[k] += bj * u[k - 3 - j];
+        }
+    }
+    let sd = std_of(&y);
+    let mut r = gb_core::rng::seeded(seed + 100);
+    let mut text = String::from("u,y\n");
+    for k in 0..n {
+        let e: f64 = StandardNormal.sample(&mut r);
+        text.push_str(&format!("{},{}\n", u[k], y[k] + 0.01 * sd * e));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+fn std_of(x: &[f64]) -> f64 {
+    let m = x.iter().sum::<f64>() / x.len() as f64;
+    (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / x.len() as f64).sqrt()
+}
+
+/// The order and delay of the `order auto:` line of `fit`'s output.
+fn chosen(out: &str) -> (usize, String) {
+    let line = out
+        .lines()
+        .find(|l| l.starts_with("order auto:"))
+        .unwrap_or_else(|| panic!("no 'order auto:' line in\n{out}"));
+    let order = line
+        .split("order ")
+        .nth(2)
+        .and_then(|s| s.split(',').next())
+        .and_then(|s| s.trim().parse().ok())
+        .unwrap_or_else(|| panic!("{line}"));
+    let delay = line
+        .split("delay ")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .unwrap_or_else(|| panic!("{line}"))
+        .to_string();
+    (order, delay)
+}
+
+#[test]
+fn fit_order_auto_finds_order_and_delay() {
+    let d = tmp("auto");
+    let f = d.join("third.csv");
+    third_order_delay_3(&f, 3000, 7);
+    let m = d.join("m.gbm");
+    let out = ok(&[
+        "fit",
+        f.to_str().unwrap(),
+        "--order",
+        "auto",
+        "-o",
+        m.to_str().unwrap(),
+    ]);
+    assert_eq!(chosen(&out), (3, "[3]".to_string()), "{out}");
+    // the candidates' scores are printed, and the fit used the choice
+    assert!(
+        out.contains("order chosen on the training data (1: "),
+        "{out}"
+    );
+    assert!(out.contains("spec: linear:order=3,delay=3"), "{out}");
+    assert!(m.exists());
+
+    // the two-mass system is of order 4
+    let ds = d.to_str().unwrap();
+    ok(&[
+        "generate",
+        "two-mass",
+        "-o",
+        ds,
+        "--seed",
+        "4",
+        "--samples",
+        "3000",
+        "--validate-samples",
+        "500",
+    ]);
+    let out = ok(&[
+        "fit",
+        d.join("train.csv").to_str().unwrap(),
+        "--order",
+        "auto",
+        "--input",
+        "u",
+        "--output",
+        "y",
+        "-o",
+        m.to_str().unwrap(),
+    ]);
+    assert_eq!(chosen(&out).0, 4, "{out}");
+    // a spec without an order option is refused before any fit
+    let o = run(&[
+        "fit",
+        f.to_str().unwrap(),
+        "--model",
+        "wiener-hammerstein",
+        "--order",
+        "auto",
+        "-o",
+        d.join("wh.gbm").to_str().unwrap(),
+    ]);
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    assert!(
+        e.contains("no order option") && e.lines().count() == 1,
+        "{e}"
+    );
+    assert!(!d.join("wh.gbm").exists());
+}
