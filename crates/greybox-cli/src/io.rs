@@ -63,6 +63,31 @@ pub fn sample_time(t: &CsvTable) -> Result<Option<(String, f64)>> {
     Ok(Some((name.clone(), dt)))
 }
 
+/// The columns of a simulation's output: the inputs, the measured outputs
+/// present, the simulated outputs (`y`, `y_sim` for one output; `NAME`,
+/// `NAME_sim` for each of several).
+pub fn simulation_columns(
+    inputs: &[String],
+    outputs: &[String],
+    measured: &[Option<usize>],
+) -> Vec<String> {
+    let one = outputs.len() == 1;
+    let mut names = inputs.to_vec();
+    for (o, m) in outputs.iter().zip(measured) {
+        if m.is_some() {
+            names.push(if one { "y".into() } else { o.clone() });
+        }
+    }
+    for o in outputs {
+        names.push(if one {
+            "y_sim".into()
+        } else {
+            format!("{o}_sim")
+        });
+    }
+    names
+}
+
 /// Writes the inputs, the measured output (if any), `y_sim` and the
 /// `extra` columns to `out` (atomically), then prints the errors over
 /// samples `n0..`.
@@ -101,4 +126,130 @@ pub fn write_simulation(
     }
     println!("simulation written to {}", out.display());
     Ok(())
+}
+
+/// Rows of numeric CSV read one line at a time (`simulate MODEL -`): the
+/// first non-blank line names the columns, as in CSV files; every cell is
+/// checked as [`CsvTable`] checks it, and errors name the source, the
+/// 1-based line (the header is row 1) and the column.
+pub struct RowReader<R> {
+    reader: R,
+    path: std::path::PathBuf,
+    /// Column names, in order.
+    pub names: Vec<String>,
+    line: usize,
+    buf: String,
+}
+
+impl<R: std::io::BufRead> RowReader<R> {
+    /// Read the header line of `reader`; `label` names the source in errors.
+    pub fn new(reader: R, label: &str) -> Result<Self> {
+        let mut s = Self {
+            reader,
+            path: label.into(),
+            names: vec![],
+            line: 0,
+            buf: String::new(),
+        };
+        if !s.next_line()? {
+            return Err(gb_core::CoreError::Empty { path: s.path }.to_string());
+        }
+        let names: Vec<String> = s.buf.split(',').map(|f| f.trim().to_string()).collect();
+        let bad = |message: String| gb_core::CoreError::Csv {
+            path: s.path.clone(),
+            row: s.line,
+            message,
+        };
+        if let Some(j) = names.iter().position(String::is_empty) {
+            return Err(bad(format!("header field {} is empty", j + 1)).to_string());
+        }
+        if let Some(j) = names.iter().position(|n| n.parse::<f64>().is_ok()) {
+            return Err(bad(format!(
+                "header field {} is the number '{}': the first row must name the columns",
+                j + 1,
+                names[j]
+            ))
+            .to_string());
+        }
+        s.names = names;
+        Ok(s)
+    }
+
+    /// The next non-blank line into `buf` (false at the end).
+    fn next_line(&mut self) -> Result<bool> {
+        loop {
+            self.buf.clear();
+            let n = self
+                .reader
+                .read_line(&mut self.buf)
+                .map_err(|e| format!("{}: {e}", self.path.display()))?;
+            if n == 0 {
+                return Ok(false);
+            }
+            self.line += 1;
+            if !self.buf.trim().is_empty() {
+                return Ok(true);
+            }
+        }
+    }
+
+    /// The index of column `name`, or an error listing the columns.
+    pub fn column(&self, name: &str) -> Result<usize> {
+        self.names.iter().position(|n| n == name).ok_or_else(|| {
+            gb_core::CoreError::MissingColumn {
+                path: self.path.clone(),
+                column: name.to_string(),
+                available: self.names.join(","),
+            }
+            .to_string()
+        })
+    }
+
+    /// The row number of the last row read (1-based; the header is row 1).
+    pub fn row(&self) -> usize {
+        self.line
+    }
+
+    /// The next row's values into `out`; false at the end of the input.
+    pub fn next_row(&mut self, out: &mut Vec<f64>) -> Result<bool> {
+        if !self.next_line()? {
+            return Ok(false);
+        }
+        let (path, row) = (self.path.clone(), self.line);
+        let fields: Vec<&str> = self.buf.split(',').map(str::trim).collect();
+        if fields.len() != self.names.len() {
+            return Err(gb_core::CoreError::Ragged {
+                path,
+                row,
+                expected: self.names.len(),
+                found: fields.len(),
+            }
+            .to_string());
+        }
+        out.clear();
+        for (j, f) in fields.iter().enumerate() {
+            let column = self.names[j].clone();
+            let value = f.to_string();
+            let v: f64 = f.parse().map_err(|_| {
+                gb_core::CoreError::NonNumeric {
+                    path: path.clone(),
+                    row,
+                    column: column.clone(),
+                    value: value.clone(),
+                }
+                .to_string()
+            })?;
+            if !v.is_finite() {
+                return Err(gb_core::CoreError::NonFinite {
+                    path,
+                    row,
+                    column,
+                    value,
+                }
+                .to_string());
+            }
+            out.push(v);
+        }
+        Ok(true)
+    }
 }

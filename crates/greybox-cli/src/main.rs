@@ -56,7 +56,7 @@ enum Command {
     Fit(Box<FitArgs>),
     /// Simulate a saved model on the inputs of a CSV file (free run).
     #[command(
-        after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit"
+        after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit\n  sensor | greybox simulate model.gbm -                   # online: CSV rows on stdin (header first), one simulated row out per row in"
     )]
     Simulate(SimulateArgs),
     /// Write train.csv and validate.csv for a generated system (fixed seed = same files).
@@ -260,11 +260,11 @@ pub(crate) struct FitArgs {
 pub(crate) struct SimulateArgs {
     /// Model file written by `fit` or `diagnose --save`.
     pub(crate) model: PathBuf,
-    /// Data with the model's input columns (and optionally its output column).
+    /// Data with the model's input columns (and optionally its output column); `-` streams rows from standard input: each simulated row is written to standard output as soon as it is computed.
     pub(crate) data: PathBuf,
-    /// Output CSV: the inputs, the measured output if present, and y_sim.
+    /// Output CSV: the inputs, the measured output if present, and y_sim (not with `-`: rows go to standard output).
     #[arg(short = 'o', long = "out", value_name = "FILE")]
-    pub(crate) out: PathBuf,
+    pub(crate) out: Option<PathBuf>,
     /// The first N measured outputs initialise the state (estimated by least squares when N exceeds the model's lags); errors are reported on samples N.. only.
     #[arg(long, default_value_t = 0)]
     pub(crate) init_window: usize,

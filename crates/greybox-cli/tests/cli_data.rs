@@ -1,5 +1,6 @@
 //! The binary on data questions: `fit --order auto` (order and input delay
-//! read from the training data).
+//! read from the training data) and streaming `simulate` from standard
+//! input.
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use std::path::{Path, PathBuf};
@@ -162,4 +163,129 @@ fn fit_order_auto_finds_order_and_delay() {
         "{e}"
     );
     assert!(!d.join("wh.gbm").exists());
+}
+
+/// `simulate MODEL -` with `input` on standard input: exit code, stdout
+/// and stderr.
+fn stream(model: &Path, input: &str) -> (Option<i32>, String, String) {
+    use std::io::Write;
+    let mut c = bin()
+        .args(["simulate", model.to_str().unwrap(), "-"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = c.stdin.take().unwrap();
+    // a closed pipe (the binary stopped at an error) is no test failure
+    let _ = stdin.write_all(input.as_bytes());
+    drop(stdin);
+    let o = c.wait_with_output().unwrap();
+    (
+        o.status.code(),
+        String::from_utf8_lossy(&o.stdout).to_string(),
+        String::from_utf8_lossy(&o.stderr).to_string(),
+    )
+}
+
+#[test]
+fn simulate_streams_stdin_rows_as_the_batch_simulation() {
+    use std::io::{BufRead, BufReader, Write};
+    let d = tmp("stream");
+    let f = d.join("third.csv");
+    third_order_delay_3(&f, 1500, 3);
+    let m = d.join("m.gbm");
+    ok(&[
+        "fit",
+        f.to_str().unwrap(),
+        "--order",
+        "3",
+        "--model",
+        "linear:delay=3",
+        "-o",
+        m.to_str().unwrap(),
+    ]);
+    // the batch simulation of the first 300 rows
+    let text = std::fs::read_to_string(&f).unwrap();
+    let part: Vec<&str> = text.lines().take(301).collect();
+    let pf = d.join("part.csv");
+    std::fs::write(&pf, part.join("\n") + "\n").unwrap();
+    let sim = d.join("sim.csv");
+    ok(&[
+        "simulate",
+        m.to_str().unwrap(),
+        pf.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+    ]);
+    let batch = std::fs::read_to_string(&sim).unwrap();
+    let batch: Vec<&str> = batch.lines().collect();
+    assert_eq!(batch.len(), 301);
+
+    // streamed: one row in, then its simulated row must come out before
+    // the next row is written (a reader thread; a 120 s watchdog turns a
+    // missing flush into a failure instead of a hang)
+    let mut c = bin()
+        .args(["simulate", m.to_str().unwrap(), "-"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = c.stdin.take().unwrap();
+    let stdout = c.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let reader = std::thread::spawn(move || {
+        for l in BufReader::new(stdout).lines() {
+            if tx.send(l.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    let wait = std::time::Duration::from_secs(120);
+    writeln!(stdin, "{}", part[0]).unwrap();
+    for (k, row) in part[1..].iter().enumerate() {
+        writeln!(stdin, "{row}").unwrap();
+        stdin.flush().unwrap();
+        if k == 0 {
+            let header = rx.recv_timeout(wait).expect("header after the first row");
+            assert_eq!(header, batch[0]);
+        }
+        let line = rx
+            .recv_timeout(wait)
+            .unwrap_or_else(|_| panic!("no output for row {} before the next row", k + 2));
+        assert_eq!(line, batch[k + 1], "row {}", k + 2);
+    }
+    drop(stdin);
+    assert!(c.wait().unwrap().success());
+    reader.join().unwrap();
+    // bad input keeps the contract: one line naming row and column, exit 2
+    for (input, needle) in [
+        (
+            "u,y\n1,2\n0.5,1\nabc,1\n",
+            "stdin: row 4, column 'u': 'abc' is not a number",
+        ),
+        (
+            "u,y\n1,2\n1\n",
+            "stdin: row 3 has 1 fields, the header has 2",
+        ),
+        ("x,y\n1,2\n", "stdin: no column named 'u' (columns: x,y)"),
+        (
+            "u,y\n1,inf\n",
+            "stdin: row 2, column 'y': value inf is not finite",
+        ),
+        ("", "stdin: file is empty"),
+        (
+            "1,2\n3,4\n",
+            "stdin: row 1: header field 1 is the number '1'",
+        ),
+    ] {
+        let (code, _, e) = stream(&m, input);
+        assert_eq!(code, Some(2), "{input:?}: {e}");
+        assert!(!e.contains("panicked"), "{e}");
+        assert!(e.contains(needle), "{input:?}: expected '{needle}' in {e}");
+        assert_eq!(e.trim_end().lines().count(), 1, "{e}");
+    }
+    // the rows before a bad one were already written
+    let (_, out, _) = stream(&m, "u,y\n1,2\n0.5,1\nabc,1\n");
+    assert_eq!(out.lines().count(), 3, "{out}");
 }
