@@ -43,6 +43,7 @@ mod integrating;
 mod legacy;
 mod linear;
 mod model;
+mod multi_output;
 // `PhysicsError` carries the file, line, expression and symbol of a model
 // error for its one-line message; errors are the cold path.
 #[allow(clippy::result_large_err)]
@@ -66,6 +67,7 @@ pub use model::{
     HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, StateSpaceStepper,
     Structure, Target, FORMAT_VERSION, MAGIC,
 };
+pub use multi_output::{MultiOutputModel, MULTI_OUTPUT_CLASS};
 pub use smc::{Smc, SmcParams, SmcReport};
 pub use structures::{
     fit_state_space, hysteretic_mechanical_start, second_order, second_order_parameters,

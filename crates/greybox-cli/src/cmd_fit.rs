@@ -1,9 +1,11 @@
 //! `greybox fit --model SPEC`: any recipe of the model registry.
-use crate::io::load;
+use crate::io::{load, load_outputs};
 use crate::progress::Bar;
 use crate::{FitArgs, Result};
-use gb_core::{Init, ModelSpec, Record, Records};
+use gb_core::{FittedModel, Init, ModelSpec, Record, Records};
 use gb_diagnose::{DiagnoseData, DiagnoseOptions, OrderChoice};
+use gb_model::recipes::Fitted;
+use gb_model::MultiOutputModel;
 
 /// The `--help` text of `fit`: the spec grammar, every recipe, examples.
 pub fn help() -> String {
@@ -91,21 +93,16 @@ fn auto_structure(mut spec: ModelSpec, train: &Record, quiet: bool) -> Result<Mo
     Ok(spec)
 }
 
-/// Fit, save, and print the model, its notes and the training NRMSE.
-pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
-    if let Some(path) = &a.model_file {
-        return crate::cmd_physics::fit(&a, path, quiet);
-    }
-    let mut spec = spec_of(&a)?;
-    gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
-    let first = load(&a.train, &a.signals)?;
-    let mut records = vec![first];
-    for f in &a.experiments {
-        let e = load(f, &a.signals)?;
-        e.check_identifiable(&f.display().to_string(), 20)
-            .map_err(|e| e.to_string())?;
-        records.push(e);
-    }
+/// Fit `spec` (with `--order auto`, its order and delay chosen on the
+/// first record) on `records`; prints the model, its notes and the training
+/// NRMSE (free run; the model's lags or an init window of 50 samples set
+/// the initial state).
+fn fit_output(
+    a: &FitArgs,
+    mut spec: ModelSpec,
+    records: Vec<Record>,
+    quiet: bool,
+) -> Result<Fitted> {
     let data = Records::new(records).map_err(|e| e.to_string())?;
     if a.order.as_deref() == Some("auto") {
         spec = auto_structure(spec, data.first(), quiet)?;
@@ -119,8 +116,6 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     bar.finish();
     let m = &fitted.model;
     let d = data.first();
-    // training error: free run, the first samples (the model's lags, or an
-    // init window of 50 for state-space models) set the initial state
     let h = m.dynamics.history_len();
     let w = if h > 0 { h } else { 50.min(d.len() / 10) };
     let init = if h > 0 {
@@ -131,7 +126,6 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     let sim = m.simulate(&d.inputs, init).map_err(|e| e.to_string())?;
     let w = w.min(d.len());
     let nrmse = gb_core::metrics::nrmse(&d.output[w..], &sim[w..]).map_err(|e| e.to_string())?;
-    m.save(&a.out).map_err(|e| e.to_string())?;
     println!("model: {}", m.describe());
     println!("class: {}; spec: {spec}", m.dynamics.class());
     println!("parameters: {}", m.dynamics.n_parameters());
@@ -139,6 +133,62 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
         println!("{n}");
     }
     println!("training NRMSE (free-run simulation): {nrmse:.4}");
+    Ok(fitted)
+}
+
+/// Several outputs: one model of `spec` per output on the same inputs,
+/// stacked into one `multi-output` model.
+fn fit_outputs(a: &FitArgs, spec: ModelSpec, quiet: bool) -> Result<FittedModel> {
+    let mut per_file = vec![load_outputs(&a.train, &a.signals)?];
+    for f in &a.experiments {
+        per_file.push(load_outputs(f, &a.signals)?);
+    }
+    let mut parts = vec![];
+    for (o, name) in a.signals.outputs.iter().enumerate() {
+        println!("\noutput {name}:");
+        let records: Vec<Record> = per_file.iter().map(|r| r[o].clone()).collect();
+        for (r, f) in records.iter().skip(1).zip(&a.experiments) {
+            r.check_identifiable(&f.display().to_string(), 20)
+                .map_err(|e| e.to_string())?;
+        }
+        let fm = fit_output(a, spec.clone(), records, quiet)?.model;
+        parts.push((fm.dynamics, fm.noise));
+    }
+    let first = &per_file[0][0];
+    let noise = parts[0].1.clone();
+    let stack = MultiOutputModel::new(parts).map_err(|e| e.to_string())?;
+    let mut m = FittedModel::new(
+        first.input_names.clone(),
+        a.signals.outputs.clone(),
+        Box::new(stack),
+        noise,
+    )
+    .map_err(|e| e.to_string())?;
+    m.sample_time = first.sample_time;
+    println!("\nmodel: {}", m.dynamics.describe());
+    Ok(m)
+}
+
+/// Fit, save, and print the model, its notes and the training NRMSE.
+pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
+    if let Some(path) = &a.model_file {
+        return crate::cmd_physics::fit(&a, path, quiet);
+    }
+    let spec = spec_of(&a)?;
+    gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
+    let m = if a.signals.outputs.len() > 1 {
+        fit_outputs(&a, spec, quiet)?
+    } else {
+        let mut records = vec![load(&a.train, &a.signals)?];
+        for f in &a.experiments {
+            let e = load(f, &a.signals)?;
+            e.check_identifiable(&f.display().to_string(), 20)
+                .map_err(|e| e.to_string())?;
+            records.push(e);
+        }
+        fit_output(&a, spec, records, quiet)?.model
+    };
+    m.save(&a.out).map_err(|e| e.to_string())?;
     println!("saved to {}", a.out.display());
     Ok(())
 }

@@ -1,5 +1,5 @@
 //! `greybox simulate`: a saved model of any class on the inputs of a CSV.
-use crate::io::write_simulation;
+use crate::io::{write_simulation, SimOutput};
 use crate::{Result, SimulateArgs};
 use gb_core::{CsvTable, FittedModel, Init};
 use std::io::Write;
@@ -29,8 +29,8 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         .map(|n| t.column(n).map(<[f64]>::to_vec))
         .collect::<std::result::Result<_, _>>()
         .map_err(|e| e.to_string())?;
-    let out_name = m.output_name().to_string();
-    let y = t.column(&out_name).ok().map(<[f64]>::to_vec);
+    // the measured outputs present in the data, one per model output
+    let ys: Vec<Option<&[f64]>> = m.output_names.iter().map(|n| t.column(n).ok()).collect();
     if a.init_window > t.n_rows() {
         return Err(format!(
             "--init-window {} exceeds the {} samples of {}",
@@ -39,19 +39,27 @@ pub fn run(a: SimulateArgs) -> Result<()> {
             a.data.display()
         ));
     }
-    let init = match &y {
-        Some(y) if a.init_window > 0 => Init::Window(&y[..a.init_window]),
-        None if a.init_window > 0 => {
-            return Err(format!(
-                "{}: --init-window needs the output column '{out_name}'",
-                a.data.display()
-            ))
+    // an init window of every output, output-major
+    let mut window = Vec::with_capacity(a.init_window * ys.len());
+    if a.init_window > 0 {
+        for (y, name) in ys.iter().zip(&m.output_names) {
+            let y = y.ok_or_else(|| {
+                format!(
+                    "{}: --init-window needs the output column '{name}'",
+                    a.data.display()
+                )
+            })?;
+            window.extend_from_slice(&y[..a.init_window]);
         }
-        _ => Init::Stored,
+    }
+    let init = if a.init_window > 0 {
+        Init::Window(&window)
+    } else {
+        Init::Stored
     };
     let sim = m.simulate(&inputs, init).map_err(|e| e.to_string())?;
     let bands = if a.bands {
-        Some(bands(&m, &inputs, init, y.as_deref(), a.init_window)?)
+        Some(bands(&m, &inputs, init, ys[0], a.init_window)?)
     } else {
         None
     };
@@ -59,12 +67,23 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         .as_ref()
         .map(|b| vec![("y_sim_lo", b.lo.as_slice()), ("y_sim_hi", b.hi.as_slice())])
         .unwrap_or_default();
+    let n = t.n_rows();
+    let outputs: Vec<SimOutput> = m
+        .output_names
+        .iter()
+        .zip(&ys)
+        .zip(sim.chunks(n.max(1)))
+        .map(|((name, measured), sim)| SimOutput {
+            name,
+            measured: *measured,
+            sim,
+        })
+        .collect();
     write_simulation(
         out,
         &m.input_names,
         &inputs,
-        y.as_deref(),
-        &sim,
+        &outputs,
         &extra,
         a.init_window,
     )

@@ -7,8 +7,7 @@ use std::path::Path;
 /// defaults), its sample time from a uniform time column; prints the roles.
 pub fn load(path: &Path, s: &SignalArgs) -> Result<Record> {
     let t = CsvTable::read(path).map_err(|e| e.to_string())?;
-    let mut r =
-        Record::from_table(&t, &s.inputs, s.output.as_deref()).map_err(|e| e.to_string())?;
+    let mut r = Record::from_table(&t, &s.inputs, s.output()?).map_err(|e| e.to_string())?;
     let ts = sample_time(&t)?;
     if let Some((_, dt)) = ts {
         r = r.with_sample_time(dt);
@@ -23,6 +22,48 @@ pub fn load(path: &Path, s: &SignalArgs) -> Result<Record> {
         ))
     );
     Ok(r)
+}
+
+/// One record of `path` per output column of `s` (at least two), all with
+/// the same inputs: `--input`, else every column but the outputs and the
+/// index/time columns (no output is an input of another); prints the roles.
+pub fn load_outputs(path: &Path, s: &SignalArgs) -> Result<Vec<Record>> {
+    if let Some(o) = (1..s.outputs.len()).find(|&i| s.outputs[..i].contains(&s.outputs[i])) {
+        return Err(format!("--output '{}' is given twice", s.outputs[o]));
+    }
+    let t = CsvTable::read(path).map_err(|e| e.to_string())?;
+    let ts = sample_time(&t)?;
+    let mut out = vec![];
+    for o in &s.outputs {
+        // the table without the other outputs
+        let (names, columns) = t
+            .names
+            .iter()
+            .zip(&t.columns)
+            .filter(|(n, _)| *n == o || !s.outputs.contains(n))
+            .map(|(n, c)| (n.clone(), c.clone()))
+            .unzip();
+        let own = CsvTable {
+            path: t.path.clone(),
+            names,
+            columns,
+        };
+        let mut r = Record::from_table(&own, &s.inputs, Some(o)).map_err(|e| e.to_string())?;
+        if let Some((_, dt)) = ts {
+            r = r.with_sample_time(dt);
+        }
+        out.push(r);
+    }
+    println!(
+        "{}: inputs {} -> outputs {} (one model each){}",
+        path.display(),
+        out[0].input_names.join(","),
+        s.outputs.join(","),
+        ts.map_or(String::new(), |(c, dt)| format!(
+            "; sample time {dt:.6e} s (column {c})"
+        ))
+    );
+    Ok(out)
 }
 
 /// The sample time of the time column (`t`, `time`, `timestamp`), if there
@@ -88,37 +129,55 @@ pub fn simulation_columns(
     names
 }
 
-/// Writes the inputs, the measured output (if any), `y_sim` and the
-/// `extra` columns to `out` (atomically), then prints the errors over
+/// One output of a simulation: its name, its measured values (when the
+/// data have them) and its simulation.
+pub struct SimOutput<'a> {
+    /// The output's name.
+    pub name: &'a str,
+    /// Measured values, if present.
+    pub measured: Option<&'a [f64]>,
+    /// Simulated values.
+    pub sim: &'a [f64],
+}
+
+/// Writes the inputs, the measured outputs (if any), the simulated outputs
+/// (see [`simulation_columns`]) and the `extra` columns to `out`
+/// (atomically), then prints the errors of each measured output over
 /// samples `n0..`.
 pub fn write_simulation(
     out: &Path,
     in_names: &[String],
     inputs: &[Vec<f64>],
-    y: Option<&[f64]>,
-    sim: &[f64],
+    outputs: &[SimOutput<'_>],
     extra: &[(&str, &[f64])],
     n0: usize,
 ) -> Result<()> {
-    let mut names: Vec<&str> = in_names.iter().map(String::as_str).collect();
+    let out_names: Vec<String> = outputs.iter().map(|o| o.name.to_string()).collect();
+    let present: Vec<Option<usize>> = outputs.iter().map(|o| o.measured.map(|_| 0)).collect();
+    let names = simulation_columns(in_names, &out_names, &present);
+    let mut names: Vec<&str> = names.iter().map(String::as_str).collect();
     let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
-    if let Some(y) = y {
-        names.push("y");
-        cols.push(y);
-    }
-    names.push("y_sim");
-    cols.push(sim);
+    cols.extend(outputs.iter().filter_map(|o| o.measured));
+    cols.extend(outputs.iter().map(|o| o.sim));
     for (n, c) in extra {
         names.push(n);
         cols.push(c);
     }
     gb_core::write_csv_atomic(out, &names, &cols).map_err(|e| e.to_string())?;
-    if let Some(y) = y {
+    for o in outputs {
+        let (Some(y), sim) = (o.measured, o.sim) else {
+            continue;
+        };
         let n0 = n0.min(y.len().saturating_sub(1));
         let rmse = gb_core::metrics::rmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
         let nrmse = gb_core::metrics::nrmse(&y[n0..], &sim[n0..]).map_err(|e| e.to_string())?;
         println!(
-            "samples {}..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
+            "{}samples {}..{}: RMSE {rmse:.6e}  NRMSE {nrmse:.4}  fit {:.2}%",
+            if outputs.len() > 1 {
+                format!("{}: ", o.name)
+            } else {
+                String::new()
+            },
             n0,
             y.len(),
             100.0 * (1.0 - nrmse)

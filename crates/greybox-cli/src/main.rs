@@ -150,9 +150,25 @@ pub(crate) struct SignalArgs {
     /// Input column (repeat for several inputs). Default: every column except the output, index/time columns and other output-like columns (y1, out, ...).
     #[arg(long = "input", value_name = "COLUMN")]
     pub(crate) inputs: Vec<String>,
-    /// Output column. Default: the column named `y` (an error listing the columns when there is none).
-    #[arg(long, value_name = "COLUMN")]
-    pub(crate) output: Option<String>,
+    /// Output column; repeat it for several outputs (`fit`, `diagnose`: one model per output, sharing the inputs; no output is an input of another). Default: the column named `y` (an error listing the columns when there is none).
+    #[arg(long = "output", value_name = "COLUMN")]
+    pub(crate) outputs: Vec<String>,
+}
+
+impl SignalArgs {
+    /// The one output column named (`None`: the default); an error when
+    /// several are named where one is modelled.
+    pub(crate) fn output(&self) -> Result<Option<&str>> {
+        match self.outputs.as_slice() {
+            [] => Ok(None),
+            [one] => Ok(Some(one)),
+            many => Err(format!(
+                "{} --output columns where one output is modelled ({})",
+                many.len(),
+                many.join(", ")
+            )),
+        }
+    }
 }
 
 #[derive(Args)]

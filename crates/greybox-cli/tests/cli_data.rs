@@ -1,6 +1,6 @@
 //! The binary on data questions: `fit --order auto` (order and input delay
-//! read from the training data) and streaming `simulate` from standard
-//! input.
+//! read from the training data), streaming `simulate` from standard input,
+//! and several outputs (`--output` repeated: one model per output).
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use std::path::{Path, PathBuf};
@@ -177,10 +177,14 @@ fn stream(model: &Path, input: &str) -> (Option<i32>, String, String) {
         .spawn()
         .unwrap();
     let mut stdin = c.stdin.take().unwrap();
-    // a closed pipe (the binary stopped at an error) is no test failure
-    let _ = stdin.write_all(input.as_bytes());
-    drop(stdin);
+    // written beside the reading (a long input would fill both pipes); a
+    // closed pipe (the binary stopped at an error) is no test failure
+    let input = input.to_string();
+    let writer = std::thread::spawn(move || {
+        let _ = stdin.write_all(input.as_bytes());
+    });
     let o = c.wait_with_output().unwrap();
+    writer.join().unwrap();
     (
         o.status.code(),
         String::from_utf8_lossy(&o.stdout).to_string(),
@@ -288,4 +292,148 @@ fn simulate_streams_stdin_rows_as_the_batch_simulation() {
     // the rows before a bad one were already written
     let (_, out, _) = stream(&m, "u,y\n1,2\n0.5,1\nabc,1\n");
     assert_eq!(out.lines().count(), 3, "{out}");
+}
+
+/// One input, two outputs: `y_lin` a linear second-order response, `y_sat`
+/// the same kind of dynamics behind a saturation of the input
+/// (tanh(1.5 u)); white noise at 1 % of each output's spread.
+fn two_outputs(path: &Path, n: usize, seed: u64) {
+    let u = steps_input(n, seed);
+    let (mut a, mut b) = (vec![0.0; n], vec![0.0; n]);
+    for k in 2..n {
+        a[k] = 1.5 * a[k - 1] - 0.7 * a[k - 2] + 0.5 * u[k - 1] + 0.3 * u[k - 2];
+        let s = |x: f64| (1.5 * x).tanh();
+        b[k] = 1.2 * b[k - 1] - 0.5 * b[k - 2] + s(u[k - 1]) + 0.5 * s(u[k - 2]);
+    }
+    let (sa, sb) = (std_of(&a), std_of(&b));
+    let mut r = gb_core::rng::seeded(seed + 100);
+    let mut text = String::from("u,y_lin,y_sat\n");
+    for k in 0..n {
+        let (ea, eb): (f64, f64) = (StandardNormal.sample(&mut r), StandardNormal.sample(&mut r));
+        text.push_str(&format!(
+            "{},{},{}\n",
+            u[k],
+            a[k] + 0.01 * sa * ea,
+            b[k] + 0.01 * sb * eb
+        ));
+    }
+    std::fs::write(path, text).unwrap();
+}
+
+/// The values of column `name` of a CSV text, as printed.
+fn column<'a>(csv: &'a str, name: &str) -> Vec<&'a str> {
+    let mut lines = csv.lines();
+    let j = lines
+        .next()
+        .unwrap()
+        .split(',')
+        .position(|c| c == name)
+        .unwrap_or_else(|| panic!("no column {name}"));
+    lines.map(|l| l.split(',').nth(j).unwrap()).collect()
+}
+
+#[test]
+fn two_outputs_are_fitted_simulated_and_diagnosed_one_model_each() {
+    let d = tmp("mimo");
+    let f = d.join("two.csv");
+    two_outputs(&f, 3000, 11);
+    let fs = f.to_str().unwrap();
+    let path = |n: &str| d.join(n).to_str().unwrap().to_string();
+    // fit: one linear model per output; the other output is no input
+    let out = ok(&[
+        "fit",
+        fs,
+        "--output",
+        "y_lin",
+        "--output",
+        "y_sat",
+        "-o",
+        &path("m.gbm"),
+    ]);
+    assert!(out.contains("inputs u -> outputs y_lin,y_sat"), "{out}");
+    for (o, file) in [("y_lin", "lin.gbm"), ("y_sat", "sat.gbm")] {
+        ok(&["fit", fs, "--input", "u", "--output", o, "-o", &path(file)]);
+    }
+    // simulate writes one column per output, each the per-output model's
+    ok(&["simulate", &path("m.gbm"), fs, "-o", &path("sim.csv")]);
+    let sim = std::fs::read_to_string(d.join("sim.csv")).unwrap();
+    assert_eq!(
+        sim.lines().next().unwrap(),
+        "u,y_lin,y_sat,y_lin_sim,y_sat_sim"
+    );
+    for (o, file) in [("y_lin", "lin.gbm"), ("y_sat", "sat.gbm")] {
+        let one = path(&format!("{o}.csv"));
+        ok(&["simulate", &path(file), fs, "-o", &one]);
+        let one = std::fs::read_to_string(&one).unwrap();
+        assert_eq!(
+            column(&sim, &format!("{o}_sim")),
+            column(&one, "y_sim"),
+            "{o}"
+        );
+    }
+    // streamed, the two-output model gives the batch file
+    let (code, streamed, e) = stream(&d.join("m.gbm"), &std::fs::read_to_string(&f).unwrap());
+    assert_eq!(code, Some(0), "{e}");
+    assert_eq!(streamed, sim);
+
+    // diagnose: the linear output gets no cause, the saturating one
+    // `nonlinearity`; per-output JSON sections, one stacked model
+    let out = ok(&[
+        "diagnose",
+        fs,
+        "--output",
+        "y_lin",
+        "--output",
+        "y_sat",
+        "--max-steps",
+        "1",
+        "--json",
+        &path("r.json"),
+        "--save",
+        &path("final.gbm"),
+    ]);
+    assert!(
+        out.contains("== output y_lin ==") && out.contains("== output y_sat =="),
+        "{out}"
+    );
+    assert!(out.contains("output y_lin: causes: none"), "{out}");
+    assert!(out.contains("output y_sat: causes: nonlinearity"), "{out}");
+    let j: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(d.join("r.json")).unwrap()).unwrap();
+    let s = j["outputs"].as_array().unwrap();
+    assert_eq!(s.len(), 2);
+    assert_eq!(s[0]["output"], "y_lin");
+    assert_eq!(s[0]["report"]["causes"], serde_json::json!([]));
+    assert_eq!(s[1]["output"], "y_sat");
+    assert_eq!(
+        s[1]["report"]["causes"],
+        serde_json::json!(["nonlinearity"])
+    );
+    ok(&["simulate", &path("final.gbm"), fs, "-o", &path("final.csv")]);
+    let fin = std::fs::read_to_string(d.join("final.csv")).unwrap();
+    assert!(fin.starts_with("u,y_lin,y_sat,y_lin_sim,y_sat_sim\n"));
+
+    // a repeated output and a model file with several outputs are errors
+    for (args, needle) in [
+        (
+            vec!["fit", fs, "--output", "y_lin", "--output", "y_lin", "-o"],
+            "given twice",
+        ),
+        (
+            vec!["fit", fs, "--output", "nope", "--output", "y_lin", "-o"],
+            "no column named 'nope'",
+        ),
+    ] {
+        let mut args = args.clone();
+        let bad = path("bad.gbm");
+        args.push(&bad);
+        let o = run(&args);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(2), "{e}");
+        assert!(
+            e.contains(needle) && e.trim_end().lines().count() == 1,
+            "{e}"
+        );
+        assert!(!d.join("bad.gbm").exists());
+    }
 }
