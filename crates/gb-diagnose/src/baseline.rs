@@ -49,12 +49,27 @@ pub struct StructureChoice {
     pub order_auto: bool,
     /// Orders fitted by `--order auto`, with their decision NRMSE.
     pub orders: Vec<(usize, f64)>,
+    /// `--order auto` scanned the delay again at the order it chose first
+    /// (that order, the confirmed delays with their decision NRMSE); the
+    /// orders were then tried again with the new delay.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub delay_rescan: Option<DelayRescan>,
     /// How decisions are made (select-block bootstrap or cross-validation).
     pub decision: String,
     /// The baseline is the user's model file (its name, states and fitted
     /// parameters in words); the delay/order fields are then unused.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub user_model: Option<String>,
+}
+
+/// The delay scanned again by `--order auto` at the order it chose first.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub struct DelayRescan {
+    /// The order of the scan.
+    pub order: usize,
+    /// The delays confirmed by the output-error fit at that order, with
+    /// their decision NRMSE.
+    pub candidates: Vec<(Vec<usize>, f64)>,
 }
 
 impl StructureChoice {
@@ -114,6 +129,20 @@ impl StructureChoice {
         }
         if let Some([plain, inc]) = self.integrator_test {
             s.push_str(&format!(" (NRMSE {plain:.4} plain vs {inc:.4} increments)"));
+        }
+        if let Some(DelayRescan {
+            order: n,
+            candidates,
+        }) = &self.delay_rescan
+        {
+            let c: Vec<String> = candidates
+                .iter()
+                .map(|(d, e)| format!("{} {:.4}", v(d), e))
+                .collect();
+            s.push_str(&format!(
+                "; delay scanned again at order {n} (decision NRMSE {})",
+                c.join(", ")
+            ));
         }
         if self.order_auto {
             let o: Vec<String> = self
@@ -375,7 +404,14 @@ pub(crate) fn baseline(
     choice.feedthrough = feedthrough;
     let eval = match opts.order {
         OrderChoice::Fixed(_) => eval,
-        OrderChoice::Auto => auto_order(d, &plan, opts, (&delay, feedthrough), eval, &mut choice)?,
+        OrderChoice::Auto => auto_structure(
+            d,
+            &plan,
+            opts,
+            (n_ref, bound, feedthrough),
+            eval,
+            &mut choice,
+        )?,
     };
     Ok(Baseline { eval, plan, choice })
 }
@@ -494,4 +530,86 @@ fn auto_order(
             ))
         })?;
     Ok(fits.swap_remove(i).1)
+}
+
+/// `--order auto`: the order with the delay read at the reference order
+/// `n_ref`; when it chose another order, the delay is scanned again at that
+/// order (a delay read at a too low order absorbs the missing dynamics) and,
+/// when the delay moves, the order is chosen again with the new delay. The
+/// feedthrough choice made at the reference order is kept.
+fn auto_structure(
+    d: &DiagnoseData,
+    plan: &Plan,
+    opts: &DiagnoseOptions,
+    (n_ref, bound, feedthrough): (usize, usize, bool),
+    at_ref: Evaluated,
+    choice: &mut StructureChoice,
+) -> Result<Evaluated, DiagnoseError> {
+    let delay = choice.delay.clone();
+    let eval = auto_order(d, plan, opts, (&delay, feedthrough), at_ref, choice)?;
+    let n = eval.lineage.order();
+    if n == n_ref {
+        return Ok(eval);
+    }
+    let (oe, poles) = oe_delay_scan(&plan.fit, n, bound, &delay, opts);
+    // at a higher order the numerator spans more lags: every delay from the
+    // scan's up to n − 1 samples later may fit as well
+    let mut cands = vec![];
+    around(&oe, bound, &mut cands);
+    for j in 0..oe.len() {
+        for t in 2..n {
+            let mut v = oe.clone();
+            v[j] = (v[j] + t).min(bound);
+            if !cands.contains(&v) {
+                cands.push(v);
+            }
+        }
+    }
+    if !cands.contains(&delay) {
+        cands.push(delay.clone());
+    }
+    let mut fits: Vec<(Vec<usize>, Evaluated)> = cands
+        .par_iter()
+        .filter_map(|v| {
+            fit_structure(plan, d, opts, n, (v, feedthrough), poles.as_ref())
+                .ok()
+                .map(|e| (v.clone(), e))
+        })
+        .collect();
+    let listed = fits
+        .iter()
+        .map(|(v, e)| (v.clone(), e.scores.nrmse_select))
+        .collect();
+    choice.delay_rescan = Some(DelayRescan {
+        order: n,
+        candidates: listed,
+    });
+    // of the delays within tolerance of the best, the longest: leading
+    // numerator terms that fit zero are a dead time
+    let best = fits
+        .iter()
+        .map(|(_, e)| e.scores.nrmse_select)
+        .fold(f64::INFINITY, f64::min);
+    let tol = opts.policy.delay_tolerance;
+    let Some(pick) = (0..fits.len())
+        .filter(|&i| fits[i].1.scores.nrmse_select <= best * tol + 1e-15)
+        .max_by(|&a, &b| {
+            let sum = |i: usize| fits[i].0.iter().sum::<usize>();
+            sum(a).cmp(&sum(b)).then(
+                fits[b]
+                    .1
+                    .scores
+                    .nrmse_select
+                    .total_cmp(&fits[a].1.scores.nrmse_select),
+            )
+        })
+    else {
+        return Ok(eval);
+    };
+    if fits[pick].0 == delay {
+        return Ok(eval);
+    }
+    let (new, at_n) = fits.swap_remove(pick);
+    choice.delay = new.clone();
+    auto_order(d, plan, opts, (&new, feedthrough), at_n, choice)
 }

@@ -42,13 +42,14 @@ mod physics;
 mod plan;
 mod policy;
 mod report;
+mod select;
 pub mod stats;
 mod structure;
 pub mod sweep;
 pub mod systems;
 mod verdict;
 
-pub use baseline::StructureChoice;
+pub use baseline::{DelayRescan, StructureChoice};
 pub use cause::Cause;
 pub use data::DiagnoseData;
 pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, OrderChoice};
@@ -58,6 +59,7 @@ pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role,
 pub use html::render_html;
 pub use policy::DecisionPolicy;
 pub use report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
+pub use select::{choose_structure, ChosenStructure};
 pub use verdict::{Verdict, VerdictKind};
 
 /// Errors of the diagnosis crate.

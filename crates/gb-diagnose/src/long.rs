@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 
 /// The subsample the structure is searched on: the first `n` training
 /// samples (fit/select 75/25) and at most `n / 2` report samples.
-fn subsample(d: &DiagnoseData, n: usize) -> DiagnoseData {
+pub(crate) fn subsample(d: &DiagnoseData, n: usize) -> DiagnoseData {
     let start = d.fit.start;
     let train = d.train.slice(start..start + n);
     let fit_end = n * 3 / 4;

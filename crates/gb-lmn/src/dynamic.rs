@@ -125,13 +125,15 @@ impl DynamicModel for LocalModelNetwork {
         };
         copy_out(&sim, y)
     }
-    /// From [`Init::Rest`] (a zero output history) or the measured output
+    /// From [`Init::Rest`] (a zero output history), the measured output
     /// history ([`Init::History`] / [`Init::State`], as in
-    /// [`LocalModelNetwork::simulate_signals`]).
+    /// [`LocalModelNetwork::simulate_signals`]) or [`Init::Stored`] (no
+    /// history: the training operating point, as `simulate` starts).
     fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
         let zeros = vec![0.0; self.spec.max_lag()];
         let h = match init {
             Init::Rest => &zeros[..],
+            Init::Stored => &[][..],
             Init::History(h) | Init::State(h) => h,
             other => return Err(unsupported(self.class(), &other)),
         };
@@ -242,10 +244,11 @@ impl DynamicModel for WienerHammersteinNetwork {
         check_inputs(1, u)?;
         copy_out(&self.simulate(&u[0]), y)
     }
-    /// From the zero state ([`Init::Rest`], or an all-zero [`Init::State`]).
+    /// From the zero state ([`Init::Rest`], [`Init::Stored`] or an all-zero
+    /// [`Init::State`]).
     fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
         match init {
-            Init::Rest => {}
+            Init::Rest | Init::Stored => {}
             Init::State(x) if x.iter().all(|v| *v == 0.0) => {}
             other => return Err(unsupported(self.class(), &other)),
         }
@@ -297,11 +300,12 @@ impl DynamicModel for SsLmnModel {
         };
         copy_out(&sim, y)
     }
-    /// From [`Init::Rest`] (the zero state) or [`Init::State`].
+    /// From [`Init::Rest`] or [`Init::Stored`] (the zero state, as
+    /// `simulate` starts both) or [`Init::State`].
     fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
         let zeros = vec![0.0; SsLmnModel::n_states(self)];
         let x0 = match init {
-            Init::Rest => &zeros[..],
+            Init::Rest | Init::Stored => &zeros[..],
             Init::State(x) => x,
             other => return Err(unsupported(self.class(), &other)),
         };

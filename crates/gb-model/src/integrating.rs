@@ -184,10 +184,10 @@ impl DynamicModel for IntegratingModel {
             Init::State(x) if x.len() == self.n_states() => {
                 (x[0], self.inner.stepper(Init::State(&x[1..]))?)
             }
-            Init::Rest => (0.0, self.inner.stepper(Init::Rest)?),
+            Init::Rest | Init::Stored => (0.0, self.inner.stepper(init)?),
             _ => {
                 return Err(CoreError::Unsupported(
-                    "an integrating model steps from rest or an explicit state".into(),
+                    "an integrating model steps from rest, stored or an explicit state".into(),
                 ))
             }
         };

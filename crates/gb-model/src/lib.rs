@@ -43,6 +43,7 @@ mod integrating;
 mod legacy;
 mod linear;
 mod model;
+mod multi_output;
 // `PhysicsError` carries the file, line, expression and symbol of a model
 // error for its one-line message; errors are the cold path.
 #[allow(clippy::result_large_err)]
@@ -67,6 +68,7 @@ pub use model::{
     HysteresisTerm, NoiseModel, NonlinearTerm, Signal, SparseStateSpace, StateSpaceStepper,
     Structure, Target, FORMAT_VERSION, MAGIC,
 };
+pub use multi_output::{MultiOutputModel, MULTI_OUTPUT_CLASS};
 pub use smc::{PosteriorParameter, Smc, SmcParams, SmcReport, SMC_MAX_STATES};
 pub use smc_states::{StateBand, StateEstimate, SMOOTHING_TRAJECTORIES};
 pub use structures::{

@@ -608,8 +608,8 @@ impl gb_core::DynamicModel for SparseStateSpace {
         Ok(())
     }
     /// `Rest` starts from the zero state (as [`simulate_into`](gb_core::DynamicModel::simulate_into)),
-    /// `State` from the given one; the Preisach components start from
-    /// negative saturation.
+    /// `Stored` from the fitted `x₀`, `State` from the given one; the
+    /// Preisach components start from negative saturation.
     fn stepper(
         &self,
         init: gb_core::Init<'_>,
@@ -617,6 +617,7 @@ impl gb_core::DynamicModel for SparseStateSpace {
         use gb_core::Init;
         let x0 = match init {
             Init::Rest => vec![0.0; self.n_states],
+            Init::Stored => self.x0.clone(),
             Init::State(x) if x.len() == self.n_states => x.to_vec(),
             Init::State(x) => {
                 return Err(gb_core::CoreError::Dimension(format!(
@@ -627,7 +628,7 @@ impl gb_core::DynamicModel for SparseStateSpace {
             }
             _ => {
                 return Err(gb_core::CoreError::Unsupported(
-                    "state-space: a stepper starts at rest or from a given state".into(),
+                    "state-space: a stepper starts at rest, stored or given state".into(),
                 ))
             }
         };

@@ -74,6 +74,11 @@ pub static CLASSES: &[ModelClass] = &[
         decode: |b, v| boxed(crate::IntegratingModel::decode(b, v)),
     },
     ModelClass {
+        tag: "multi-output",
+        summary: "several outputs: one one-output model of any class per output, sharing the inputs (no output is an input of another; gb-model)",
+        decode: |b, v| boxed(crate::MultiOutputModel::decode(b, v)),
+    },
+    ModelClass {
         tag: "physics",
         summary: "the engineer's continuous-time equations from a model file (TOML), RK4, fitted with standard errors and intervals (gb-model)",
         decode: |b, v| boxed(crate::physics::PhysicsModel::decode(b, v)),

@@ -1,5 +1,5 @@
 //! `greybox diagnose`: the diagnosis on files or a generated example.
-use crate::io::load;
+use crate::io::{load, load_outputs};
 use crate::progress::Bar;
 use crate::{DiagnoseArgs, Result};
 use gb_diagnose::{diagnose, systems, DiagnoseData, DiagnoseOptions, OrderChoice};
@@ -79,6 +79,9 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
     if a.max_steps == 0 || a.max_steps > 4 {
         return Err(format!("--max-steps must be 1..=4, got {}", a.max_steps));
     }
+    if a.signals.outputs.len() > 1 {
+        return run_outputs(&a, order, quiet);
+    }
     let (data, physics) = data(&a)?;
     let opts = DiagnoseOptions {
         order,
@@ -117,6 +120,91 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
     }
     if let Some(s) = &a.save {
         d.model.save(s).map_err(|e| e.to_string())?;
+        println!("final model saved to {}", s.display());
+    }
+    Ok(())
+}
+
+/// One diagnosis per output (`--output` repeated): each output's records
+/// share the inputs; the reports are printed one after the other, the JSON
+/// report has one section per output, the HTML reports are concatenated and
+/// the final models are stacked into one `multi-output` model.
+fn run_outputs(a: &DiagnoseArgs, order: OrderChoice, quiet: bool) -> Result<()> {
+    if a.example.is_some() || a.model_file.is_some() {
+        return Err(
+            "several --output columns need a training CSV (no --example or --model-file)".into(),
+        );
+    }
+    let train_path = a.train.as_ref().ok_or("a training CSV is needed")?;
+    let train = load_outputs(train_path, &a.signals)?;
+    let (inputs, sample_time) = (train[0].input_names.clone(), train[0].sample_time);
+    let val = a
+        .validate
+        .as_ref()
+        .map(|v| load_outputs(v, &a.signals))
+        .transpose()?;
+    let opts = DiagnoseOptions {
+        order,
+        max_steps: a.max_steps,
+        ..DiagnoseOptions::default()
+    };
+    let (mut sections, mut html, mut parts) = (vec![], String::new(), vec![]);
+    for (o, tr) in train.into_iter().enumerate() {
+        let name = a.signals.outputs[o].clone();
+        let data = match &val {
+            Some(v) => {
+                DiagnoseData::with_validation(tr, v[o].clone()).map_err(|e| e.to_string())?
+            }
+            None => DiagnoseData::from_single(tr),
+        };
+        let bar = Bar::new(quiet, 1 + a.max_steps, "");
+        let d = diagnose(&data, &opts, Some(&bar)).map_err(|e| format!("output {name}: {e}"))?;
+        bar.finish();
+        println!("\n== output {name} ==");
+        print!("{}", d.report.to_text());
+        if a.report.is_some() {
+            let title = format!(
+                "greybox diagnosis: {} (output {name})",
+                train_path.display()
+            );
+            html.push_str(&gb_diagnose::render_html(&d, &data, &title).map_err(|e| e.to_string())?);
+        }
+        let report = serde_json::to_value(&d.report).map_err(|e| e.to_string())?;
+        sections.push(serde_json::json!({"output": name, "report": report}));
+        parts.push((d.model.dynamics, d.model.noise));
+    }
+    println!();
+    for (s, name) in sections.iter().zip(&a.signals.outputs) {
+        let causes = s["report"]["causes"]
+            .as_array()
+            .map(|c| {
+                c.iter()
+                    .filter_map(|v| v.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            })
+            .filter(|c| !c.is_empty())
+            .unwrap_or_else(|| "none".into());
+        println!("output {name}: causes: {causes}");
+    }
+    let json = serde_json::to_string_pretty(&serde_json::json!({ "outputs": sections }))
+        .map_err(|e| e.to_string())?;
+    let noise = parts[0].1.clone();
+    let stack = gb_model::MultiOutputModel::new(parts).map_err(|e| e.to_string())?;
+    let mut model =
+        gb_core::FittedModel::new(inputs, a.signals.outputs.clone(), Box::new(stack), noise)
+            .map_err(|e| e.to_string())?;
+    model.sample_time = sample_time;
+    if let Some(p) = &a.report {
+        gb_core::write_atomic(p, html.as_bytes()).map_err(|e| e.to_string())?;
+        println!("HTML report written to {}", p.display());
+    }
+    if let Some(j) = &a.json {
+        gb_core::write_atomic(j, json.as_bytes()).map_err(|e| e.to_string())?;
+        println!("report written to {}", j.display());
+    }
+    if let Some(s) = &a.save {
+        model.save(s).map_err(|e| e.to_string())?;
         println!("final model saved to {}", s.display());
     }
     Ok(())

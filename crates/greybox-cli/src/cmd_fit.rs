@@ -1,8 +1,11 @@
 //! `greybox fit --model SPEC`: any recipe of the model registry.
-use crate::io::load;
+use crate::io::{load, load_outputs};
 use crate::progress::Bar;
 use crate::{FitArgs, Result};
-use gb_core::{Init, ModelSpec, Records};
+use gb_core::{FittedModel, Init, ModelSpec, Record, Records};
+use gb_diagnose::{DiagnoseData, DiagnoseOptions, OrderChoice};
+use gb_model::recipes::Fitted;
+use gb_model::MultiOutputModel;
 
 /// The `--help` text of `fit`: the spec grammar, every recipe, examples.
 pub fn help() -> String {
@@ -24,7 +27,7 @@ pub(crate) fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
             s.set_default(k, v);
         }
     };
-    set("order", a.order.map(|v| v.to_string()));
+    set("order", a.order.clone().filter(|o| o != "auto"));
     set("weights", a.weights.clone());
     set("splits", a.splits.clone());
     set("prune", a.prune.then(|| "true".to_string()));
@@ -43,25 +46,67 @@ pub(crate) fn spec_of(a: &FitArgs) -> Result<ModelSpec> {
     Ok(s)
 }
 
-/// Fit, save, and print the model, its notes and the training NRMSE.
-pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
-    if a.smc.is_smc()? {
-        return crate::cmd_smc::fit(&a, quiet);
+/// `--order auto`: the order, input delay and integrator of the
+/// diagnosis' baseline chosen on `train` (its fit and select blocks), set
+/// as the spec's `order` and, where the recipe has one, `delay` options
+/// (options the spec names stay); prints the choice and the candidates'
+/// decision NRMSEs.
+fn auto_structure(mut spec: ModelSpec, train: &Record, quiet: bool) -> Result<ModelSpec> {
+    let recipe = gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
+    let has = |k: &str| {
+        recipe
+            .options
+            .iter()
+            .any(|o| o.split(['=', ':']).next() == Some(k))
+    };
+    if !has("order") {
+        return Err(format!(
+            "--order auto: model spec '{spec}' has no order option"
+        ));
     }
-    if let Some(path) = &a.model_file {
-        return crate::cmd_physics::fit(&a, path, quiet);
+    let opts = DiagnoseOptions {
+        order: OrderChoice::Auto,
+        ..DiagnoseOptions::default()
+    };
+    let d = DiagnoseData::from_single(train.clone());
+    let bar = Bar::spinner(quiet, "choosing order and delay");
+    let c = gb_diagnose::choose_structure(&d, &opts).map_err(|e| e.to_string())?;
+    bar.finish();
+    let delay: Vec<String> = c.choice.delay.iter().map(|v| v.to_string()).collect();
+    println!(
+        "order auto: order {}, delay [{}] chosen on the training data ({}; NRMSE {:.4})",
+        c.order,
+        delay.join(","),
+        c.choice.decision,
+        c.nrmse_select
+    );
+    println!("  {}", c.choice.text());
+    if c.choice.integrating {
+        println!("  note: the output integrates; `diagnose` models its increments, `fit` fits the output itself");
     }
-    let spec = spec_of(&a)?;
-    gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
-    let first = load(&a.train, &a.signals)?;
-    let mut records = vec![first];
-    for f in &a.experiments {
-        let e = load(f, &a.signals)?;
-        e.check_identifiable(&f.display().to_string(), 20)
-            .map_err(|e| e.to_string())?;
-        records.push(e);
+    spec.set_default("order", c.order.to_string());
+    if has("delay") {
+        spec.set_default("delay", delay.join("/"));
+    } else {
+        println!("  note: model spec '{spec}' has no delay option; the delay is not used");
     }
+    Ok(spec)
+}
+
+/// Fit `spec` (with `--order auto`, its order and delay chosen on the
+/// first record) on `records`; prints the model, its notes and the training
+/// NRMSE (free run; the model's lags or an init window of 50 samples set
+/// the initial state).
+fn fit_output(
+    a: &FitArgs,
+    mut spec: ModelSpec,
+    records: Vec<Record>,
+    quiet: bool,
+) -> Result<Fitted> {
     let data = Records::new(records).map_err(|e| e.to_string())?;
+    if a.order.as_deref() == Some("auto") {
+        spec = auto_structure(spec, data.first(), quiet)?;
+    }
     let bar = Bar::spinner(quiet, &format!("fitting {spec}"));
     let fitted = gb_model::recipes::fit(&spec, &data, &bar).map_err(|e| match e {
         // a bad option is the spec's fault, not the file's
@@ -71,8 +116,6 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     bar.finish();
     let m = &fitted.model;
     let d = data.first();
-    // training error: free run, the first samples (the model's lags, or an
-    // init window of 50 for state-space models) set the initial state
     let h = m.dynamics.history_len();
     let w = if h > 0 { h } else { 50.min(d.len() / 10) };
     let init = if h > 0 {
@@ -83,7 +126,6 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     let sim = m.simulate(&d.inputs, init).map_err(|e| e.to_string())?;
     let w = w.min(d.len());
     let nrmse = gb_core::metrics::nrmse(&d.output[w..], &sim[w..]).map_err(|e| e.to_string())?;
-    m.save(&a.out).map_err(|e| e.to_string())?;
     println!("model: {}", m.describe());
     println!("class: {}; spec: {spec}", m.dynamics.class());
     println!("parameters: {}", m.dynamics.n_parameters());
@@ -91,6 +133,65 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
         println!("{n}");
     }
     println!("training NRMSE (free-run simulation): {nrmse:.4}");
+    Ok(fitted)
+}
+
+/// Several outputs: one model of `spec` per output on the same inputs,
+/// stacked into one `multi-output` model.
+fn fit_outputs(a: &FitArgs, spec: ModelSpec, quiet: bool) -> Result<FittedModel> {
+    let mut per_file = vec![load_outputs(&a.train, &a.signals)?];
+    for f in &a.experiments {
+        per_file.push(load_outputs(f, &a.signals)?);
+    }
+    let mut parts = vec![];
+    for (o, name) in a.signals.outputs.iter().enumerate() {
+        println!("\noutput {name}:");
+        let records: Vec<Record> = per_file.iter().map(|r| r[o].clone()).collect();
+        for (r, f) in records.iter().skip(1).zip(&a.experiments) {
+            r.check_identifiable(&f.display().to_string(), 20)
+                .map_err(|e| e.to_string())?;
+        }
+        let fm = fit_output(a, spec.clone(), records, quiet)?.model;
+        parts.push((fm.dynamics, fm.noise));
+    }
+    let first = &per_file[0][0];
+    let noise = parts[0].1.clone();
+    let stack = MultiOutputModel::new(parts).map_err(|e| e.to_string())?;
+    let mut m = FittedModel::new(
+        first.input_names.clone(),
+        a.signals.outputs.clone(),
+        Box::new(stack),
+        noise,
+    )
+    .map_err(|e| e.to_string())?;
+    m.sample_time = first.sample_time;
+    println!("\nmodel: {}", m.dynamics.describe());
+    Ok(m)
+}
+
+/// Fit, save, and print the model, its notes and the training NRMSE.
+pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
+    if a.smc.is_smc()? {
+        return crate::cmd_smc::fit(&a, quiet);
+    }
+    if let Some(path) = &a.model_file {
+        return crate::cmd_physics::fit(&a, path, quiet);
+    }
+    let spec = spec_of(&a)?;
+    gb_model::recipes::check_spec(&spec).map_err(|e| e.to_string())?;
+    let m = if a.signals.outputs.len() > 1 {
+        fit_outputs(&a, spec, quiet)?
+    } else {
+        let mut records = vec![load(&a.train, &a.signals)?];
+        for f in &a.experiments {
+            let e = load(f, &a.signals)?;
+            e.check_identifiable(&f.display().to_string(), 20)
+                .map_err(|e| e.to_string())?;
+            records.push(e);
+        }
+        fit_output(&a, spec, records, quiet)?.model
+    };
+    m.save(&a.out).map_err(|e| e.to_string())?;
     println!("saved to {}", a.out.display());
     Ok(())
 }

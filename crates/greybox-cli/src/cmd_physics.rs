@@ -38,7 +38,9 @@ pub fn load_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile) -> Result<Rec
         .first()
         .map(|o| o.name.clone())
         .ok_or_else(|| format!("{}: the model has no output", mf.name))?;
-    let output = s.output.clone().unwrap_or_else(|| model_output.clone());
+    let output = s
+        .output()?
+        .map_or_else(|| model_output.clone(), str::to_string);
     for (role, c) in inputs
         .iter()
         .map(|c| ("input", c))

@@ -57,7 +57,7 @@ enum Command {
     Fit(Box<FitArgs>),
     /// Simulate a saved model on the inputs of a CSV file (free run).
     #[command(
-        after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit"
+        after_help = "Examples:\n  greybox simulate model.gbm test.csv -o sim.csv --init-window 50\n  greybox simulate msd.gbm test.csv -o sim.csv --bands   # 95 % prediction band of a --model-file fit\n  sensor | greybox simulate model.gbm -                   # online: CSV rows on stdin (header first), one simulated row out per row in"
     )]
     Simulate(SimulateArgs),
     /// Estimate the hidden states of a saved state-space model by a particle filter (95 % bands).
@@ -156,9 +156,25 @@ pub(crate) struct SignalArgs {
     /// Input column (repeat for several inputs). Default: every column except the output, index/time columns and other output-like columns (y1, out, ...).
     #[arg(long = "input", value_name = "COLUMN")]
     pub(crate) inputs: Vec<String>,
-    /// Output column. Default: the column named `y` (an error listing the columns when there is none).
-    #[arg(long, value_name = "COLUMN")]
-    pub(crate) output: Option<String>,
+    /// Output column; repeat it for several outputs (`fit`, `diagnose`: one model per output, sharing the inputs; no output is an input of another). Default: the column named `y` (an error listing the columns when there is none).
+    #[arg(long = "output", value_name = "COLUMN")]
+    pub(crate) outputs: Vec<String>,
+}
+
+impl SignalArgs {
+    /// The one output column named (`None`: the default); an error when
+    /// several are named where one is modelled.
+    pub(crate) fn output(&self) -> Result<Option<&str>> {
+        match self.outputs.as_slice() {
+            [] => Ok(None),
+            [one] => Ok(Some(one)),
+            many => Err(format!(
+                "{} --output columns where one output is modelled ({})",
+                many.len(),
+                many.join(", ")
+            )),
+        }
+    }
 }
 
 #[derive(Args)]
@@ -204,9 +220,9 @@ pub(crate) struct FitArgs {
     /// Your own equations: a TOML model file (states, parameters, equations, outputs; see docs/physics.md), fitted with standard errors and 95 % intervals.
     #[arg(long, value_name = "FILE.toml", conflicts_with = "model")]
     pub(crate) model_file: Option<PathBuf>,
-    /// Dynamic order n (the option order=N of the SPEC).
-    #[arg(long)]
-    pub(crate) order: Option<usize>,
+    /// Dynamic order n (the option order=N of the SPEC), or `auto`: order and input delay chosen on the training data as `diagnose --order auto` chooses its baseline's.
+    #[arg(long, value_name = "N|auto")]
+    pub(crate) order: Option<String>,
     #[command(flatten)]
     pub(crate) signals: SignalArgs,
     /// Model file to write.
@@ -268,11 +284,11 @@ pub(crate) struct FitArgs {
 pub(crate) struct SimulateArgs {
     /// Model file written by `fit` or `diagnose --save`.
     pub(crate) model: PathBuf,
-    /// Data with the model's input columns (and optionally its output column).
+    /// Data with the model's input columns (and optionally its output column); `-` streams rows from standard input: each simulated row is written to standard output as soon as it is computed.
     pub(crate) data: PathBuf,
-    /// Output CSV: the inputs, the measured output if present, and y_sim.
+    /// Output CSV: the inputs, the measured output if present, and y_sim (not with `-`: rows go to standard output).
     #[arg(short = 'o', long = "out", value_name = "FILE")]
-    pub(crate) out: PathBuf,
+    pub(crate) out: Option<PathBuf>,
     /// The first N measured outputs initialise the state (estimated by least squares when N exceeds the model's lags); errors are reported on samples N.. only.
     #[arg(long, default_value_t = 0)]
     pub(crate) init_window: usize,
