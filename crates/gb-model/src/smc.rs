@@ -20,6 +20,7 @@ use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig};
 use gb_smc::noise::Noise;
 use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel, TransitionDensity};
 use serde::{Deserialize, Serialize};
+use std::borrow::Cow;
 use std::cell::RefCell;
 
 /// Largest state dimension of the SMC path (states are `[f64; 8]`, the fast
@@ -34,7 +35,7 @@ thread_local! {
 pub(crate) struct NoisyModel<'a> {
     model: SparseStateSpace,
     inputs: &'a [Vec<f64>],
-    hyst: &'a [Vec<f64>],
+    hyst: Cow<'a, [Vec<f64>]>,
     process: Vec<Noise>,
     measurement: Noise,
 }
@@ -50,7 +51,7 @@ impl<'a> NoisyModel<'a> {
         Ok(NoisyModel {
             model: model.clone(),
             inputs,
-            hyst,
+            hyst: Cow::Borrowed(hyst),
             process: model
                 .process_noise
                 .iter()
@@ -430,10 +431,16 @@ impl<'a> ParametricModel for Problem<'a> {
             .collect::<std::result::Result<Vec<_>, _>>()
             .ok()?;
         let measurement = Noise::from_model(&m.measurement_noise).ok()?;
+        // sampled Everett coefficients change the Preisach outputs
+        let hyst = if self.cols.iter().any(|c| matches!(c, Param::Hyst(..))) {
+            Cow::Owned(m.hysteresis_outputs(self.inputs).ok()?)
+        } else {
+            Cow::Borrowed(self.hyst)
+        };
         Some(NoisyModel {
             model: m,
             inputs: self.inputs,
-            hyst: self.hyst,
+            hyst,
             process,
             measurement,
         })
