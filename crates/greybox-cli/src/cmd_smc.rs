@@ -44,22 +44,36 @@ pub(crate) struct SmcArgs {
     /// Identification method: oe (output error, the default) or smc (PMMH on the noise scales and the largest wavelet coefficients, from the output-error fit; `--model state-space` only).
     #[arg(long, value_name = "oe|smc", default_value = "oe")]
     pub(crate) method: String,
-    /// `--method smc`: particles of the filter.
-    #[arg(long, value_name = "N", default_value_t = 200, value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
-    pub(crate) particles: u64,
-    /// `--method smc`: PMMH iterations (the first quarter is burn-in).
-    #[arg(long, value_name = "N", default_value_t = 2000, value_parser = clap::value_parser!(u64).range(8..=10_000_000))]
-    pub(crate) iterations: u64,
-    /// `--method smc`: random seed.
-    #[arg(long, value_name = "S", default_value_t = 1)]
-    pub(crate) seed: u64,
+    /// `--method smc`: particles of the filter [default: 200].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub(crate) particles: Option<u64>,
+    /// `--method smc`: PMMH iterations, the first quarter burn-in [default: 2000].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(8..=10_000_000))]
+    pub(crate) iterations: Option<u64>,
+    /// `--method smc`: random seed [default: 1].
+    #[arg(long, value_name = "S")]
+    pub(crate) seed: Option<u64>,
 }
 
 impl SmcArgs {
     /// `--method smc` (an unknown method is an error).
+    /// `--particles`, `--iterations` and `--seed` belong to `--method smc`:
+    /// with the output-error method they are an error, not ignored.
     pub(crate) fn is_smc(&self) -> Result<bool> {
         match self.method.as_str() {
-            "oe" => Ok(false),
+            "oe" => {
+                let given = [
+                    ("--particles", self.particles.is_some()),
+                    ("--iterations", self.iterations.is_some()),
+                    ("--seed", self.seed.is_some()),
+                ];
+                match given.iter().find(|(_, g)| *g) {
+                    Some((flag, _)) => Err(format!(
+                        "{flag} applies to --method smc only (the output-error fit is deterministic)"
+                    )),
+                    None => Ok(false),
+                }
+            }
             "smc" => Ok(true),
             m => Err(format!("--method '{m}': expected oe or smc")),
         }
@@ -168,12 +182,13 @@ pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
         .model;
     bar.finish();
     let oe = state_space(&a.train, &fitted)?.clone();
-    let iterations = usize::try_from(a.smc.iterations).map_err(|e| e.to_string())?;
-    let particles = usize::try_from(a.smc.particles).map_err(|e| e.to_string())?;
+    let iterations =
+        usize::try_from(a.smc.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
+    let particles = usize::try_from(a.smc.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
     let smc = SmcParams::new()
         .particles(particles)
         .iterations(iterations, iterations / 4)
-        .seed(a.smc.seed)
+        .seed(a.smc.seed.unwrap_or(1))
         .check()
         .map_err(|e| e.to_string())?;
     let bar = Bar::new(quiet, iterations + 1, "PMMH");

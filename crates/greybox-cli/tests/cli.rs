@@ -913,6 +913,22 @@ fn fit_method_smc_reports_the_posterior_and_warns_on_short_chains() {
             "{l}"
         );
     }
+    // the SMC flags with the output-error method: an error, not ignored
+    let oe_model = d.join("oe.gbm");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model",
+        "state-space",
+        "--particles",
+        "50",
+        "-o",
+        oe_model.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--particles applies to --method smc only"));
+    assert_eq!(stderr(&o).trim().lines().count(), 1, "{}", stderr(&o));
+    assert!(!oe_model.exists());
     let out = d.join("states.csv");
     let o = run(&[
         "filter",
