@@ -9,10 +9,7 @@
 //! least-squares offset of the summed simulation to the window; with a
 //! history the level is anchored at the last history sample; at rest the
 //! level is 0; an explicit state is `[level, inner state…]`.
-use crate::registry::Registry;
-use gb_core::{
-    check_inputs, ClassDecoder, CoreError, DynamicModel, Init, ModelView, Stepper, Workspace,
-};
+use gb_core::{check_inputs, CoreError, DynamicModel, Init, ModelView, Stepper, Workspace};
 use serde::{Deserialize, Serialize};
 use std::any::Any;
 
@@ -68,19 +65,11 @@ impl IntegratingModel {
     /// decoded through the registry).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
         let b: Body = gb_core::decode_postcard(INTEGRATING_CLASS, version, 1, body)?;
-        if b.class == INTEGRATING_CLASS {
-            return Err(CoreError::ModelFile(
-                "corrupt 'integrating' model (nested)".into(),
-            ));
-        }
-        let inner = Registry
-            .decode(&b.class, b.class_version, &b.body)
-            .ok_or_else(|| {
-                CoreError::ModelFile(format!(
-                    "'integrating' model of an unknown class '{}'",
-                    b.class
-                ))
-            })??;
+        let inner = crate::registry::decode_part(
+            INTEGRATING_CLASS,
+            "of an unknown class",
+            (&b.class, b.class_version, &b.body),
+        )?;
         Self::new(inner)
     }
 }

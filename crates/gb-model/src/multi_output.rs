@@ -7,10 +7,8 @@
 //! measured outputs output-major (the same number of samples of each
 //! output); [`Init::State`] the parts' states one after the other; the other
 //! starts go to every part unchanged.
-use crate::registry::Registry;
 use gb_core::{
-    check_inputs, ClassDecoder, CoreError, DynamicModel, Init, ModelView, NoiseModel, Stepper,
-    Workspace,
+    check_inputs, CoreError, DynamicModel, Init, ModelView, NoiseModel, Stepper, Workspace,
 };
 use serde::{Deserialize, Serialize};
 use std::any::Any;
@@ -78,19 +76,11 @@ impl MultiOutputModel {
         let parts = b
             .into_iter()
             .map(|p| {
-                if p.class == MULTI_OUTPUT_CLASS {
-                    return Err(CoreError::ModelFile(
-                        "corrupt 'multi-output' model (nested)".into(),
-                    ));
-                }
-                let m = Registry
-                    .decode(&p.class, p.class_version, &p.body)
-                    .ok_or_else(|| {
-                        CoreError::ModelFile(format!(
-                            "'multi-output' model with a part of unknown class '{}'",
-                            p.class
-                        ))
-                    })??;
+                let m = crate::registry::decode_part(
+                    MULTI_OUTPUT_CLASS,
+                    "with a part of unknown class",
+                    (&p.class, p.class_version, &p.body),
+                )?;
                 Ok((m, p.noise))
             })
             .collect::<Result<Vec<_>, CoreError>>()?;

@@ -103,6 +103,25 @@ impl ClassDecoder for Registry {
     }
 }
 
+/// Decode a model stored inside a wrapper class (`wrapper`: `integrating`,
+/// `multi-output`): a part of the wrapper's own class (a nesting no writer
+/// produces) or of an unknown class is a model-file error; `unknown` says
+/// what the part is in that message.
+pub(crate) fn decode_part(
+    wrapper: &str,
+    unknown: &str,
+    (class, version, body): (&str, u32, &[u8]),
+) -> Result<Box<dyn DynamicModel>, CoreError> {
+    if class == wrapper {
+        return Err(CoreError::ModelFile(format!(
+            "corrupt '{wrapper}' model (nested)"
+        )));
+    }
+    Registry
+        .decode(class, version, body)
+        .ok_or_else(|| CoreError::ModelFile(format!("'{wrapper}' model {unknown} '{class}'")))?
+}
+
 /// Read a model file of any format greybox ever wrote; `name` labels errors.
 pub fn from_bytes(bytes: &[u8], name: &str) -> Result<FittedModel, CoreError> {
     if bytes.len() >= 4 && &bytes[..4] == crate::model::MAGIC {

@@ -23,12 +23,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         .as_ref()
         .ok_or("-o FILE is needed (or `-` as DATA to stream rows from standard input)")?;
     let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
-    let inputs: Vec<Vec<f64>> = m
-        .input_names
-        .iter()
-        .map(|n| t.column(n).map(<[f64]>::to_vec))
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|e| e.to_string())?;
+    let inputs = crate::io::columns(&t, &m.input_names)?;
     // the measured outputs present in the data, one per model output
     let ys: Vec<Option<&[f64]>> = m.output_names.iter().map(|n| t.column(n).ok()).collect();
     if a.init_window > t.n_rows() {

@@ -106,12 +106,7 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
         ));
     }
     let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
-    let inputs: Vec<Vec<f64>> = m
-        .input_names
-        .iter()
-        .map(|n| t.column(n).map(<[f64]>::to_vec))
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|e| e.to_string())?;
+    let inputs = crate::io::columns(&t, &m.input_names)?;
     let out_name = a.output.clone().unwrap_or_else(|| m.output_name().into());
     let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
     let particles = usize::try_from(a.particles).map_err(|e| e.to_string())?;

@@ -104,6 +104,16 @@ pub fn sample_time(t: &CsvTable) -> Result<Option<(String, f64)>> {
     Ok(Some((name.clone(), dt)))
 }
 
+/// The columns of `t` named by `names` (a model's inputs), in that order;
+/// a missing column is an error naming the file and the column.
+pub fn columns(t: &CsvTable, names: &[String]) -> Result<Vec<Vec<f64>>> {
+    names
+        .iter()
+        .map(|n| t.column(n).map(<[f64]>::to_vec))
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| e.to_string())
+}
+
 /// The columns of a simulation's output: the inputs, the measured outputs
 /// present, the simulated outputs (`y`, `y_sim` for one output; `NAME`,
 /// `NAME_sim` for each of several).
