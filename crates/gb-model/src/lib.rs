@@ -70,7 +70,9 @@ pub use model::{
 };
 pub use multi_output::{MultiOutputModel, MULTI_OUTPUT_CLASS};
 pub use smc::{PosteriorParameter, Smc, SmcParams, SmcReport, SMC_MAX_STATES};
-pub use smc_states::{StateBand, StateEstimate, SMOOTHING_TRAJECTORIES};
+pub use smc_states::{
+    OnlineStates, StateBand, StateEstimate, StateStep, StreamingModel, SMOOTHING_TRAJECTORIES,
+};
 pub use structures::{
     fit_state_space, hysteretic_mechanical_start, second_order, second_order_parameters,
 };

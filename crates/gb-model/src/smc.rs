@@ -33,11 +33,29 @@ thread_local! {
 
 /// A [`SparseStateSpace`] with its noise, as a `gb_smc::StateSpaceModel`.
 pub(crate) struct NoisyModel<'a> {
-    model: SparseStateSpace,
-    inputs: &'a [Vec<f64>],
-    hyst: Cow<'a, [Vec<f64>]>,
+    pub(crate) model: SparseStateSpace,
+    rows: Rows<'a>,
     process: Vec<Noise>,
     measurement: Noise,
+}
+
+/// Where the inputs `u_t` and Preisach outputs `h_t` of sample `t` come from.
+enum Rows<'a> {
+    /// A whole record (`[input][t]`, `[component][t]`).
+    Batch {
+        inputs: &'a [Vec<f64>],
+        hyst: Cow<'a, [Vec<f64>]>,
+    },
+    /// Online use: the rows of samples `t − 1` and `t`, in slots `t mod 2`
+    /// (set by [`NoisyModel::set_row`] before the filter sees sample `t`).
+    Stream(Box<std::sync::RwLock<[StreamRow; 2]>>),
+}
+
+/// One sample's inputs and Preisach outputs (online use).
+#[derive(Clone, Copy, Default)]
+pub(crate) struct StreamRow {
+    u: [f64; 8],
+    h: [f64; 8],
 }
 
 impl<'a> NoisyModel<'a> {
@@ -47,11 +65,26 @@ impl<'a> NoisyModel<'a> {
         inputs: &'a [Vec<f64>],
         hyst: &'a [Vec<f64>],
     ) -> Result<Self> {
+        Self::with_rows(
+            model,
+            Rows::Batch {
+                inputs,
+                hyst: Cow::Borrowed(hyst),
+            },
+        )
+    }
+
+    /// `model` with its own noise for online use: the rows come one at a
+    /// time through [`set_row`](Self::set_row).
+    pub(crate) fn streaming(model: &SparseStateSpace) -> Result<NoisyModel<'static>> {
+        NoisyModel::with_rows(model, Rows::Stream(Default::default()))
+    }
+
+    fn with_rows(model: &SparseStateSpace, rows: Rows<'a>) -> Result<Self> {
         check_size(model)?;
         Ok(NoisyModel {
             model: model.clone(),
-            inputs,
-            hyst: Cow::Borrowed(hyst),
+            rows,
             process: model
                 .process_noise
                 .iter()
@@ -81,11 +114,36 @@ impl<'a> NoisyModel<'a> {
     }
 
     fn row(&self, t: usize, u: &mut [f64], h: &mut [f64]) {
-        for (j, v) in u.iter_mut().enumerate() {
-            *v = self.inputs[j][t];
+        match &self.rows {
+            Rows::Batch { inputs, hyst } => {
+                for (j, v) in u.iter_mut().enumerate() {
+                    *v = inputs[j][t];
+                }
+                for (k, v) in h.iter_mut().enumerate() {
+                    *v = hyst[k][t];
+                }
+            }
+            Rows::Stream(rows) => {
+                let rows = rows
+                    .read()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                let r = &rows[t & 1];
+                u.copy_from_slice(&r.u[..u.len()]);
+                h.copy_from_slice(&r.h[..h.len()]);
+            }
         }
-        for (k, v) in h.iter_mut().enumerate() {
-            *v = self.hyst[k][t];
+    }
+
+    /// Online use: the inputs `u` and Preisach outputs `h` of sample `t`
+    /// (a no-op for a whole-record model).
+    pub(crate) fn set_row(&self, t: usize, u: &[f64], h: &[f64]) {
+        if let Rows::Stream(rows) = &self.rows {
+            let mut rows = rows
+                .write()
+                .unwrap_or_else(std::sync::PoisonError::into_inner);
+            let r = &mut rows[t & 1];
+            r.u[..u.len()].copy_from_slice(u);
+            r.h[..h.len()].copy_from_slice(h);
         }
     }
 }
@@ -439,8 +497,10 @@ impl<'a> ParametricModel for Problem<'a> {
         };
         Some(NoisyModel {
             model: m,
-            inputs: self.inputs,
-            hyst,
+            rows: Rows::Batch {
+                inputs: self.inputs,
+                hyst,
+            },
             process,
             measurement,
         })

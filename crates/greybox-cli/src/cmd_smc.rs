@@ -8,6 +8,7 @@ use crate::{FitArgs, Result};
 use clap::Args;
 use gb_core::{CsvTable, Records};
 use gb_model::{SmcParams, SparseStateSpace};
+use std::io::Write;
 use std::path::{Path, PathBuf};
 
 /// Largest acceptable split-R̂ before the fit warns that the chain has not mixed.
@@ -19,11 +20,11 @@ const MIN_ESS: f64 = 100.0;
 pub(crate) struct FilterArgs {
     /// Model file of the state-space class with process noise (`greybox fit --model state-space --method smc`).
     pub(crate) model: PathBuf,
-    /// Data with the model's input columns and its output column.
+    /// Data with the model's input columns and its output column; `-` reads rows from standard input (header first) and writes each filtered row to standard output as it arrives.
     pub(crate) data: PathBuf,
     /// Output CSV: the inputs, the output, then x1_mean,x1_lo,x1_hi,... (95 % band of the filter), and with --smooth x1_smooth_mean,x1_smooth_lo,x1_smooth_hi,...
     #[arg(short = 'o', long = "out", value_name = "FILE")]
-    pub(crate) out: PathBuf,
+    pub(crate) out: Option<PathBuf>,
     /// Also smooth: p(x_t | all data) by backward simulation (up to 200 trajectories).
     #[arg(long)]
     pub(crate) smooth: bool,
@@ -105,39 +106,50 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
             a.model.display()
         ));
     }
-    let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
-    let inputs = crate::io::columns(&t, &m.input_names)?;
     let out_name = a.output.clone().unwrap_or_else(|| m.output_name().into());
-    let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
     let particles = usize::try_from(a.particles).map_err(|e| e.to_string())?;
     let smc = SmcParams::new()
         .particles(particles)
         .seed(a.seed)
         .check()
         .map_err(|e| e.to_string())?;
+    if a.data.as_os_str() == "-" {
+        if a.out.is_some() || a.smooth {
+            return Err(
+                "filter MODEL - streams to standard output: no -o or --smooth (smoothing needs the whole record)"
+                    .into(),
+            );
+        }
+        return stream(&smc, ss, &m.input_names, &out_name);
+    }
+    let out = a
+        .out
+        .as_ref()
+        .ok_or("-o FILE is needed (or `-` as DATA to stream rows from standard input)")?;
+    let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
+    let inputs = crate::io::columns(&t, &m.input_names)?;
+    let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
     let bar = Bar::spinner(quiet, &format!("filtering with {particles} particles"));
     let est = smc
         .filter_states(ss, &inputs, &y, a.smooth)
         .map_err(|e| format!("{}: {e}", a.data.display()))?;
     bar.finish();
-    let mut names: Vec<String> = m.input_names.clone();
-    names.push(out_name.clone());
     let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
     cols.push(&y);
     let mut bands = vec![("", &est.filtered)];
     if let Some(s) = &est.smoothed {
         bands.push(("smooth_", s));
     }
+    let mut names: Vec<String> = m.input_names.clone();
+    names.push(out_name.clone());
     for (tag, b) in &bands {
+        names.extend(band_columns(ss.n_states, tag));
         for i in 0..ss.n_states {
-            for (kind, c) in [("mean", &b.mean[i]), ("lo", &b.lo[i]), ("hi", &b.hi[i])] {
-                names.push(format!("x{}_{tag}{kind}", i + 1));
-                cols.push(c);
-            }
+            cols.extend([&b.mean[i], &b.lo[i], &b.hi[i]].map(Vec::as_slice));
         }
     }
     let refs: Vec<&str> = names.iter().map(String::as_str).collect();
-    gb_core::write_csv_atomic(&a.out, &refs, &cols).map_err(|e| e.to_string())?;
+    gb_core::write_csv_atomic(out, &refs, &cols).map_err(|e| e.to_string())?;
     let mean_ess = est.ess.iter().sum::<f64>() / est.ess.len().max(1) as f64;
     println!(
         "{} samples, {} states, {particles} particles (mean ESS {mean_ess:.0}){}",
@@ -146,7 +158,67 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
         if a.smooth { ", smoothed" } else { "" }
     );
     println!("log-likelihood: {:.4}", est.log_likelihood);
-    println!("states written to {}", a.out.display());
+    println!("states written to {}", out.display());
+    Ok(())
+}
+
+/// The band columns of the filter output: `x{i}_{tag}mean`,
+/// `x{i}_{tag}lo`, `x{i}_{tag}hi` per state.
+fn band_columns(n: usize, tag: &str) -> Vec<String> {
+    (1..=n)
+        .flat_map(|i| ["mean", "lo", "hi"].map(|k| format!("x{i}_{tag}{k}")))
+        .collect()
+}
+
+/// `filter MODEL -`: rows from standard input, one at a time through the
+/// online particle filter (the batch filter's particles, seed and random
+/// streams, so the rows equal the batch output's); each row's inputs,
+/// output and filtered states are written to standard output and flushed
+/// at once, in the columns and number format of the batch output file.
+fn stream(
+    smc: &gb_model::Smc,
+    ss: &SparseStateSpace,
+    input_names: &[String],
+    output: &str,
+) -> Result<()> {
+    let mut rows = crate::io::RowReader::new(std::io::stdin().lock(), "stdin")?;
+    let ui: Vec<usize> = input_names
+        .iter()
+        .map(|n| rows.column(n))
+        .collect::<Result<_>>()?;
+    let yi = rows.column(output)?;
+    let sm = gb_model::StreamingModel::new(ss).map_err(|e| e.to_string())?;
+    let mut online = smc.online_states(&sm).map_err(|e| e.to_string())?;
+    let mut names = input_names.to_vec();
+    names.push(output.to_string());
+    names.extend(band_columns(ss.n_states, ""));
+    let mut out = std::io::stdout().lock();
+    let io_err = |e: std::io::Error| format!("stdout: {e}");
+    let (mut row, mut u) = (vec![], vec![0.0; ui.len()]);
+    while rows.next_row(&mut row)? {
+        for (v, &j) in u.iter_mut().zip(&ui) {
+            *v = row[j];
+        }
+        let s = online
+            .push(&u, row[yi])
+            .map_err(|e| format!("stdin: row {}: {e}", rows.row()))?;
+        if online.len() == 1 {
+            writeln!(out, "{}", names.join(",")).map_err(io_err)?;
+        }
+        let mut line: Vec<String> = u.iter().map(f64::to_string).collect();
+        line.push(row[yi].to_string());
+        for i in 0..ss.n_states {
+            line.extend([s.mean[i], s.lo[i], s.hi[i]].map(|v| v.to_string()));
+        }
+        writeln!(out, "{}", line.join(",")).map_err(io_err)?;
+        out.flush().map_err(io_err)?;
+    }
+    if online.is_empty() {
+        return Err(gb_core::CoreError::Empty {
+            path: "stdin".into(),
+        }
+        .to_string());
+    }
     Ok(())
 }
 

@@ -62,7 +62,7 @@ enum Command {
     Simulate(SimulateArgs),
     /// Estimate the hidden states of a saved state-space model by a particle filter (95 % bands).
     #[command(
-        after_help = "Examples:\n  greybox fit train.csv --model state-space --method smc -o ss.gbm\n  greybox filter ss.gbm test.csv -o states.csv --smooth --particles 2000 --seed 3"
+        after_help = "Examples:\n  greybox fit train.csv --model state-space --method smc -o ss.gbm\n  greybox filter ss.gbm test.csv -o states.csv --smooth --particles 2000 --seed 3\n  sensor | greybox filter ss.gbm -                        # online: CSV rows on stdin (header first), one filtered row out per row in"
     )]
     Filter(cmd_smc::FilterArgs),
     /// Write train.csv and validate.csv for a generated system (fixed seed = same files).

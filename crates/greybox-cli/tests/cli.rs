@@ -785,6 +785,86 @@ fn filter_bands_contain_the_true_hidden_state() {
     assert_eq!(std::fs::read(&out).unwrap(), first);
 }
 
+/// `filter MODEL -`: rows on standard input give, row by row, the lines of
+/// the batch filter's file (same particles and seed: bit-identical bands);
+/// the first filtered row comes out before the second row is written
+/// (flushed per row); `-o` or `--smooth` with `-` are a one-line error.
+#[test]
+fn filter_streams_stdin_rows_as_the_batch_filter() {
+    use std::io::{BufRead, BufReader, Write};
+    let d = tmp("filter-stream");
+    let (fm, u, y, _) = msd_with_random_force(200, 12);
+    let model = d.join("msd.gbm");
+    fm.save(&model).unwrap();
+    let data = d.join("data.csv");
+    write_record(&data, &u, &y);
+    let out = d.join("states.csv");
+    let m = model.to_str().unwrap();
+    let o = run(&[
+        "filter",
+        m,
+        data.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--particles",
+        "500",
+        "--seed",
+        "4",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let batch = std::fs::read_to_string(&out).unwrap();
+    let batch: Vec<&str> = batch.lines().collect();
+    assert_eq!(batch.len(), 201);
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_greybox"))
+        .args(["filter", m, "-", "--particles", "500", "--seed", "4"])
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = c.stdin.take().unwrap();
+    let stdout = c.stdout.take().unwrap();
+    let (tx, rx) = std::sync::mpsc::channel::<String>();
+    let reader = std::thread::spawn(move || {
+        for l in BufReader::new(stdout).lines() {
+            if tx.send(l.unwrap()).is_err() {
+                break;
+            }
+        }
+    });
+    let wait = std::time::Duration::from_secs(120);
+    let text = std::fs::read_to_string(&data).unwrap();
+    let rows: Vec<&str> = text.lines().collect();
+    writeln!(stdin, "{}\n{}", rows[0], rows[1]).unwrap();
+    stdin.flush().unwrap();
+    assert_eq!(rx.recv_timeout(wait).expect("header"), batch[0]);
+    assert_eq!(rx.recv_timeout(wait).expect("row 2 before row 3"), batch[1]);
+    for row in &rows[2..] {
+        writeln!(stdin, "{row}").unwrap();
+    }
+    drop(stdin);
+    assert!(c.wait().unwrap().success());
+    reader.join().unwrap();
+    let streamed: Vec<String> = rx.try_iter().collect();
+    assert_eq!(streamed.len(), 199);
+    for (k, (a, b)) in streamed.iter().zip(&batch[2..]).enumerate() {
+        assert_eq!(a, b, "row {}", k + 3);
+    }
+    for extra in [["-o", "x.csv"], ["--smooth", "--seed"]] {
+        let mut args = vec!["filter", m, "-"];
+        args.extend(extra);
+        if extra[0] == "--smooth" {
+            args.push("4");
+        }
+        let o = run(&args);
+        let e = stderr(&o);
+        assert_eq!(o.status.code(), Some(2), "{e}");
+        assert!(
+            e.contains("streams to standard output") && e.trim_end().lines().count() == 1,
+            "{e}"
+        );
+    }
+}
+
 /// Bad input to `filter`: one line, exit 2, no output file.
 #[test]
 fn filter_bad_input_is_one_line_exit_2_no_output() {
