@@ -13,11 +13,12 @@ pub fn read_model_file(path: &Path) -> Result<ModelFile> {
     ModelFile::read(path).map_err(|e| e.to_string())
 }
 
-/// The record of `data` for the model of `mf`: the model's input and output
-/// names are the CSV columns (or `--input`/`--output` name the columns that
-/// play them, in the model's order); the record carries the model's names
-/// and the sample time of a uniform `t` column. Prints the roles.
-pub fn load_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile) -> Result<Record> {
+/// The records of `data` for the model of `mf`, one per model output (in
+/// the file's `[outputs]` order): the model's input and output names are
+/// the CSV columns (or `--input`/`--output` name the columns that play
+/// them, in the model's order); each record carries the model's names and
+/// the sample time of a uniform `t` column. Prints the roles.
+pub fn load_outputs_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile) -> Result<Vec<Record>> {
     let spec = &mf.spec;
     let t = CsvTable::read(data).map_err(|e| e.to_string())?;
     let inputs: Vec<String> = if s.inputs.is_empty() {
@@ -33,18 +34,27 @@ pub fn load_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile) -> Result<Rec
             spec.inputs.join(", ")
         ));
     };
-    let model_output = spec
-        .outputs
-        .first()
-        .map(|o| o.name.clone())
-        .ok_or_else(|| format!("{}: the model has no output", mf.name))?;
-    let output = s
-        .output()?
-        .map_or_else(|| model_output.clone(), str::to_string);
+    let model_outputs: Vec<String> = spec.outputs.iter().map(|o| o.name.clone()).collect();
+    if model_outputs.is_empty() {
+        return Err(format!("{}: the model has no output", mf.name));
+    }
+    let outputs: Vec<String> = if s.outputs.is_empty() {
+        model_outputs.clone()
+    } else if s.outputs.len() == model_outputs.len() {
+        s.outputs.clone()
+    } else {
+        return Err(format!(
+            "{}: {} --output columns for the model's {} outputs [{}]",
+            mf.name,
+            s.outputs.len(),
+            model_outputs.len(),
+            model_outputs.join(", ")
+        ));
+    };
     for (role, c) in inputs
         .iter()
         .map(|c| ("input", c))
-        .chain(std::iter::once(("output", &output)))
+        .chain(outputs.iter().map(|c| ("output", c)))
     {
         if !t.names.iter().any(|n| n == c) {
             return Err(format!(
@@ -55,20 +65,47 @@ pub fn load_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile) -> Result<Rec
             ));
         }
     }
-    let mut r = Record::from_table(&t, &inputs, Some(&output)).map_err(|e| e.to_string())?;
-    r.input_names = spec.inputs.clone();
-    r.output_name = model_output;
-    if let Some((_, dt)) = sample_time(&t)? {
-        r = r.with_sample_time(dt);
+    let dt = sample_time(&t)?.map(|(_, dt)| dt);
+    let mut records = vec![];
+    for (column, name) in outputs.iter().zip(&model_outputs) {
+        let mut r = Record::from_table(&t, &inputs, Some(column)).map_err(|e| e.to_string())?;
+        r.input_names = spec.inputs.clone();
+        r.output_name = name.clone();
+        if let Some(dt) = dt {
+            r = r.with_sample_time(dt);
+        }
+        records.push(r);
     }
     println!(
-        "{}: inputs {} -> output {} ({} samples)",
+        "{}: inputs {} -> output{} {} ({} samples)",
         data.display(),
         inputs.join(","),
-        output,
-        r.len()
+        if outputs.len() > 1 { "s" } else { "" },
+        outputs.join(","),
+        records[0].len()
     );
-    Ok(r)
+    Ok(records)
+}
+
+/// The record of `data` for a model of one output (see
+/// [`load_outputs_for_model`]); a model of several outputs is an error
+/// naming `what` cannot handle it.
+pub fn load_for_model(data: &Path, s: &SignalArgs, mf: &ModelFile, what: &str) -> Result<Record> {
+    if mf.spec.outputs.len() > 1 {
+        return Err(format!(
+            "{}: {what} handles models of one output; this one has {} ({})",
+            mf.name,
+            mf.spec.outputs.len(),
+            mf.spec
+                .outputs
+                .iter()
+                .map(|o| o.name.as_str())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    let mut r = load_outputs_for_model(data, s, mf)?;
+    Ok(r.remove(0))
 }
 
 /// The sample time of the fit and where it comes from: the model file's
@@ -89,16 +126,23 @@ pub fn sample_time_of(mf: &ModelFile, r: &Record, data: &Path) -> Result<(f64, S
 /// print the estimates with their uncertainty, save the model.
 pub fn fit(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
     let mf = read_model_file(path)?;
-    let first = load_for_model(&a.train, &a.signals, &mf)?;
-    let (ts, from) = sample_time_of(&mf, &first, &a.train)?;
-    let mut records = vec![first];
+    // per file, one record per model output
+    let first = load_outputs_for_model(&a.train, &a.signals, &mf)?;
+    let (ts, from) = sample_time_of(&mf, &first[0], &a.train)?;
+    let mut files = vec![first];
     for f in &a.experiments {
-        let e = load_for_model(f, &a.signals, &mf)?;
-        e.check_identifiable(&f.display().to_string(), 20)
-            .map_err(|e| e.to_string())?;
-        records.push(e);
+        let e = load_outputs_for_model(f, &a.signals, &mf)?;
+        for r in &e {
+            r.check_identifiable(&f.display().to_string(), 20)
+                .map_err(|e| e.to_string())?;
+        }
+        files.push(e);
     }
-    let data = Records::new(records).map_err(|e| e.to_string())?;
+    // per output, the records of every file
+    let data: Vec<Records> = (0..mf.spec.outputs.len())
+        .map(|o| Records::new(files.iter().map(|f| f[o].clone()).collect()))
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| e.to_string())?;
     let mut mf = mf;
     mf.spec.sample_time = Some(ts);
     println!(
@@ -109,7 +153,7 @@ pub fn fit(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
     let bar = Bar::spinner(quiet, &format!("fitting {}", mf.name));
     let t0 = std::time::Instant::now();
     let model = mf
-        .fit_growing(&data, &bar)
+        .fit_growing_outputs(&data, &bar)
         .map_err(|e| format!("{}: {e}", a.train.display()))?;
     bar.finish();
     let fitted = model.to_fitted().map_err(|e| e.to_string())?;
@@ -119,13 +163,55 @@ pub fn fit(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
             println!("{l}");
         }
         println!(
-            "training NRMSE (free-run simulation): {:.4}; fit took {:.2} s",
+            "training NRMSE (free-run simulation): {:.4}{}; fit took {:.2} s",
             rep.nrmse,
+            if data.len() > 1 {
+                " (RMS over the outputs)"
+            } else {
+                ""
+            },
             t0.elapsed().as_secs_f64()
         );
+        if data.len() > 1 {
+            print_output_errors(&model, &data)?;
+        }
     }
     fitted.save(&a.out).map_err(|e| e.to_string())?;
     println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+/// The training NRMSE of each output (free run from the fitted start,
+/// every record of the output together).
+fn print_output_errors(model: &gb_model::physics::PhysicsModel, data: &[Records]) -> Result<()> {
+    use gb_core::DynamicModel;
+    let ny = data.len();
+    let (mut sse, mut n) = (vec![0.0; ny], 0usize);
+    for r in 0..data[0].len() {
+        let u = &data[0].iter().nth(r).ok_or("record")?.inputs;
+        let sim = model
+            .simulate(u, gb_core::Init::Stored)
+            .map_err(|e| e.to_string())?;
+        let len = u.first().map_or(0, Vec::len);
+        n += len;
+        for (o, d) in data.iter().enumerate() {
+            let y = &d.iter().nth(r).ok_or("record")?.output;
+            sse[o] += y
+                .iter()
+                .zip(&sim[o * len..(o + 1) * len])
+                .map(|(a, b)| (a - b).powi(2))
+                .sum::<f64>();
+        }
+    }
+    for (o, d) in data.iter().enumerate() {
+        let all: Vec<f64> = d.iter().flat_map(|r| r.output.iter().copied()).collect();
+        let sd = gb_core::metrics::std(&all);
+        println!(
+            "  output {}: training NRMSE {:.4}",
+            d.output_name(),
+            (sse[o] / n.max(1) as f64).sqrt() / sd
+        );
+    }
     Ok(())
 }
 
@@ -138,14 +224,14 @@ pub fn diagnose_data(
     s: &SignalArgs,
 ) -> Result<(gb_model::physics::PhysicsSpec, Record, Option<Record>)> {
     let mf = read_model_file(path)?;
-    let tr = load_for_model(train, s, &mf)?;
+    let tr = load_for_model(train, s, &mf, "diagnose --model-file")?;
     let (ts, from) = sample_time_of(&mf, &tr, train)?;
     println!(
         "the baseline is the model file {} (sample time {ts:.6e} s, {from})",
         mf.name
     );
     let val = validate
-        .map(|v| load_for_model(v, s, &mf).map(|r| r.with_sample_time(ts)))
+        .map(|v| load_for_model(v, s, &mf, "diagnose --model-file").map(|r| r.with_sample_time(ts)))
         .transpose()?;
     let mut spec = mf.spec;
     spec.sample_time = Some(ts);

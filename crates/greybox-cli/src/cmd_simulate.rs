@@ -100,6 +100,13 @@ fn bands(
             m.dynamics.class()
         ));
     }
+    if m.output_names.len() > 1 {
+        return Err(format!(
+            "--bands handles models of one output; this one has {} ({})",
+            m.output_names.len(),
+            m.output_names.join(", ")
+        ));
+    }
     let b = gb_model::physics::prediction_bands(m, inputs, init, Default::default())
         .map_err(|e| e.to_string())?;
     println!(

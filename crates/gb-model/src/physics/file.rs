@@ -313,11 +313,23 @@ impl ModelFile {
     /// fit continued over growing prefixes
     /// ([`PhysicsFit::identify_growing`]).
     pub fn fit_growing(&self, data: &Records, obs: &dyn Observer) -> PhysicsResult<PhysicsModel> {
+        self.fit_growing_outputs(std::slice::from_ref(data), obs)
+    }
+
+    /// As [`fit_growing`](Self::fit_growing) for a model of several
+    /// outputs: `data[o]` holds the records of output `o` (the file's
+    /// `[outputs]` order), fitted jointly
+    /// ([`PhysicsFit::identify_outputs`](super::PhysicsFit::identify_outputs)).
+    pub fn fit_growing_outputs(
+        &self,
+        data: &[Records],
+        obs: &dyn Observer,
+    ) -> PhysicsResult<PhysicsModel> {
         PhysicsFitParams::new(self.spec.clone())
             .source(self.text.clone())
             .check()
             .map_err(|e| self.locate(e))?
-            .identify_growing(data, obs)
+            .identify_growing_outputs(data, obs)
             .map_err(|e| self.locate(e))
     }
 }

@@ -92,14 +92,23 @@ pub(crate) fn lanes_of(coords: &[Coord], np: usize, n: usize) -> Lanes {
     l
 }
 
-/// One record of the fit: its inputs and the measured output.
+/// One record of the fit: its inputs and the measured outputs (one slice
+/// per model output, as long as the inputs).
 #[derive(Debug, Clone)]
 pub(crate) struct Segment<'a> {
     pub(crate) u: Vec<&'a [f64]>,
-    pub(crate) y: &'a [f64],
+    pub(crate) y: Vec<&'a [f64]>,
 }
 
-/// The output-error least-squares problem (first output).
+impl Segment<'_> {
+    /// Samples of the record.
+    pub(crate) fn len(&self) -> usize {
+        self.y.first().map_or(0, |y| y.len())
+    }
+}
+
+/// The output-error least-squares problem: `Σ_records Σ_o Σ_t (w_o (y_o(t) − ŷ_o(t)))²`
+/// with one weight per output (1 for a single output).
 #[derive(Debug)]
 pub(crate) struct OeProblem<'a> {
     pub(crate) c: &'a Compiled,
@@ -115,6 +124,8 @@ pub(crate) struct OeProblem<'a> {
     pub(crate) prior_weight: f64,
     /// Add the priors to cost and Gram.
     pub(crate) with_prior: bool,
+    /// Weight of each output's error.
+    pub(crate) weights: Vec<f64>,
     ybuf: Vec<f64>,
 }
 
@@ -140,6 +151,7 @@ impl<'a> OeProblem<'a> {
             x0,
             prior_weight: 0.0,
             with_prior: false,
+            weights: vec![1.0; c.g.n_outputs()],
             ybuf: vec![],
         }
     }
@@ -169,9 +181,9 @@ impl<'a> OeProblem<'a> {
         }
     }
 
-    /// Number of fitted samples.
+    /// Number of fitted residuals (samples × outputs).
     pub(crate) fn samples(&self) -> usize {
-        self.segments.iter().map(|s| s.y.len()).sum()
+        self.segments.iter().map(|s| s.len() * s.y.len()).sum()
     }
 
     fn prior_cost(&self) -> f64 {
@@ -190,7 +202,7 @@ impl<'a> OeProblem<'a> {
         let mut sse = 0.0;
         let ny = self.c.g.n_outputs();
         for seg in &self.segments {
-            let len = seg.y.len();
+            let len = seg.len();
             self.ybuf.resize(ny * len, 0.0);
             simulate(
                 self.c,
@@ -202,12 +214,10 @@ impl<'a> OeProblem<'a> {
                 &mut self.ybuf,
             )
             .ok()?;
-            sse += seg
-                .y
-                .iter()
-                .zip(&self.ybuf[..len])
-                .map(|(y, s)| (y - s) * (y - s))
-                .sum::<f64>();
+            for ((y, sim), w) in seg.y.iter().zip(self.ybuf.chunks(len)).zip(&self.weights) {
+                let e2: f64 = y.iter().zip(sim).map(|(y, s)| (y - s) * (y - s)).sum();
+                sse += w * w * e2;
+            }
         }
         sse.is_finite().then_some(sse)
     }
@@ -222,18 +232,20 @@ impl<'a> OeProblem<'a> {
         let mut j = vec![0.0; l];
         let mut sse = 0.0;
         for seg in &self.segments {
-            let len = seg.y.len();
+            let len = seg.len();
             let sink = |t: usize, y: &[f64], dy: &[f64]| {
-                let e = seg.y[t] - y[0];
-                sse += e * e;
-                for k in 0..l {
-                    j[k] = dy[k] * scale[k];
-                }
-                for a in 0..l {
-                    grad[a] += j[a] * e;
-                    let row = &mut gram[a * l..(a + 1) * l];
-                    for b in a..l {
-                        row[b] += j[a] * j[b];
+                for (o, (ym, w)) in seg.y.iter().zip(&self.weights).enumerate() {
+                    let e = w * (ym[t] - y[o]);
+                    sse += e * e;
+                    for k in 0..l {
+                        j[k] = w * dy[o * l + k] * scale[k];
+                    }
+                    for a in 0..l {
+                        grad[a] += j[a] * e;
+                        let row = &mut gram[a * l..(a + 1) * l];
+                        for b in a..l {
+                            row[b] += j[a] * j[b];
+                        }
                     }
                 }
             };
@@ -328,7 +340,7 @@ pub struct FitReport {
     pub condition: f64,
     /// Conditioning, identifiability, bounds, convergence.
     pub warnings: Vec<String>,
-    /// Fitted samples.
+    /// Fitted values (samples × outputs).
     pub samples: usize,
     /// Training RMSE of the free-run simulation.
     pub rmse: f64,
@@ -390,7 +402,7 @@ impl FitReport {
             v.push(format!("warning: {w}"));
         }
         v.push(format!(
-            "training fit (free-run simulation, {} samples): RMSE {:.4e}  NRMSE {:.4}  σ̂ {:.4e}; {} iterations ({})",
+            "training fit (free-run simulation, {} values): RMSE {:.4e}  NRMSE {:.4}  σ̂ {:.4e}; {} iterations ({})",
             self.samples, self.rmse, self.nrmse, self.sigma, self.iterations, self.termination
         ));
         v

@@ -5,7 +5,7 @@ use super::fit::{coordinates, summarise, OeProblem, Optimum, Segment};
 use super::model::PhysicsModel;
 use super::spec::PhysicsSpec;
 use gb_core::solver::{LevenbergMarquardt, LmParams, Termination};
-use gb_core::{Identify, Observer, Records};
+use gb_core::{Identify, Observer, Record, Records};
 
 /// Settings of a physics fit; validate with [`check`](Self::check).
 ///
@@ -70,39 +70,57 @@ impl PhysicsFit {
         &self.model
     }
 
-    fn check_data(&self, data: &Records) -> PhysicsResult<f64> {
+    /// The sample time, after checking `data` (one [`Records`] per model
+    /// output, in the model's order: the same inputs and record lengths).
+    fn check_data(&self, data: &[Records]) -> PhysicsResult<f64> {
         let spec = self.model.spec();
-        if spec.outputs.len() != 1 {
+        if spec.outputs.len() != data.len() {
             return Err(PhysicsError::Data(format!(
-                "model '{}' has {} outputs; the fit handles one output",
+                "model '{}' has {} outputs [{}]; the data give {}",
                 spec.name,
-                spec.outputs.len()
+                spec.outputs.len(),
+                spec.outputs
+                    .iter()
+                    .map(|o| o.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                data.len()
             )));
         }
-        if data.input_names() != spec.inputs.as_slice() {
-            return Err(PhysicsError::Data(format!(
-                "the data's inputs [{}] are not the model's inputs [{}]",
-                data.input_names().join(", "),
-                spec.inputs.join(", ")
-            )));
-        }
-        if data.output_name() != spec.outputs[0].name {
-            return Err(PhysicsError::Data(format!(
-                "the data's output '{}' is not the model's output '{}'",
-                data.output_name(),
-                spec.outputs[0].name
-            )));
+        let first = &data[0];
+        for (d, out) in data.iter().zip(&spec.outputs) {
+            if d.input_names() != spec.inputs.as_slice() {
+                return Err(PhysicsError::Data(format!(
+                    "the data's inputs [{}] are not the model's inputs [{}]",
+                    d.input_names().join(", "),
+                    spec.inputs.join(", ")
+                )));
+            }
+            if d.output_name() != out.name {
+                return Err(PhysicsError::Data(format!(
+                    "the data's output '{}' is not the model's output '{}'",
+                    d.output_name(),
+                    out.name
+                )));
+            }
+            let lens = |r: &Records| r.iter().map(Record::len).collect::<Vec<_>>();
+            if lens(d) != lens(first) {
+                return Err(PhysicsError::Data(format!(
+                    "output '{}': records of other lengths than output '{}'",
+                    out.name, spec.outputs[0].name
+                )));
+            }
         }
         let ts = spec
             .sample_time
-            .or(data.first().sample_time)
+            .or(first.first().sample_time)
             .ok_or_else(|| {
                 PhysicsError::Data(format!(
                     "model '{}': the sample time is unknown: give sample_time in the model file or a uniform t column in the data",
                     spec.name
                 ))
             })?;
-        if let Some(r) = data.iter().find(|r| r.is_empty()) {
+        if let Some(r) = first.iter().find(|r| r.is_empty()) {
             return Err(PhysicsError::Data(format!(
                 "an empty record (output '{}')",
                 r.output_name
@@ -118,7 +136,7 @@ impl PhysicsFit {
             return Ok(());
         }
         let seg = &p.segments[0];
-        let mut y = vec![0.0; seg.y.len() * self.model.n_outputs_fit()];
+        let mut y = vec![0.0; seg.len() * self.model.n_outputs_fit()];
         let at = match self.model.run(&p.theta, &p.x0, &seg.u, &mut y) {
             Err(PhysicsError::Diverged(k)) => format!("diverges at sample {k}"),
             _ => "is not finite".into(),
@@ -143,20 +161,33 @@ impl PhysicsFit {
         data: &Records,
         obs: &dyn Observer,
     ) -> PhysicsResult<PhysicsModel> {
-        let direct = self.identify(data, obs);
-        let first = data.first();
-        let n = first.len();
+        self.identify_growing_outputs(std::slice::from_ref(data), obs)
+    }
+
+    /// [`identify_growing`](Self::identify_growing) for a model of several
+    /// outputs: `data[o]` holds output `o`'s records (see
+    /// [`identify_outputs`](Self::identify_outputs)).
+    pub fn identify_growing_outputs(
+        &self,
+        data: &[Records],
+        obs: &dyn Observer,
+    ) -> PhysicsResult<PhysicsModel> {
+        let direct = self.identify_outputs(data, obs);
+        let n = data.first().map_or(0, |d| d.first().len());
         let mut start = self.model.clone();
         for part in [32, 8, 2] {
             if n / part < 50 {
                 continue;
             }
-            let sub = Records::single(first.slice(0..n / part));
+            let sub: Vec<Records> = data
+                .iter()
+                .map(|d| Records::single(d.first().slice(0..n / part)))
+                .collect();
             let fit = PhysicsFit {
                 model: start.clone(),
                 lm: self.lm,
             };
-            if let Ok(m) = fit.identify(&sub, obs) {
+            if let Ok(m) = fit.identify_outputs(&sub, obs) {
                 start = start.with_values(m.parameters().to_vec(), m.initial_state().to_vec())?;
             }
         }
@@ -164,7 +195,7 @@ impl PhysicsFit {
             model: start.with_start_at_values()?,
             lm: self.lm,
         }
-        .identify(data, obs);
+        .identify_outputs(data, obs);
         let rmse = |m: &PhysicsResult<PhysicsModel>| {
             m.as_ref()
                 .ok()
@@ -207,25 +238,52 @@ impl Identify for PhysicsFit {
     type Model = PhysicsModel;
     type Error = PhysicsError;
 
+    /// Output-error fit of a one-output model (see
+    /// [`PhysicsFit::identify_outputs`]).
+    fn identify(&self, data: &Records, obs: &dyn Observer) -> PhysicsResult<PhysicsModel> {
+        self.identify_outputs(std::slice::from_ref(data), obs)
+    }
+}
+
+impl PhysicsFit {
     /// Output-error fit of the free parameters and free initial states
     /// (shared by all records) by Levenberg–Marquardt on the free-run
     /// simulation error, bounds enforced by rejecting trials outside them.
-    /// With Gaussian priors the cost is `SSE + σ̂² Σ ((θ − μ)/sd)²` (the
-    /// MAP estimate), σ̂² from a first pass, then refitted once.
-    fn identify(&self, data: &Records, obs: &dyn Observer) -> PhysicsResult<PhysicsModel> {
+    /// `data[o]` holds the records of model output `o` (same inputs and
+    /// lengths for every output). With several outputs each output's error
+    /// is weighed by `w_o = sd(y_1)/sd(y_o)` (every output counts in the
+    /// units of the first; `w_1 = 1`), so the fit's NRMSE is the RMS of the
+    /// outputs' NRMSEs. With Gaussian priors the cost is
+    /// `SSE + σ̂² Σ ((θ − μ)/sd)²` (the MAP estimate), σ̂² from a first
+    /// pass, then refitted once.
+    pub fn identify_outputs(
+        &self,
+        data: &[Records],
+        obs: &dyn Observer,
+    ) -> PhysicsResult<PhysicsModel> {
         let ts = self.check_data(data)?;
         let spec = self.model.spec();
-        let first = data.first();
+        let first = data[0].first();
         let u0: Vec<f64> = first.inputs.iter().map(|s| s[0]).collect();
         let (theta0, x00) = (self.model.parameters(), self.model.initial_state());
         self.model.compiled().check_point(spec, x00, &u0, theta0)?;
-        let segments: Vec<Segment<'_>> = data
+        // per record: the inputs (same for every output) and each output
+        let per_output: Vec<Vec<&Record>> = data.iter().map(|d| d.iter().collect()).collect();
+        let segments: Vec<Segment<'_>> = per_output[0]
             .iter()
-            .map(|r| Segment {
-                u: r.inputs.iter().map(Vec::as_slice).collect(),
-                y: &r.output,
+            .enumerate()
+            .map(|(r, rec)| Segment {
+                u: rec.inputs.iter().map(Vec::as_slice).collect(),
+                y: per_output.iter().map(|d| d[r].output.as_slice()).collect(),
             })
             .collect();
+        let sds: Vec<f64> = data.iter().map(output_sd).collect();
+        if let Some(o) = sds.iter().position(|&s| !(s > 0.0 && s.is_finite())) {
+            return Err(PhysicsError::Data(format!(
+                "output '{}' is constant",
+                spec.outputs[o].name
+            )));
+        }
         let coords = coordinates(spec, theta0, x00, false);
         let mut p = OeProblem::new(
             self.model.compiled(),
@@ -236,6 +294,7 @@ impl Identify for PhysicsFit {
             theta0.to_vec(),
             x00.to_vec(),
         );
+        p.weights = sds.iter().map(|s| sds[0] / s).collect();
         self.check_start(&mut p)?;
         let n = p.samples();
         let mut iterations = 0;
@@ -264,7 +323,7 @@ impl Identify for PhysicsFit {
         let sse = p
             .gram(&mut gram, &mut grad)
             .ok_or_else(|| PhysicsError::Numerical("the fitted model does not simulate".into()))?;
-        let y_sd = output_sd(data);
+        let y_sd = sds[0];
         let report = summarise(&Optimum {
             spec,
             coords: &coords,

@@ -163,8 +163,16 @@ impl PhysicsModel {
     /// The initial state that best explains the measured outputs `y` of an
     /// init window (least squares over every state's initial value, the
     /// parameters fixed; the stored state is the start).
+    /// With several outputs `y` holds each output's window, output-major.
     pub fn estimate_initial_state(&self, u: &[&[f64]], y: &[f64]) -> PhysicsResult<Vec<f64>> {
-        let w = y.len();
+        let ny = self.spec.outputs.len().max(1);
+        if y.len() % ny != 0 {
+            return Err(PhysicsError::Data(format!(
+                "an init window of {} values for {ny} outputs",
+                y.len()
+            )));
+        }
+        let w = y.len() / ny;
         if w == 0 {
             return Ok(self.x0.clone());
         }
@@ -177,7 +185,7 @@ impl PhysicsModel {
         let coords = coordinates(&self.spec, &self.theta, &self.x0, true);
         let seg = Segment {
             u: u.iter().map(|s| &s[..w]).collect(),
-            y,
+            y: y.chunks(w).collect(),
         };
         let mut p = OeProblem::new(
             &self.compiled,
