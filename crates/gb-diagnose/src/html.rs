@@ -771,6 +771,57 @@ fn extension_section(body: &mut String, dg: &Diagnosis) -> Result<(), DiagnoseEr
 /// `d` must be the data the diagnosis was run on (it supplies the measured
 /// signals; every simulation comes from `dg`).
 pub fn render_html(dg: &Diagnosis, d: &DiagnoseData, title: &str) -> Result<String, DiagnoseError> {
+    Ok(document(title, &body_of(dg, d, title)?, dg.report.version))
+}
+
+/// One HTML report of the diagnoses of several outputs (`(output name,
+/// diagnosis, its data)`): a table of the outputs' causes and NRMSEs with
+/// links, then each output's report (the sections of [`render_html`]) in
+/// its own `<section>`, figure ids prefixed by the output's position.
+pub fn render_html_outputs(
+    parts: &[(&str, &Diagnosis, &DiagnoseData)],
+    title: &str,
+) -> Result<String, DiagnoseError> {
+    let Some(first) = parts.first() else {
+        return Err(DiagnoseError::Report("no outputs to report".into()));
+    };
+    let mut body = format!(
+        "<h1>{}</h1>\n<table>\n<tr><th>output</th><th>causes</th><th>validation NRMSE before</th><th>after</th><th>verdict</th></tr>\n",
+        esc(title)
+    );
+    for (o, (name, dg, _)) in parts.iter().enumerate() {
+        let r = &dg.report;
+        let causes = if r.causes.is_empty() {
+            "none".to_string()
+        } else {
+            r.cause_names().join(", ")
+        };
+        let _ = writeln!(
+            body,
+            "<tr><td><a href=\"#output-{}\">{}</a></td><td>{}</td><td>{:.4}</td><td>{:.4}</td><td>{}</td></tr>",
+            o + 1,
+            esc(name),
+            esc(&causes),
+            r.baseline.nrmse,
+            r.final_model.nrmse,
+            esc(&r.verdict.text)
+        );
+    }
+    body.push_str("</table>\n");
+    for (o, (name, dg, d)) in parts.iter().enumerate() {
+        let inner = body_of(dg, d, &format!("output {name}"))?
+            .replace("id=\"", &format!("id=\"o{}-", o + 1));
+        let _ = write!(
+            body,
+            "<section id=\"output-{}\">\n{inner}</section>\n",
+            o + 1
+        );
+    }
+    Ok(document(title, &body, first.1.report.version))
+}
+
+/// The sections of one diagnosis' report.
+fn body_of(dg: &Diagnosis, d: &DiagnoseData, title: &str) -> Result<String, DiagnoseError> {
     if dg.chain.is_empty() {
         return Err(DiagnoseError::Report("a diagnosis without models".into()));
     }
@@ -782,10 +833,15 @@ pub fn render_html(dg: &Diagnosis, d: &DiagnoseData, title: &str) -> Result<Stri
     residual_section(&mut body, dg, &s)?;
     evidence_section(&mut body, dg)?;
     extension_section(&mut body, dg)?;
-    Ok(format!(
+    Ok(body)
+}
+
+/// A standalone HTML document around `body`.
+fn document(title: &str, body: &str, version: u32) -> String {
+    format!(
         "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>{}</title>\n<style>{STYLE}</style>\n</head>\n<body>\n{body}<footer>greybox {} report format {}</footer>\n</body>\n</html>\n",
         esc(title),
         env!("CARGO_PKG_VERSION"),
-        dg.report.version
-    ))
+        version
+    )
 }

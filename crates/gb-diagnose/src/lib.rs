@@ -56,7 +56,7 @@ pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, OrderChoice};
 pub use evaluate::{evaluate, residuals_on, Evaluated, Lineage, Residuals, Scores};
 pub use evidence::Evidence;
 pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role, EXTENSIONS};
-pub use html::render_html;
+pub use html::{render_html, render_html_outputs};
 pub use policy::DecisionPolicy;
 pub use report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
 pub use select::{choose_structure, ChosenStructure};

@@ -148,7 +148,7 @@ fn run_outputs(a: &DiagnoseArgs, order: OrderChoice, quiet: bool) -> Result<()> 
         max_steps: a.max_steps,
         ..DiagnoseOptions::default()
     };
-    let (mut sections, mut html, mut parts) = (vec![], String::new(), vec![]);
+    let (mut sections, mut reported, mut parts) = (vec![], vec![], vec![]);
     for (o, tr) in train.into_iter().enumerate() {
         let name = a.signals.outputs[o].clone();
         let data = match &val {
@@ -162,17 +162,27 @@ fn run_outputs(a: &DiagnoseArgs, order: OrderChoice, quiet: bool) -> Result<()> 
         bar.finish();
         println!("\n== output {name} ==");
         print!("{}", d.report.to_text());
-        if a.report.is_some() {
-            let title = format!(
-                "greybox diagnosis: {} (output {name})",
-                train_path.display()
-            );
-            html.push_str(&gb_diagnose::render_html(&d, &data, &title).map_err(|e| e.to_string())?);
-        }
         let report = serde_json::to_value(&d.report).map_err(|e| e.to_string())?;
         sections.push(serde_json::json!({"output": name, "report": report}));
-        parts.push((d.model.dynamics, d.model.noise));
+        parts.push((d.model.dynamics.clone(), d.model.noise.clone()));
+        if a.report.is_some() {
+            reported.push((name, d, data));
+        }
     }
+    let html = if a.report.is_some() {
+        let title = format!(
+            "greybox diagnosis: {} (outputs {})",
+            train_path.display(),
+            a.signals.outputs.join(", ")
+        );
+        let refs: Vec<(&str, &gb_diagnose::Diagnosis, &DiagnoseData)> = reported
+            .iter()
+            .map(|(n, d, data)| (n.as_str(), d, data))
+            .collect();
+        gb_diagnose::render_html_outputs(&refs, &title).map_err(|e| e.to_string())?
+    } else {
+        String::new()
+    };
     println!();
     for (s, name) in sections.iter().zip(&a.signals.outputs) {
         let causes = s["report"]["causes"]

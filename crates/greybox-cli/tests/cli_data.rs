@@ -389,9 +389,31 @@ fn two_outputs_are_fitted_simulated_and_diagnosed_one_model_each() {
         "1",
         "--json",
         &path("r.json"),
+        "--report",
+        &path("r.html"),
         "--save",
         &path("final.gbm"),
     ]);
+    // one HTML document: a summary table linking each output's section,
+    // every figure id once
+    let html = std::fs::read_to_string(d.join("r.html")).unwrap();
+    assert_eq!(html.matches("<!DOCTYPE html>").count(), 1);
+    assert_eq!(html.matches("</html>").count(), 1);
+    for (o, name) in [(1, "y_lin"), (2, "y_sat")] {
+        assert!(
+            html.contains(&format!("<a href=\"#output-{o}\">{name}</a>")),
+            "{name}"
+        );
+        assert!(html.contains(&format!("<section id=\"output-{o}\">")));
+    }
+    let ids: Vec<&str> = html
+        .split("id=\"")
+        .skip(1)
+        .filter_map(|s| s.split('"').next())
+        .collect();
+    let unique: std::collections::HashSet<&&str> = ids.iter().collect();
+    assert!(ids.len() > 4, "{ids:?}");
+    assert_eq!(unique.len(), ids.len(), "duplicate ids: {ids:?}");
     assert!(
         out.contains("== output y_lin ==") && out.contains("== output y_sat =="),
         "{out}"
