@@ -192,12 +192,16 @@ impl DynamicModel for LmnModel {
         let sim = self.simulate_experiment(&e, used)?;
         copy_out(&sim, y)
     }
-    /// From [`Init::Rest`] (a zero output history) or the output history
-    /// ([`Init::History`] / [`Init::State`]; padded with zeros to `max_lag`
-    /// samples, as [`simulate`](DynamicModel::simulate) does).
+    /// From [`Init::Rest`] (a zero output history), [`Init::Stored`] (the
+    /// training mean) or the output history ([`Init::History`] /
+    /// [`Init::State`]; padded with zeros to `max_lag` samples, as
+    /// [`simulate`](DynamicModel::simulate) does).
     fn stepper(&self, init: Init<'_>) -> Result<Box<dyn Stepper + '_>, CoreError> {
+        // the stored start: the training mean as the output history
+        let mean = vec![self.output_scaling.offset; self.max_lag()];
         let h = match init {
             Init::Rest => &[][..],
+            Init::Stored => &mean[..],
             Init::History(h) | Init::State(h) => h,
             other => return Err(unsupported(self.class(), &other)),
         };
@@ -582,7 +586,12 @@ mod tests {
                 .lm_iterations(3)
                 .fit(&rec(inputs.clone()))
                 .unwrap();
-            for init in [Init::Rest, Init::History(&y[..2]), Init::History(&y[..7])] {
+            for init in [
+                Init::Rest,
+                Init::Stored,
+                Init::History(&y[..2]),
+                Init::History(&y[..7]),
+            ] {
                 let sim = DynamicModel::simulate(&m, &inputs, init).unwrap();
                 let mut s = m.stepper(init).unwrap();
                 let mut out = [0.0];

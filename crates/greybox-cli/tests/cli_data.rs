@@ -292,6 +292,28 @@ fn simulate_streams_stdin_rows_as_the_batch_simulation() {
     // the rows before a bad one were already written
     let (_, out, _) = stream(&m, "u,y\n1,2\n0.5,1\nabc,1\n");
     assert_eq!(out.lines().count(), 3, "{out}");
+    // the block and polynomial classes stream as they simulate
+    for spec in ["hammerstein:order=3,delay=3", "wiener-hammerstein"] {
+        let mb = d.join("block.gbm");
+        ok(&[
+            "fit",
+            f.to_str().unwrap(),
+            "--model",
+            spec,
+            "-o",
+            mb.to_str().unwrap(),
+        ]);
+        ok(&[
+            "simulate",
+            mb.to_str().unwrap(),
+            pf.to_str().unwrap(),
+            "-o",
+            sim.to_str().unwrap(),
+        ]);
+        let (code, streamed, e) = stream(&mb, &(part.join("\n") + "\n"));
+        assert_eq!(code, Some(0), "{spec}: {e}");
+        assert_eq!(streamed, std::fs::read_to_string(&sim).unwrap(), "{spec}");
+    }
 }
 
 /// One input, two outputs: `y_lin` a linear second-order response, `y_sat`
