@@ -22,13 +22,13 @@
 //! model's `log N(y_t − ŷ_t; 0, σ²)` on the decision samples; the report
 //! adds the k-step prediction RMSE on the report block.
 use super::kalman::{ml_levels, Lgss};
-use crate::evaluate::{Evaluated, Lineage};
+use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extension::{Context, Extension, GainMetric, Proposal};
 use crate::plan::core;
 use crate::report::NoiseFound;
 use crate::verdict::{verdict, VerdictKind};
 use crate::{Cause, DecisionPolicy, DiagnoseError};
-use gb_core::{metrics, FittedModel, NoiseModel, Record, Silent};
+use gb_core::{metrics, FittedModel, ModelView, NoiseModel, Record, Series, Silent, ViewData};
 use gb_model::{SmcParams, SparseStateSpace, SMC_MAX_STATES};
 use std::ops::Range;
 
@@ -342,6 +342,43 @@ impl Extension for ProcessNoise {
             "residual is coloured (Ljung-Box Q={q:.0}, p={p:.1e}) but independent of the input (prewhitened input cross-correlations pass): a disturbance inside the dynamics"
         )
     }
+    /// The residual auto-correlation with its 95 % band: the colour the
+    /// disturbance explains (the simulation, hence its residual, is
+    /// unchanged).
+    fn evidence_view(&self, b: &Residuals, _a: &Residuals, _output: &str) -> Option<ModelView> {
+        let lags = 25.min(b.e.len().saturating_sub(1));
+        let r = crate::stats::autocorrelation(&b.e, lags);
+        let band = 1.96 / (b.e.len().max(1) as f64).sqrt();
+        let line = |v: f64| vec![(0.0, v), (lags as f64, v)];
+        let series = vec![
+            Series {
+                name: "r_ee(τ)".into(),
+                points: r.iter().enumerate().map(|(k, v)| (k as f64, *v)).collect(),
+                markers: true,
+            },
+            Series {
+                name: "+95 % band".into(),
+                points: line(band),
+                markers: false,
+            },
+            Series {
+                name: "−95 % band".into(),
+                points: line(-band),
+                markers: false,
+            },
+        ];
+        Some(ModelView {
+            key: "noise".into(),
+            title: "Residual auto-correlation: a coloured residual independent of the input is a disturbance inside the dynamics".into(),
+            caption: String::new(),
+            data: ViewData::Curves {
+                x_label: "lag τ (samples)".into(),
+                y_label: "r_ee(τ)".into(),
+                series,
+                log_y: false,
+            },
+        })
+    }
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
         match finding(fitted, vec![]) {
             Some(f) => format!("{} -> {}", p.text, f.text),
@@ -357,7 +394,7 @@ mod tests {
     use gb_core::metrics;
     use gb_model::{SmcParams, SparseStateSpace};
 
-    fn run(family: &str, seed: u64) -> (crate::generator::Case, Diagnosis) {
+    fn run(family: &str, seed: u64) -> (crate::generator::Case, Diagnosis, DiagnoseData) {
         let c = draw(family, seed).expect("case");
         let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).expect("data");
         let o = DiagnoseOptions {
@@ -365,7 +402,7 @@ mod tests {
             ..DiagnoseOptions::default()
         };
         let dg = diagnose(&d, &o, None).expect("diagnosis");
-        (c, dg)
+        (c, dg, d)
     }
 
     /// A force disturbance inside a second-order plant (process-noise seed
@@ -376,8 +413,13 @@ mod tests {
     /// free-run simulation is unchanged.
     #[test]
     fn a_force_disturbance_is_process_noise_and_pays_on_held_out_data() {
-        let (c, dg) = run("process-noise", 1);
+        let (c, dg, d) = run("process-noise", 1);
         let r = &dg.report;
+        let page = crate::render_html(&dg, &d, "process noise").expect("html");
+        assert!(
+            page.contains("plot-evidence-1-noise") && page.contains("Residual auto-correlation")
+        );
+        assert!(r.to_text().contains("noise found: process noise"));
         assert_eq!(r.causes, [Cause::Noise], "{}", r.to_text());
         let found = r.noise.as_ref().expect("a noise finding");
         assert_eq!(found.kind, "process", "{}", r.to_text());
@@ -429,7 +471,7 @@ mod tests {
     #[test]
     fn white_measurement_noise_is_not_process_noise() {
         for seed in 1..=3 {
-            let (_, dg) = run("linear", seed);
+            let (_, dg, _) = run("linear", seed);
             let r = &dg.report;
             assert!(r.causes.is_empty(), "seed {seed}: {}", r.to_text());
             assert!(
