@@ -79,18 +79,8 @@ pub(crate) fn score(
     let block = pol.block(cur.select.e.len());
     let (gain, ci, pays) = match ext.metric() {
         GainMetric::Nll => {
-            let nb: Vec<f64> = cur
-                .select
-                .e
-                .iter()
-                .map(|&e| cur.model.noise.nll(e))
-                .collect();
-            let na: Vec<f64> = fitted
-                .select
-                .e
-                .iter()
-                .map(|&e| fitted.model.noise.nll(e))
-                .collect();
+            let nb = cur.select.nll_per_sample(&cur.model.noise);
+            let na = fitted.select.nll_per_sample(&fitted.model.noise);
             let (g, ci) = nll_gain_ci(&nb, &na, block, pol.bootstrap, seed);
             (g, ci, ci[0] > 0.0 && g >= pol.min_nll_gain)
         }
@@ -191,10 +181,18 @@ pub(crate) fn choose(
         }
     }
     let _ = it;
+    let rival = cands
+        .iter()
+        .filter(|c| c.cause().is_structural())
+        .map(|c| c.gain)
+        .fold(f64::NEG_INFINITY, f64::max);
     let chosen = chosen.or(refine).or_else(|| {
-        cands
-            .iter()
-            .position(|c| c.pays && c.cause() == Cause::Noise && c.role() == Role::NewCause)
+        cands.iter().position(|c| {
+            c.pays
+                && c.cause() == Cause::Noise
+                && c.role() == Role::NewCause
+                && !(c.ext.yields_to_structure() && rival >= pol.process_noise_rival_gain)
+        })
     });
     (chosen, note)
 }

@@ -138,9 +138,11 @@ pub(crate) fn fit_proposal(
     p: &Proposal,
     ctx: &Context,
 ) -> Result<Evaluated, DiagnoseError> {
-    assess(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
+    let mut c = assess(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
         e.fit(p, &ctx.at(t))
-    })
+    })?;
+    e.rescore(ctx, &mut c)?;
+    Ok(c)
 }
 
 /// The escalation (tried once per diagnosis) when no new cause was chosen:
@@ -224,6 +226,7 @@ fn rows(
             nll_before: cur.scores.nll,
             nll_after: f.scores.nll,
             accepted,
+            noise: f.finding.clone(),
         });
     }
     out.sort_by_key(|r| !r.accepted);
@@ -425,13 +428,19 @@ pub(crate) fn assemble(
     let base = &chain[0];
     let last = chain.last().expect("the chain holds the baseline");
     let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &inputs);
-    let verdict = crate::verdict::verdict(
+    let mut verdict = crate::verdict::verdict(
         &last.select.e,
         &last.select.yhat,
         &inputs,
         pol.verdict_level,
         &tried_summary(&steps),
     );
+    let noise = chain.iter().rev().find_map(|e| e.finding.clone());
+    if let Some(n) = &noise {
+        verdict
+            .text
+            .push_str(&format!("; the noise model found {}", n.text));
+    }
     let report = Report {
         version: REPORT_VERSION,
         data: DataSummary {
@@ -452,6 +461,7 @@ pub(crate) fn assemble(
         evidence: Evidence::compute(&base.select.e, &base.select.yhat, &inputs),
         final_evidence,
         verdict,
+        noise,
     };
     Diagnosis {
         report,

@@ -92,6 +92,22 @@ pub struct Residuals {
     pub e: Vec<f64>,
     /// Simulated output.
     pub yhat: Vec<f64>,
+    /// Per-sample negative log predictive density `−log p(y_t | y_{0:t−1})`
+    /// when it is not the noise model's density of `e` (a model with
+    /// process noise: its filter's); empty otherwise.
+    pub nll: Vec<f64>,
+}
+
+impl Residuals {
+    /// `−log p(y_t | y_{0:t−1})` per sample under `noise` (the model's
+    /// noise of the simulation residual) unless `nll` holds the model's own.
+    pub fn nll_per_sample(&self, noise: &gb_core::NoiseModel) -> Vec<f64> {
+        if self.nll.len() == self.e.len() {
+            self.nll.clone()
+        } else {
+            self.e.iter().map(|&e| noise.nll(e)).collect()
+        }
+    }
 }
 
 /// A model with its lineage, scores and residuals.
@@ -111,6 +127,8 @@ pub struct Evaluated {
     /// (its `select` residuals are the fold's held-out residuals); empty
     /// when decisions use the select block.
     pub folds: Vec<Evaluated>,
+    /// The noise a `noise` candidate found (`None` for the other models).
+    pub finding: Option<crate::report::NoiseFound>,
 }
 
 /// Residuals of `model` on `range` of `data`, simulating in free run from
@@ -129,6 +147,7 @@ pub fn residuals_on(
     Ok(Residuals {
         e: (start..end).map(|k| data.output[k] - sim[k]).collect(),
         yhat: sim[start..end].to_vec(),
+        nll: vec![],
     })
 }
 
@@ -181,5 +200,6 @@ pub(crate) fn evaluate_on(
         select,
         report,
         folds: vec![],
+        finding: None,
     })
 }

@@ -7,7 +7,7 @@
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PhysicsTerms, PolyNoe,
-    PreisachColumns, StudentTNoise, Wiener, WienerHammerstein,
+    PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -134,6 +134,21 @@ pub trait Extension: Sync {
         let _ = (ctx, candidate);
         true
     }
+    /// Re-score a fitted candidate whose likelihood is not its noise
+    /// model's density of the simulation residual (a model with process
+    /// noise: the filter's predictive densities, `Residuals::nll`), and say
+    /// which noise it found (`Evaluated::finding`). Default: nothing.
+    fn rescore(&self, ctx: &Context, candidate: &mut Evaluated) -> Result<(), DiagnoseError> {
+        let _ = (ctx, candidate);
+        Ok(())
+    }
+    /// Chosen only when no structural candidate of the iteration gains the
+    /// policy's `process_noise_rival_gain` on the select block, paying or
+    /// not (a noise model must explain the colour better than any
+    /// deterministic extension). Default: no.
+    fn yields_to_structure(&self) -> bool {
+        false
+    }
     /// The evidence sentence of its row.
     fn evidence(&self, p: &Proposal, ctx: &Context) -> String;
     /// The extension text of its row, once fitted.
@@ -171,6 +186,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &PreisachColumns,
     &LinearOrder,
     &StudentTNoise,
+    &ProcessNoise,
     &PhysicsTerms,
     &HiddenState,
 ];

@@ -330,7 +330,7 @@ pub fn plot_ids(d: &Diagnosis) -> Vec<String> {
         v.push(format!("plot-hoc-{j}"));
     }
     for (i, s) in accepted(&d.report.steps).enumerate() {
-        if introducing(s.cause).is_some() {
+        if step_extension(s).is_some() {
             v.push(format!("plot-evidence-{}-{}", i + 1, s.cause));
         }
     }
@@ -714,6 +714,15 @@ fn input_tests(
     Ok(())
 }
 
+/// The extension whose evidence plot a step shows: the process-noise
+/// extension for process noise found, else the one introducing its cause.
+fn step_extension(s: &Step) -> Option<&'static dyn crate::Extension> {
+    match &s.noise {
+        Some(n) if n.kind == "process" => Some(&crate::extensions::ProcessNoise),
+        _ => introducing(s.cause),
+    }
+}
+
 /// One evidence plot per accepted cause, from the residuals before and
 /// after its step.
 fn evidence_section(body: &mut String, dg: &Diagnosis) -> Result<(), DiagnoseError> {
@@ -725,7 +734,7 @@ fn evidence_section(body: &mut String, dg: &Diagnosis) -> Result<(), DiagnoseErr
         let (Some(before), Some(after)) = (dg.chain.get(i), dg.chain.get(i + 1)) else {
             continue;
         };
-        let Some(view) = introducing(s.cause)
+        let Some(view) = step_extension(s)
             .and_then(|e| e.evidence_view(&before.report, &after.report, &dg.report.data.output))
         else {
             continue;
@@ -749,13 +758,17 @@ fn extension_section(body: &mut String, dg: &Diagnosis) -> Result<(), DiagnoseEr
     let last = &dg.chain[dg.chain.len() - 1];
     let _ = writeln!(
         body,
-        "<p>Final model (class <code>{}</code>): <b>{}</b>, {} parameters, order {} (baseline {}). Noise model: <b>{}</b>.</p>",
+        "<p>Final model (class <code>{}</code>): <b>{}</b>, {} parameters, order {} (baseline {}). Noise model: <b>{}</b>{}.</p>",
         esc(last.model.dynamics.class()),
         esc(&last.model.dynamics.describe()),
         last.model.dynamics.n_parameters(),
         last.lineage.order(),
         dg.chain[0].lineage.order(),
-        esc(&last.model.noise.describe())
+        esc(&last.model.noise.describe()),
+        last.finding.as_ref().map_or(String::new(), |f| format!(
+            " (of the simulation residual); {}",
+            esc(&f.line())
+        ))
     );
     for (id, v, note) in model_views(dg) {
         if let Some(t) = view_table(&v) {

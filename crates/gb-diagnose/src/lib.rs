@@ -58,7 +58,7 @@ pub use evidence::Evidence;
 pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role, EXTENSIONS};
 pub use html::{render_html, render_html_outputs};
 pub use policy::DecisionPolicy;
-pub use report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
+pub use report::{DataSummary, ModelSummary, NoiseFound, Report, Step, REPORT_VERSION};
 pub use select::{choose_structure, ChosenStructure};
 pub use verdict::{Verdict, VerdictKind};
 

@@ -63,7 +63,9 @@ pub(crate) fn diagnose_long(
     let last = found.chain.len() - 1;
     let mut chain: Vec<Evaluated> = Vec::with_capacity(found.chain.len());
     for (i, e) in found.chain.into_iter().enumerate() {
-        let sub_model = evaluate_on(e.model, e.lineage.clone(), d, plan.w, None)?;
+        let finding = e.finding.clone();
+        let mut sub_model = evaluate_on(e.model, e.lineage.clone(), d, plan.w, None)?;
+        sub_model.finding = finding;
         let refitted = if i == 0 || i == last {
             refit(&sub_model.model, &plan, opts)
                 .and_then(|m| evaluate_on(m, e.lineage.clone(), d, plan.w, None).ok())

@@ -349,6 +349,7 @@ fn fold_scores(
         select: r,
         report: Residuals::default(),
         folds: vec![],
+        finding: None,
     })
 }
 

@@ -41,7 +41,12 @@ use crate::DiagnoseError;
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
 /// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search (the structure found so far is refitted and reported) |
 /// | `refit_iterations` | 10 | Levenberg–Marquardt iterations of the refit on the whole record (started from the subsample's model) |
-/// | `verdict_level` | 0.01 | overall level of the final residual tests (Bonferroni over the tests): "adequate" only when none rejects |
+/// | `verdict_level` | 0.01 | overall level of the final residual tests (Bonferroni over the tests): "adequate" only when none rejects; also the level at which the process-noise candidate is proposed (only when these tests say "coloured noise": whiteness rejects, no input test does) |
+/// | `process_noise_rival_gain` | 0.05 | the process-noise candidate is chosen only when no structural candidate of its iteration gains this much on the select block, significant or not: the colour must be explained better by a noise model than by any deterministic extension (a missed hysteresis leaves input-driven colour the correlation tests do not see) |
+/// | `process_noise_smc_samples` | 2000 | most fit samples of the particle (PMMH) fit of the process-noise model with Student-t measurement noise (heavy-tailed residual; the Gaussian levels come from the exact Kalman likelihood on at most `nonlinear_fit_samples`) |
+/// | `process_noise_particles`, `process_noise_iterations` | 100, 100 | particles and PMMH iterations (a quarter burn-in) of that fit: two noise levels started at their Gaussian estimate need few |
+/// | `process_noise_filter_particles` | 1000 | particles of the filter that scores a non-Gaussian process-noise model's predictive likelihood on held-out data |
+/// | `prediction_horizon` | 10 | the k of the k-step prediction RMSE reported (with 1-step) for a process-noise model |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
     /// Smallest relative NRMSE gain on the select block that counts.
@@ -129,6 +134,19 @@ pub struct DecisionPolicy {
     pub refit_iterations: usize,
     /// Overall level of the final residual tests.
     pub verdict_level: f64,
+    /// Largest select-block gain of a structural candidate that still
+    /// lets the process-noise candidate be chosen.
+    pub process_noise_rival_gain: f64,
+    /// Most fit samples of the particle fit of the process-noise model.
+    pub process_noise_smc_samples: usize,
+    /// Particles of that fit.
+    pub process_noise_particles: usize,
+    /// PMMH iterations of that fit.
+    pub process_noise_iterations: usize,
+    /// Particles of the filter scoring a non-Gaussian process-noise model.
+    pub process_noise_filter_particles: usize,
+    /// Horizon of the k-step prediction RMSE in the report.
+    pub prediction_horizon: usize,
 }
 
 impl Default for DecisionPolicy {
@@ -175,6 +193,12 @@ impl Default for DecisionPolicy {
             search_budget_s: 300.0,
             refit_iterations: 10,
             verdict_level: 0.01,
+            process_noise_rival_gain: 0.05,
+            process_noise_smc_samples: 2000,
+            process_noise_particles: 100,
+            process_noise_iterations: 100,
+            process_noise_filter_particles: 1000,
+            prediction_horizon: 10,
         }
     }
 }
@@ -248,6 +272,17 @@ impl DecisionPolicy {
             return bad(
                 "search_samples >= 1000, long_record >= search_samples, search_budget_s > 0",
             );
+        }
+        if !(0.0..1.0).contains(&self.process_noise_rival_gain) {
+            return bad("process_noise_rival_gain in [0,1)");
+        }
+        if self.process_noise_smc_samples < 100
+            || self.process_noise_particles == 0
+            || self.process_noise_iterations < 8
+            || self.process_noise_filter_particles == 0
+            || self.prediction_horizon == 0
+        {
+            return bad("process_noise_smc_samples >= 100, process_noise_iterations >= 8, particles and prediction_horizon >= 1");
         }
         Ok(())
     }

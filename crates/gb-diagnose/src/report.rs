@@ -38,6 +38,44 @@ pub struct Step {
     pub nll_after: f64,
     /// Whether the extension was kept.
     pub accepted: bool,
+    /// The noise a `noise` candidate found.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseFound>,
+}
+
+/// Which noise a `noise` candidate found, and what its noise model
+/// predicts.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NoiseFound {
+    /// `process` (a disturbance inside the dynamics) or `measurement`
+    /// (white, or heavy-tailed).
+    pub kind: String,
+    /// In words, with the fitted noise levels.
+    pub text: String,
+    /// `(k, before, after)`: report-block RMSE of the k-step prediction of
+    /// the model before (an output-error model predicts by its simulation)
+    /// and with the noise model (empty for a white noise model).
+    #[serde(default)]
+    pub prediction: Vec<(usize, f64, f64)>,
+}
+
+impl NoiseFound {
+    /// One line for the text report.
+    pub fn line(&self) -> String {
+        let mut s = self.text.clone();
+        if !self.prediction.is_empty() {
+            let p: Vec<String> = self
+                .prediction
+                .iter()
+                .map(|(k, b, a)| format!("{k}-step {b:.3e} -> {a:.3e}"))
+                .collect();
+            s.push_str(&format!(
+                "; prediction RMSE (report block) {}",
+                p.join(", ")
+            ));
+        }
+        s
+    }
 }
 
 /// Summary of a model in the report.
@@ -150,6 +188,10 @@ pub struct Report {
     pub final_evidence: Evidence,
     /// What the residual tests say about the final model.
     pub verdict: Verdict,
+    /// The noise found by an accepted `noise` step (process or
+    /// measurement noise).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub noise: Option<NoiseFound>,
 }
 
 impl Report {
@@ -206,6 +248,9 @@ impl Report {
             );
             if st.accepted {
                 let _ = writeln!(s, "               evidence: {}", st.evidence);
+                if let Some(n) = &st.noise {
+                    let _ = writeln!(s, "               noise found: {}", n.line());
+                }
             }
         }
         let causes = if r.causes.is_empty() {
@@ -214,6 +259,9 @@ impl Report {
             r.cause_names().join(", ")
         };
         let _ = writeln!(s, "\ncauses: {causes}");
+        if let Some(n) = &r.noise {
+            let _ = writeln!(s, "noise: {} noise found", n.kind);
+        }
         let _ = writeln!(s, "verdict: {}", r.verdict.text);
         let _ = writeln!(
             s,

@@ -250,6 +250,10 @@ pub struct SmcParams {
     pub process: NoiseModel,
     /// Initial process-noise level relative to the state increments.
     pub process_fraction: f64,
+    /// Initial measurement-noise level relative to the output-error RMSE
+    /// (1: the chain starts with all of the misfit as measurement noise).
+    #[serde(default = "one")]
+    pub measurement_fraction: f64,
     /// Seed.
     pub seed: u64,
 }
@@ -264,9 +268,14 @@ impl Default for SmcParams {
             measurement: NoiseModel::Gaussian { sd: 1.0 },
             process: NoiseModel::Gaussian { sd: 1.0 },
             process_fraction: 0.05,
+            measurement_fraction: 1.0,
             seed: 1,
         }
     }
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// Validated [`SmcParams`].
@@ -306,6 +315,13 @@ impl SmcParams {
         self.coefficients = n;
         self
     }
+    /// Sets the initial process- and measurement-noise levels (relative to
+    /// the state increments and to the output-error RMSE).
+    pub fn start_levels(mut self, process: f64, measurement: f64) -> Self {
+        self.process_fraction = process;
+        self.measurement_fraction = measurement;
+        self
+    }
     /// Sets the seed.
     pub fn seed(mut self, s: u64) -> Self {
         self.seed = s;
@@ -318,9 +334,10 @@ impl SmcParams {
                 "particles >= 1, iterations >= 1 and burn_in < iterations are needed".into(),
             ));
         }
-        if !(self.process_fraction.is_finite() && self.process_fraction > 0.0) {
+        let positive = |v: f64| v.is_finite() && v > 0.0;
+        if !positive(self.process_fraction) || !positive(self.measurement_fraction) {
             return Err(ModelError::InvalidArgument(
-                "process_fraction must be > 0".into(),
+                "process_fraction and measurement_fraction must be > 0".into(),
             ));
         }
         Noise::from_model(&self.measurement)?;
@@ -588,7 +605,7 @@ impl Smc {
             inputs,
             hyst: &hyst,
             proc_scale,
-            meas_scale: rmse,
+            meas_scale: rmse * p.measurement_fraction,
             process: p.process.clone(),
             measurement: p.measurement.clone(),
         };

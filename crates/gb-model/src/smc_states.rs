@@ -49,6 +49,10 @@ impl StateBand {
 pub struct StateEstimate {
     /// `log p̂(y_{0:T-1}) = Σ_t log p̂(y_t | y_{0:t-1})`.
     pub log_likelihood: f64,
+    /// The increments `log p̂(y_t | y_{0:t-1})` (the per-sample predictive
+    /// log-likelihood).
+    #[serde(default)]
+    pub increments: Vec<f64>,
     /// Effective sample size of the particles after each step.
     pub ess: Vec<f64>,
     /// Filtered states `p(x_t | y_{0:t})`.
@@ -110,6 +114,7 @@ impl Smc {
         };
         Ok(StateEstimate {
             log_likelihood: out.log_likelihood,
+            increments: out.log_likelihood_increments,
             ess: out.ess,
             filtered,
             smoothed,

@@ -2,6 +2,7 @@
 use crate::curves::qq;
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extension::{Context, Extension, GainMetric, Proposal};
+use crate::report::NoiseFound;
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, ModelView, Series, ViewData};
 
@@ -46,6 +47,18 @@ impl Extension for StudentTNoise {
         let heavy = n.3 < pol.heavy_tail_p && n.1 > pol.heavy_tail_kurtosis;
         heavy
             && c.scores.nrmse_select <= ctx.current.scores.nrmse_select * pol.noise_nrmse_tolerance
+    }
+    /// The noise found: white, heavy-tailed measurement noise.
+    fn rescore(&self, _ctx: &Context, c: &mut Evaluated) -> Result<(), DiagnoseError> {
+        c.finding = Some(NoiseFound {
+            kind: "measurement".into(),
+            text: format!(
+                "measurement noise (white, heavy-tailed): {}",
+                c.model.noise.describe()
+            ),
+            prediction: vec![],
+        });
+        Ok(())
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.noise_text()
