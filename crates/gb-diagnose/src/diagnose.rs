@@ -428,14 +428,21 @@ pub(crate) fn assemble(
     let base = &chain[0];
     let last = chain.last().expect("the chain holds the baseline");
     let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &inputs);
+    let noise = chain.iter().rev().find_map(|e| e.finding.clone());
+    // a noise model that paid on held-out data explains the residual's
+    // size: only the correlation tests judge then
+    let ratio = if noise.is_some() {
+        f64::INFINITY
+    } else {
+        pol.verdict_noise_ratio
+    };
     let mut verdict = crate::verdict::verdict(
         &last.select.e,
         &last.select.yhat,
         &inputs,
-        pol.verdict_level,
+        (pol.verdict_level, ratio),
         &tried_summary(&steps),
     );
-    let noise = chain.iter().rev().find_map(|e| e.finding.clone());
     if let Some(n) = &noise {
         verdict
             .text

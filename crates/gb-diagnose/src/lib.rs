@@ -60,7 +60,7 @@ pub use html::{render_html, render_html_outputs};
 pub use policy::DecisionPolicy;
 pub use report::{DataSummary, ModelSummary, NoiseFound, Report, Step, REPORT_VERSION};
 pub use select::{choose_structure, ChosenStructure};
-pub use verdict::{Verdict, VerdictKind};
+pub use verdict::{white_noise_level, Verdict, VerdictKind};
 
 /// Errors of the diagnosis crate.
 #[derive(Debug, thiserror::Error)]

@@ -47,6 +47,7 @@ use crate::DiagnoseError;
 /// | `process_noise_particles`, `process_noise_iterations` | 100, 100 | particles and PMMH iterations (a quarter burn-in) of that fit: two noise levels started at their Gaussian estimate need few |
 /// | `process_noise_filter_particles` | 1000 | particles of the filter that scores a non-Gaussian process-noise model's predictive likelihood on held-out data |
 /// | `prediction_horizon` | 10 | the k of the k-step prediction RMSE reported (with 1-step) for a process-noise model |
+/// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
     /// Smallest relative NRMSE gain on the select block that counts.
@@ -147,6 +148,9 @@ pub struct DecisionPolicy {
     pub process_noise_filter_particles: usize,
     /// Horizon of the k-step prediction RMSE in the report.
     pub prediction_horizon: usize,
+    /// Largest residual RMS, in units of the output's white-noise level,
+    /// that "adequate" or "coloured noise" may leave.
+    pub verdict_noise_ratio: f64,
 }
 
 impl Default for DecisionPolicy {
@@ -199,6 +203,7 @@ impl Default for DecisionPolicy {
             process_noise_iterations: 100,
             process_noise_filter_particles: 1000,
             prediction_horizon: 10,
+            verdict_noise_ratio: 3.0,
         }
     }
 }
@@ -223,8 +228,12 @@ impl DecisionPolicy {
         if self.auto_orders.is_empty() || *self.auto_orders.start() == 0 {
             return bad("auto_orders must be a non-empty range of orders >= 1");
         }
-        if self.auto_order_tolerance < 1.0 || self.noise_nrmse_tolerance < 1.0 {
-            return bad("tolerances >= 1");
+        if self.auto_order_tolerance < 1.0
+            || self.noise_nrmse_tolerance < 1.0
+            || self.verdict_noise_ratio.is_nan()
+            || self.verdict_noise_ratio < 1.0
+        {
+            return bad("tolerances and verdict_noise_ratio >= 1");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
         if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) || !p_ok(self.verdict_level) {

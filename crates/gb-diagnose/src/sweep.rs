@@ -90,6 +90,8 @@ pub struct Outcome {
     pub steps: Vec<String>,
     /// The verdict says "adequate" (no residual test rejects).
     pub adequate: bool,
+    /// The verdict says "adequate" or "coloured noise" (not unexplained).
+    pub explained: bool,
 }
 
 /// The only place that calls the diagnosis API (adapt here when it changes).
@@ -121,6 +123,7 @@ pub fn run_diagnosis(case: &Case, order: OrderMode) -> Result<Outcome, String> {
         order: r.baseline.order,
         steps,
         adequate: r.verdict.kind == crate::VerdictKind::Adequate,
+        explained: r.verdict.kind != crate::VerdictKind::Unexplained,
     })
 }
 
@@ -156,6 +159,10 @@ pub struct CaseResult {
     /// The verdict says "adequate" while final > 1.5 × floor (an "adequate"
     /// verdict that is not).
     pub adequate_above_floor: bool,
+    /// The verdict says "adequate" or "coloured noise" while final > 1.5 ×
+    /// floor (a misfit the verdict does not call unexplained).
+    #[serde(default)]
+    pub explained_above_floor: bool,
     /// Wall time of the diagnosis (s).
     pub seconds: f64,
     /// Training samples.
@@ -192,6 +199,7 @@ fn failed(spec: &CaseSpec, case: Option<&Case>, e: String) -> CaseResult {
         right: false,
         right_tight: false,
         adequate_above_floor: false,
+        explained_above_floor: false,
         seconds: 0.0,
         n_train: case.map_or(0, |c| c.train.len()),
         snr_db: case.map_or(f64::NAN, |c| c.snr_db),
@@ -228,6 +236,7 @@ pub fn run_one(spec: &CaseSpec, opts: &SweepOptions) -> CaseResult {
         right: causes_right && ratio <= 1.5,
         right_tight: causes_right && ratio <= 1.3,
         adequate_above_floor: out.adequate && ratio > 1.5,
+        explained_above_floor: out.explained && ratio > 1.5,
         causes_right,
         named: out.causes,
         baseline_nrmse: out.baseline_nrmse,

@@ -55,7 +55,7 @@ fn coloured_only(ctx: &Context) -> bool {
         &cur.select.e,
         &cur.select.yhat,
         &u,
-        ctx.policy().verdict_level,
+        (ctx.policy().verdict_level, f64::INFINITY),
         &[],
     );
     v.kind == VerdictKind::ColouredNoise

@@ -84,8 +84,12 @@ fn headline(out: &mut String, all: &[&CaseResult]) {
         ),
         ("median final/floor", format!("{:.2}", median(&ratios))),
         (
-            "\"no cause\" while final > 1.5× floor",
+            "verdict \"adequate\" while final > 1.5× floor",
             frac(count(all, |c| c.adequate_above_floor), n),
+        ),
+        (
+            "verdict \"adequate\" or \"coloured noise\" while final > 1.5× floor",
+            frac(count(all, |c| c.explained_above_floor), n),
         ),
         ("errors", count(all, |c| c.error.is_some()).to_string()),
         (
@@ -101,7 +105,7 @@ fn headline(out: &mut String, all: &[&CaseResult]) {
 fn per_family(out: &mut String, all: &[&CaseResult]) {
     let _ = writeln!(
         out,
-        "| family | expected | cases | right cause & no foreign | foreign named | no cause named | right ≤1.5× | right ≤1.3× | median final/floor | max final/floor | \"no cause\" >1.5× | median / max time (s) |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
+        "| family | expected | cases | right cause & no foreign | foreign named | no cause named | right ≤1.5× | right ≤1.3× | median final/floor | max final/floor | \"adequate\" >1.5× | median / max time (s) |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
     );
     let mut fams: Vec<&str> = vec![];
     for c in all {

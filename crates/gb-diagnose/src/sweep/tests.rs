@@ -20,6 +20,7 @@ fn result(family: &str, expected: &[&str], named: &[&str], ratio: f64) -> CaseRe
     r.right = r.causes_right && ratio <= 1.5;
     r.right_tight = r.causes_right && ratio <= 1.3;
     r.adequate_above_floor = r.named.is_empty() && ratio > 1.5;
+    r.explained_above_floor = ratio > 1.5 && r.named.len() < 2;
     r.seconds = 1.0;
     r
 }
@@ -49,7 +50,13 @@ fn markdown_counts_right_foreign_and_floor() {
         "{md}"
     );
     assert!(
-        md.contains("| \"no cause\" while final > 1.5× floor | 1/5 (20 %) |"),
+        md.contains("| verdict \"adequate\" while final > 1.5× floor | 1/5 (20 %) |"),
+        "{md}"
+    );
+    assert!(
+        md.contains(
+            "| verdict \"adequate\" or \"coloured noise\" while final > 1.5× floor | 1/5 (20 %) |"
+        ),
         "{md}"
     );
     assert!(md.contains("| duffing | nonlinearity | 2 | 1/2 (50 %) | 0 | 1/2 (50 %) | 1/2 (50 %) | 0/2 (0 %) | 2.20 | 3.00 | 1 |"), "{md}");
