@@ -111,9 +111,11 @@ fn cross_test(a: &[f64], e: &[f64]) -> (f64, f64) {
 /// detail coefficients (`None` for fewer than 16 samples).
 ///
 /// ```
-/// // white noise of sd 0.5 around a slow sine: σ̂_w ≈ 0.5
+/// use rand::Rng;
+/// // white noise of sd 0.5 (uniform) around a slow sine: σ̂_w ≈ 0.5
+/// let mut rng = gb_core::rng::seeded(1);
 /// let y: Vec<f64> = (0..4000)
-///     .map(|k| (k as f64 * 0.01).sin() + 0.5 * ((k * 7919 % 1000) as f64 / 1000.0 - 0.5) * 12f64.sqrt())
+///     .map(|k| (k as f64 * 0.01).sin() + 0.5 * 12f64.sqrt() * (rng.random::<f64>() - 0.5))
 ///     .collect();
 /// let s = gb_diagnose::white_noise_level(&y).unwrap();
 /// assert!((s - 0.5).abs() < 0.1, "{s}");
