@@ -399,7 +399,7 @@ impl SmcReport {
 /// Summary and diagnostics of draws `x` (after burn-in) of one quantity.
 /// Split-R̂ treats the four quarters as chains: each is halved again, so the
 /// statistic compares eight segments (a drift or a stuck start shows).
-fn posterior_parameter(name: String, x: &[f64]) -> PosteriorParameter {
+pub(crate) fn posterior_parameter(name: String, x: &[f64]) -> PosteriorParameter {
     let n = x.len().max(1) as f64;
     let mean = x.iter().sum::<f64>() / n;
     let mut v = x.to_vec();

@@ -42,7 +42,7 @@ pub(crate) struct FilterArgs {
 /// The `fit` options of the SMC path (flattened into `fit`).
 #[derive(Args, Default)]
 pub(crate) struct SmcArgs {
-    /// Identification method: oe (output error, the default) or smc (PMMH on the noise scales and the largest wavelet coefficients, from the output-error fit; `--model state-space` only).
+    /// Identification method: oe (output error, the default) or smc (PMMH from the output-error fit: `--model state-space` samples the noise scales and the largest wavelet coefficients, `--model-file` the free parameters, a process-noise level per non-kinematic state and the measurement noise).
     #[arg(long, value_name = "oe|smc", default_value = "oe")]
     pub(crate) method: String,
     /// `--method smc`: particles of the filter [default: 200].
@@ -227,11 +227,8 @@ fn stream(
 /// quantity with its 95 % interval, ESS and split-R̂, and warns when the
 /// chain has not mixed.
 pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
-    if a.model_file.is_some() {
-        return Err(
-            "--method smc is not available for --model-file (physics) models; use --model state-space"
-                .into(),
-        );
+    if let Some(path) = &a.model_file {
+        return fit_model_file(a, path, quiet);
     }
     let spec = crate::cmd_fit::spec_of(a)?;
     if spec.name != "state-space" || spec.has("damper") {
@@ -266,14 +263,23 @@ pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
     fitted.dynamics = Box::new(model);
     fitted.save(&a.out).map_err(|e| e.to_string())?;
     println!("model: {}", fitted.describe());
+    print_posterior(&rep, particles, iterations);
+    println!("kept: {:?}", rep.path);
+    println!("saved to {}", a.out.display());
+    Ok(())
+}
+
+/// The printed posterior: every sampled quantity with its 95 % interval,
+/// ESS and split-R̂, and a warning when the chain has not mixed.
+fn print_posterior(rep: &gb_model::SmcReport, particles: usize, iterations: usize) {
     println!(
         "SMC: {particles} particles, {iterations} PMMH iterations (burn-in {}), acceptance rate {:.3}",
         iterations / 4,
         rep.acceptance_rate
     );
     println!(
-        "log-likelihood (particle filter): output-error model {:.2}, posterior mean {:.2}; kept: {:?}",
-        rep.log_likelihood_oe, rep.log_likelihood_smc, rep.path
+        "log-likelihood (particle filter): output-error start {:.2}, posterior mean {:.2}",
+        rep.log_likelihood_oe, rep.log_likelihood_smc
     );
     println!("posterior (mean, 95 % interval, effective sample size, split-R̂):");
     for p in &rep.parameters {
@@ -293,6 +299,61 @@ pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
             "warning: the chain has not mixed (largest split-R̂ {rhat:.2}, limit {MAX_RHAT}; smallest ESS {ess:.0}, limit {MIN_ESS:.0}): the intervals are not reliable; run more --iterations"
         );
     }
-    println!("saved to {}", a.out.display());
+}
+
+/// `greybox fit --model-file m.toml --method smc`: the output-error fit of
+/// the file (printed as `fit --model-file` prints it), then PMMH from it on
+/// the training record (at most `SMC_SAMPLES` samples); prints the
+/// posterior and saves the output-error model (the model file format has
+/// no process-noise section: `simulate` runs the deterministic model).
+fn fit_model_file(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
+    let mf = crate::cmd_physics::read_model_file(path)?;
+    let d = crate::cmd_physics::load_for_model(&a.train, &a.signals, &mf, "--method smc")?;
+    let (ts, _) = crate::cmd_physics::sample_time_of(&mf, &d, &a.train)?;
+    let mut mf = mf;
+    mf.spec.sample_time = Some(ts);
+    let d = d.with_sample_time(ts);
+    let bar = Bar::spinner(quiet, &format!("fitting {} (output error)", mf.name));
+    let oe = mf
+        .fit_growing(&Records::single(d.clone()), &bar)
+        .map_err(|e| format!("{}: {e}", a.train.display()))?;
+    bar.finish();
+    if let Some(rep) = oe.fit_report() {
+        for l in rep.lines() {
+            println!("{l}");
+        }
+    }
+    let n = d.len().min(SMC_SAMPLES);
+    if n < d.len() {
+        println!(
+            "PMMH on the first {n} of {} samples (each iteration runs a particle filter over them)",
+            d.len()
+        );
+    }
+    let part = d.slice(0..n);
+    let iterations =
+        usize::try_from(a.smc.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
+    let particles = usize::try_from(a.smc.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
+    let smc = SmcParams::new()
+        .particles(particles)
+        .iterations(iterations, iterations / 4)
+        .seed(a.smc.seed.unwrap_or(1))
+        .check()
+        .map_err(|e| e.to_string())?;
+    let bar = Bar::new(quiet, iterations + 1, "PMMH");
+    let rep = smc
+        .fit_physics(&oe, &part, &bar)
+        .map_err(|e| format!("{}: {e}", a.train.display()))?;
+    bar.finish();
+    print_posterior(&rep, particles, iterations);
+    let fitted = oe.to_fitted().map_err(|e| e.to_string())?;
+    fitted.save(&a.out).map_err(|e| e.to_string())?;
+    println!(
+        "saved to {} (the output-error model: the model file format has no process-noise section)",
+        a.out.display()
+    );
     Ok(())
 }
+
+/// Most training samples the PMMH of a model file runs on.
+const SMC_SAMPLES: usize = 2000;

@@ -274,6 +274,60 @@ fn fit_model_file_with_two_outputs() {
     );
 }
 
+/// `fit --model-file --method smc`: the output-error fit, then PMMH; the
+/// posterior lines of the velocity's process noise, the measurement noise
+/// and m, c, k are printed with intervals, ESS and R̂; the measurement sd
+/// is near the data's (0.02) and k near the truth; the kinematic state x
+/// gets no process noise; the saved model simulates.
+#[test]
+fn fit_model_file_by_smc_prints_the_posterior() {
+    let d = tmp("smc");
+    let data = d.join("train.csv");
+    msd_csv(&data, 400, 6, 0.02, 0.0);
+    let out = d.join("msd.gbm");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "--method",
+        "smc",
+        "--particles",
+        "100",
+        "--iterations",
+        "400",
+        "--seed",
+        "2",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let mean_of = |name: &str| -> f64 {
+        so.lines()
+            .find(|l| l.split_whitespace().next() == Some(name))
+            .and_then(|l| l.split_whitespace().nth(1))
+            .and_then(|v| v.parse().ok())
+            .unwrap_or_else(|| panic!("no posterior line for {name} in\n{so}"))
+    };
+    let w = mean_of("measurement_sd");
+    assert!((w / 0.02 - 1.0).abs() < 0.25, "measurement_sd {w}\n{so}");
+    let k = mean_of("k");
+    assert!((k / TRUTH[2] - 1.0).abs() < 0.1, "k {k}\n{so}");
+    mean_of("process_sd[v]");
+    assert!(!so.contains("process_sd[x]"), "{so}");
+    assert!(so.contains("acceptance rate") && so.contains("R̂"), "{so}");
+    let sim = d.join("sim.csv");
+    let o = run(&[
+        "simulate",
+        out.to_str().unwrap(),
+        data.to_str().unwrap(),
+        "-o",
+        sim.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+}
+
 /// A failing call: exit 2, one line on stderr containing `needle`, no
 /// output file.
 fn assert_bad(args: &[&str], needle: &str, out: &Path) {

@@ -46,6 +46,7 @@ mod fit;
 mod identify;
 mod model;
 mod simulate;
+mod smc;
 mod spec;
 mod tape;
 #[cfg(test)]
