@@ -3,9 +3,10 @@
 //! identifiability warnings, model-file errors, model files, bands.
 use gb_core::{DynamicModel, Identify, Init, Record, Records, Silent};
 use gb_model::physics::*;
-use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use std::path::PathBuf;
+
+mod common;
 
 const TS: f64 = 0.05;
 const TRUTH: [f64; 3] = [1.0, 0.4, 4.0]; // m, c, k
@@ -29,13 +30,7 @@ fn msd_data(n: usize, seed: u64, snr_db: f64) -> (Record, Vec<f64>) {
 /// As [`msd_data`], the noise given by its SNR (`Err`) or its sd (`Ok`).
 fn msd_data_sd(n: usize, seed: u64, noise: Result<f64, f64>) -> (Record, Vec<f64>) {
     let mut rng = gb_core::rng::seeded(seed);
-    let mut u = Vec::with_capacity(n);
-    while u.len() < n {
-        let level: f64 = Normal::new(0.0, 1.0).unwrap().sample(&mut rng);
-        let hold = rng.random_range(5..40);
-        u.extend(std::iter::repeat_n(level, hold));
-    }
-    u.truncate(n);
+    let u = common::steps(n, &mut rng);
     let mut spec = msd_file().spec;
     spec.substeps = 20;
     spec.sample_time = Some(TS);
@@ -43,7 +38,9 @@ fn msd_data_sd(n: usize, seed: u64, noise: Result<f64, f64>) -> (Record, Vec<f64
         .unwrap()
         .with_values(TRUTH.to_vec(), vec![0.0, 0.0])
         .unwrap();
-    let clean = truth.simulate(&[u.clone()], Init::Stored).unwrap();
+    let clean = truth
+        .simulate(std::slice::from_ref(&u), Init::Stored)
+        .unwrap();
     let rms = (clean.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt();
     let sd = noise.unwrap_or_else(|snr_db| rms * 10f64.powf(-snr_db / 20.0));
     let noise = Normal::new(0.0, sd).unwrap();
@@ -446,13 +443,7 @@ fn growing_fit_is_never_worse_and_finds_the_truth_on_long_records() {
 /// noise of sd 0.01.
 fn cubic_msd_data(n: usize, seed: u64, k3: f64) -> Record {
     let mut rng = gb_core::rng::seeded(seed);
-    let mut u = Vec::with_capacity(n);
-    while u.len() < n {
-        let level: f64 = Normal::new(0.0, 1.0).unwrap().sample(&mut rng);
-        let hold = rng.random_range(5..40);
-        u.extend(std::iter::repeat_n(level, hold));
-    }
-    u.truncate(n);
+    let u = common::steps(n, &mut rng);
     let mut spec = msd_file().spec;
     spec.substeps = 20;
     spec.sample_time = Some(TS);
@@ -511,13 +502,7 @@ fn growing_fit_escapes_local_minima_of_the_output_error_cost() {
 fn two_sensor_data(n: usize, seed: u64) -> (ModelFile, Vec<Records>, [f64; 2]) {
     let mf = ModelFile::read(&example("msd_two_outputs.toml")).unwrap();
     let mut rng = gb_core::rng::seeded(seed);
-    let mut u = Vec::with_capacity(n);
-    while u.len() < n {
-        let level: f64 = Normal::new(0.0, 1.0).unwrap().sample(&mut rng);
-        let hold = rng.random_range(5..40);
-        u.extend(std::iter::repeat_n(level, hold));
-    }
-    u.truncate(n);
+    let u = common::steps(n, &mut rng);
     let mut spec = mf.spec.clone();
     spec.substeps = 20;
     spec.sample_time = Some(TS);

@@ -4,9 +4,10 @@
 use gb_core::{Record, Records, Silent};
 use gb_model::physics::ModelFile;
 use gb_model::SmcParams;
-use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use std::path::PathBuf;
+
+mod common;
 
 const TS: f64 = 0.05;
 const M: f64 = 1.0;
@@ -17,13 +18,7 @@ const K: f64 = 4.0;
 /// `v += N(0, sd_v²)` per sample; `y = x + N(0, sd_w²)`.
 fn disturbed_msd(n: usize, seed: u64, sd_v: f64, sd_w: f64) -> Record {
     let mut rng = gb_core::rng::seeded(seed);
-    let mut u = Vec::with_capacity(n);
-    while u.len() < n {
-        let level: f64 = Normal::new(0.0, 1.0).unwrap().sample(&mut rng);
-        let hold = rng.random_range(5..40);
-        u.extend(std::iter::repeat_n(level, hold));
-    }
-    u.truncate(n);
+    let u = common::steps(n, &mut rng);
     let f = |x: f64, v: f64, force: f64| (v, (force - C * v - K * x) / M);
     let (mut x, mut v) = (0.0, 0.0);
     let h = TS / 20.0;

@@ -57,6 +57,22 @@ pub(crate) struct SmcArgs {
 }
 
 impl SmcArgs {
+    /// The validated PMMH settings (defaults 200 particles, 2000
+    /// iterations, a quarter burn-in, seed 1), the particles and iterations.
+    fn sampler(&self) -> Result<(gb_model::Smc, usize, usize)> {
+        let iterations =
+            usize::try_from(self.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
+        let particles =
+            usize::try_from(self.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
+        let smc = SmcParams::new()
+            .particles(particles)
+            .iterations(iterations, iterations / 4)
+            .seed(self.seed.unwrap_or(1))
+            .check()
+            .map_err(|e| e.to_string())?;
+        Ok((smc, particles, iterations))
+    }
+
     /// `--method smc` (an unknown method is an error).
     /// `--particles`, `--iterations` and `--seed` belong to `--method smc`:
     /// with the output-error method they are an error, not ignored.
@@ -246,15 +262,7 @@ pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
         .model;
     bar.finish();
     let oe = state_space(&a.train, &fitted)?.clone();
-    let iterations =
-        usize::try_from(a.smc.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
-    let particles = usize::try_from(a.smc.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
-    let smc = SmcParams::new()
-        .particles(particles)
-        .iterations(iterations, iterations / 4)
-        .seed(a.smc.seed.unwrap_or(1))
-        .check()
-        .map_err(|e| e.to_string())?;
+    let (smc, particles, iterations) = a.smc.sampler()?;
     let bar = Bar::new(quiet, iterations + 1, "PMMH");
     let (model, rep) = smc
         .fit(&oe, &d.inputs, &d.output, &bar)
@@ -331,15 +339,7 @@ fn fit_model_file(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
         );
     }
     let part = d.slice(0..n);
-    let iterations =
-        usize::try_from(a.smc.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
-    let particles = usize::try_from(a.smc.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
-    let smc = SmcParams::new()
-        .particles(particles)
-        .iterations(iterations, iterations / 4)
-        .seed(a.smc.seed.unwrap_or(1))
-        .check()
-        .map_err(|e| e.to_string())?;
+    let (smc, particles, iterations) = a.smc.sampler()?;
     let bar = Bar::new(quiet, iterations + 1, "PMMH");
     let rep = smc
         .fit_physics(&oe, &part, &bar)
