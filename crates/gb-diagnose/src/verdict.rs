@@ -209,9 +209,12 @@ pub fn verdict(
         .collect::<Vec<_>>()
         .join(", ");
     let size = times.map_or(String::new(), |t| {
-        format!(
-            "; the residual is {t:.1}× the white-noise level of the output's finest wavelet scale"
-        )
+        let t = if t < 100.0 {
+            format!("{t:.1}")
+        } else {
+            format!("{t:.1e}")
+        };
+        format!("; the residual is {t}× the white-noise level of the output's finest wavelet scale")
     });
     let tried = if tried.is_empty() {
         "nothing".to_string()
