@@ -192,21 +192,26 @@ pub(crate) fn ml_levels(
 }
 
 #[cfg(test)]
-mod tests {
+pub(in crate::extensions) mod tests {
     use super::*;
     use gb_model::SmcParams;
     use rand_distr::{Distribution, StandardNormal};
 
-    /// A resonant second-order system driven by `u` and by a white force
-    /// disturbance `v` (entering both states), measured with white noise.
-    fn data(n: usize, q: f64, r: f64, seed: u64) -> (SparseStateSpace, Vec<Vec<f64>>, Vec<f64>) {
-        let m = SparseStateSpace::linear(
+    /// The resonant second-order observer-form model of the noise tests.
+    pub(in crate::extensions) fn resonant() -> SparseStateSpace {
+        SparseStateSpace::linear(
             vec![1.6, 1.0, -0.8, 0.0],
             vec![0.5, 0.3],
             vec![1.0, 0.0],
             vec![0.0],
         )
-        .expect("model");
+        .expect("model")
+    }
+
+    /// A resonant second-order system driven by `u` and by a white force
+    /// disturbance `v` (entering both states), measured with white noise.
+    fn data(n: usize, q: f64, r: f64, seed: u64) -> (SparseStateSpace, Vec<Vec<f64>>, Vec<f64>) {
+        let m = resonant();
         let mut rng = gb_core::rng::seeded(seed);
         let mut g = || -> f64 { StandardNormal.sample(&mut rng) };
         let u: Vec<f64> = (0..n).map(|_| g()).collect();

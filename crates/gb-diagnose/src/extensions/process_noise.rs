@@ -495,13 +495,7 @@ mod tests {
         use super::{fit_noise, predictive};
         use gb_core::{FittedModel, NoiseModel, Record};
         use rand_distr::{Distribution, StandardNormal, StudentT};
-        let m = SparseStateSpace::linear(
-            vec![1.6, 1.0, -0.8, 0.0],
-            vec![0.5, 0.3],
-            vec![1.0, 0.0],
-            vec![0.0],
-        )
-        .expect("model");
+        let m = crate::extensions::kalman::tests::resonant();
         let record = |seed: u64| -> Record {
             let mut rng = gb_core::rng::seeded(seed);
             let t3 = StudentT::new(3.0).expect("t");

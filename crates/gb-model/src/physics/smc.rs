@@ -144,7 +144,8 @@ impl<'a> Problem<'a> {
             .collect()
     }
 
-    /// Number of log-levels (one per state, then the measurement).
+    /// Number of log-levels (one per state with process noise, then the
+    /// measurement).
     fn levels(&self) -> usize {
         self.noisy.len() + 1
     }
