@@ -849,6 +849,35 @@ fn filter_streams_stdin_rows_as_the_batch_filter() {
     for (k, (a, b)) in streamed.iter().zip(&batch[2..]).enumerate() {
         assert_eq!(a, b, "row {}", k + 3);
     }
+    // bad rows: one line naming row and column, exit 2, no panic
+    for (input, needle) in [
+        (
+            "u,y\n1,2\nabc,1\n",
+            "stdin: row 3, column 'u': 'abc' is not a number",
+        ),
+        ("x,y\n1,2\n", "stdin: no column named 'u'"),
+        (
+            "u,y\n1,inf\n",
+            "stdin: row 2, column 'y': value inf is not finite",
+        ),
+        ("", "stdin: file is empty"),
+    ] {
+        let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_greybox"))
+            .args(["filter", m, "-"])
+            .stdin(std::process::Stdio::piped())
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let _ = c.stdin.take().unwrap().write_all(input.as_bytes());
+        let o = c.wait_with_output().unwrap();
+        let e = String::from_utf8_lossy(&o.stderr).to_string();
+        assert_eq!(o.status.code(), Some(2), "{input:?}: {e}");
+        assert!(
+            e.contains(needle) && e.trim_end().lines().count() == 1,
+            "{input:?}: {e}"
+        );
+    }
     for extra in [["-o", "x.csv"], ["--smooth", "--seed"]] {
         let mut args = vec!["filter", m, "-"];
         args.extend(extra);
