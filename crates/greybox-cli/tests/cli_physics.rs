@@ -556,3 +556,89 @@ fn diagnose_model_file_names_a_missing_cubic_spring_and_gains_on_held_out_data()
         .unwrap_or_else(|| panic!("no k in {fin_params}"));
     assert!((k - TRUTH[2]).abs() < 0.05 * TRUTH[2], "k = {k}");
 }
+
+/// Two tanks (`cascaded_tanks.toml`) whose upper tank overflows at
+/// `level` (the truth adds the ceiling `ẋ₁ = min(f₁, (level − x₁)/h)` that
+/// the file lacks), pump voltage in random steps, written as `t,u,y` with
+/// white noise `sd`. Returns the clean output's standard deviation and the
+/// fraction of samples at the ceiling.
+fn overflow_csv(path: &Path, n: usize, seed: u64, sd: f64, level: f64) -> (f64, f64) {
+    let mut rng = gb_core::rng::seeded(seed);
+    let mut u = Vec::with_capacity(n);
+    while u.len() < n {
+        let v: f64 = rng.random_range(1.0..6.0);
+        u.extend(std::iter::repeat_n(v, rng.random_range(20..80)));
+    }
+    u.truncate(n);
+    let mut spec = ModelFile::read(&example("cascaded_tanks.toml"))
+        .unwrap()
+        .spec;
+    spec.substeps = 8;
+    spec.parameters
+        .push(gb_model::physics::Parameter::new("level", level));
+    let rate = spec.substeps as f64 / 4.0;
+    let z = format!("(level-x1)*{rate}-(-k1*sqrt(x1)+k2*u)");
+    spec.add_term(
+        gb_model::physics::TermTarget::State(0),
+        &format!("(({z})-abs({z}))/2"),
+    )
+    .unwrap();
+    let truth = PhysicsModel::new(spec)
+        .unwrap()
+        .with_values(vec![0.1, 0.08, 0.1, 0.08, level], vec![1.0, 1.0])
+        .unwrap();
+    let us = [u.clone()];
+    let x = truth.state_trajectory(&us, Init::Stored).unwrap();
+    let clean = truth.simulate(&us, Init::Stored).unwrap();
+    let at_limit = x[0].iter().filter(|v| **v > level - 1e-3).count() as f64 / n as f64;
+    let noise = Normal::new(0.0, sd).unwrap();
+    let mut s = String::from("t,u,y\n");
+    for (k, (f, y)) in u.iter().zip(&clean).enumerate() {
+        let v = y + noise.sample(&mut rng);
+        s.push_str(&format!("{},{f},{v}\n", k as f64 * 4.0));
+    }
+    std::fs::write(path, s).unwrap();
+    let mean = clean.iter().sum::<f64>() / n as f64;
+    let var = clean.iter().map(|y| (y - mean).powi(2)).sum::<f64>() / n as f64;
+    (var.sqrt(), at_limit)
+}
+
+#[test]
+fn diagnose_model_file_finds_the_overflow_of_a_tank() {
+    let d = tmp("overflow");
+    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    let sd = 0.01;
+    let (sy, at) = overflow_csv(&train, 1500, 31, sd, 10.0);
+    overflow_csv(&val, 1000, 32, sd, 10.0);
+    println!(
+        "output sd {sy:.3}, {:.0} % of the samples at the ceiling",
+        100.0 * at
+    );
+    assert!((0.1..0.6).contains(&at), "the ceiling binds {at}");
+    let o = run(&[
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--model-file",
+        example("cascaded_tanks.toml").to_str().unwrap(),
+        "--max-steps",
+        "1",
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    println!("{so}");
+    let accepted: Vec<&str> = so.lines().filter(|l| l.contains(" yes ")).collect();
+    assert!(
+        accepted
+            .first()
+            .is_some_and(|l| l.contains("an upper limit L_hi_x1 on x1")),
+        "the first accepted step is not the overflow of x1:\n{so}"
+    );
+    let (base, fin) = (nrmse_of(&so, "baseline:"), nrmse_of(&so, "final:"));
+    let floor = sd / sy;
+    assert!(
+        fin < 1.3 * floor,
+        "held-out NRMSE {base:.4} -> {fin:.4}, noise floor {floor:.4}"
+    );
+}

@@ -1,17 +1,18 @@
 //! `nonlinearity` in the engineer's own equations: a black-box term added
-//! to one state equation of a physics model, the physical parameters
-//! re-estimated with it.
+//! to one state equation or to the output of a physics model, the physical
+//! parameters re-estimated with it.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::{fit_physics, parameters_text, physics_of};
 use crate::{Cause, DiagnoseError};
-use gb_core::{FittedModel, Init};
+use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 
-/// For every state equation `ẋᵢ = fᵢ(x, u, θ)` with a free parameter (a
-/// definition such as `ẋ = v` is left alone) and every state `x_s`, three
-/// candidates, each with new free parameters started at 0 and every
-/// physical parameter refitted from the current estimates:
+/// Candidate terms for the engineer's equations, each with new free
+/// parameters and every physical parameter refitted from the current
+/// estimates. For every state equation `ẋᵢ = fᵢ(x, u, θ)` with a free
+/// parameter (a definition such as `ẋ = v` is left alone) and every state
+/// `x_s`:
 ///
 /// * `poly`: `ẋᵢ += a2·s² + a3·s³` with `s = x_s/h` scaled by the largest
 ///   |x_s| of the simulated state (a smooth nonlinear spring, damper or
@@ -21,8 +22,28 @@ use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 ///   on the simulated range (a law whose offset and slope come with it,
 ///   e.g. a flow that changes with the level);
 /// * `hinge`: `ẋᵢ += b_hi·max(x_s − q₉₀, 0) + b_lo·max(q₁₀ − x_s, 0)` with
-///   the 10 % and 90 % quantiles of the simulated state (a limit: an
-///   overflow, an end stop, a saturation).
+///   the 10 % and 90 % quantiles of the simulated state (a law that
+///   changes beyond a level).
+///
+/// On the state itself (`s = i`), a hard limit (an overflow, an end stop,
+/// an empty tank), with `r = substeps/Ts` the inverse RK4 step:
+///
+/// * `ceiling`: `ẋᵢ = min(fᵢ, r·(L − xᵢ))`, added as the term
+///   `min(0, r·(L − xᵢ) − fᵢ)`, so the state stops at `L` within about
+///   one step; `L` starts at the 80, 90, 95 and 99 % quantiles of the
+///   simulated `xᵢ` and the best fit is kept (only for a state without a
+///   declared `max`, which the simulation already enforces);
+/// * `floor`: `ẋᵢ = max(fᵢ, r·(L − xᵢ))`, `L` from the mirrored quantiles
+///   (only for a state without a declared `min`);
+/// * `spill` (once `xᵢ` has a ceiling): what the ceiling removes flows, by
+///   a fraction `k`, into another state: `ẋⱼ += k·max(0, fᵢ − r·(L − xᵢ))`
+///   (the overflow of one tank into the next).
+///
+/// On each output `y = g(x, u, θ)`:
+///
+/// * `offset`: `y += o` (a sensor bias);
+/// * `clip`: `y = min(g, M)`, `M` started at the same quantiles of the
+///   simulated output (a sensor range).
 ///
 /// The normalisation comes from the current model's simulation on the fit
 /// record of each fit (the fold's under cross-validation). The physical
@@ -35,64 +56,146 @@ enum Kind {
     Poly,
     Centred,
     Hinge,
+    Ceiling,
+    Floor,
+    Spill,
+    Offset,
+    Clip,
+}
+
+/// Where a term goes: a state's equation or an output, by name.
+#[derive(Debug, Clone, PartialEq, Eq)]
+enum Place {
+    State(String),
+    Output(String),
+}
+
+impl Place {
+    fn label(&self) -> String {
+        match self {
+            Place::State(s) => format!("d{s}/dt"),
+            Place::Output(o) => o.clone(),
+        }
+    }
+    fn parse(s: &str) -> Place {
+        match s.strip_prefix('d').and_then(|r| r.strip_suffix("/dt")) {
+            Some(st) => Place::State(st.to_string()),
+            None => Place::Output(s.to_string()),
+        }
+    }
 }
 
 impl Kind {
-    const ALL: [Kind; 3] = [Kind::Poly, Kind::Centred, Kind::Hinge];
+    const ALL: [Kind; 8] = [
+        Kind::Poly,
+        Kind::Centred,
+        Kind::Hinge,
+        Kind::Ceiling,
+        Kind::Floor,
+        Kind::Spill,
+        Kind::Offset,
+        Kind::Clip,
+    ];
 
     fn name(self) -> &'static str {
         match self {
             Kind::Poly => "poly",
             Kind::Centred => "centred",
             Kind::Hinge => "hinge",
+            Kind::Ceiling => "ceiling",
+            Kind::Floor => "floor",
+            Kind::Spill => "spill",
+            Kind::Offset => "offset",
+            Kind::Clip => "clip",
         }
     }
-    /// The new parameters' names for equation `eq` and variable `var`.
-    fn parameters(self, eq: &str, var: &str) -> [String; 2] {
+    /// The new parameters' names for place `at` and variable `var`.
+    fn parameters(self, at: &Place, var: &str) -> Vec<String> {
+        let eq = match at {
+            Place::State(s) | Place::Output(s) => s,
+        };
         match self {
-            Kind::Poly => [format!("a2_{eq}_{var}"), format!("a3_{eq}_{var}")],
-            Kind::Centred => [format!("c2_{eq}_{var}"), format!("c3_{eq}_{var}")],
-            Kind::Hinge => [format!("b_hi_{eq}_{var}"), format!("b_lo_{eq}_{var}")],
+            Kind::Poly => vec![format!("a2_{eq}_{var}"), format!("a3_{eq}_{var}")],
+            Kind::Centred => vec![format!("c2_{eq}_{var}"), format!("c3_{eq}_{var}")],
+            Kind::Hinge => vec![format!("b_hi_{eq}_{var}"), format!("b_lo_{eq}_{var}")],
+            Kind::Ceiling => vec![ceiling_name(eq)],
+            Kind::Floor => vec![format!("L_lo_{eq}")],
+            Kind::Spill => vec![format!("k_spill_{var}_{eq}")],
+            Kind::Offset => vec![format!("off_{eq}")],
+            Kind::Clip => vec![format!("M_{eq}")],
         }
     }
 }
 
-/// The marker of an added term in a lineage spec: ` + poly(x) in dv/dt`.
-fn marker(kind: Kind, eq: &str, var: &str) -> String {
-    format!(" + {}({var}) in d{eq}/dt", kind.name())
+/// The name of the ceiling parameter of state `s`.
+fn ceiling_name(s: &str) -> String {
+    format!("L_hi_{s}")
 }
 
-/// The kind, equation and variable of a proposal, from its lineage spec.
-fn target(p: &Proposal) -> Option<(Kind, String, String)> {
+/// The marker of an added term in a lineage spec: ` + poly(x) in dv/dt`,
+/// ` + offset() in y`.
+fn marker(kind: Kind, at: &Place, var: &str) -> String {
+    format!(" + {}({var}) in {}", kind.name(), at.label())
+}
+
+/// The kind, place and variable of a proposal, from its lineage spec.
+fn target(p: &Proposal) -> Option<(Kind, Place, String)> {
     let Lineage::Other { spec, .. } = &p.lineage else {
         return None;
     };
     let last = spec.rsplit(" + ").next()?;
     let (kind, rest) = last.split_once('(')?;
     let kind = Kind::ALL.into_iter().find(|k| k.name() == kind)?;
-    let (var, rest) = rest.split_once(") in d")?;
-    let eq = rest.strip_suffix("/dt")?;
-    Some((kind, eq.to_string(), var.to_string()))
+    let (var, at) = rest.split_once(") in ")?;
+    Some((kind, Place::parse(at), var.to_string()))
 }
 
-/// Whether `spec` can take the terms: their parameters are new, and the
-/// equation of `eq` has a free parameter (an equation without one, such as
-/// `ẋ = v`, is a definition, not a law the data could correct).
-fn applies(spec: &PhysicsSpec, kind: Kind, eq: &str, var: &str) -> bool {
-    let names = kind.parameters(eq, var);
-    if spec.parameters.iter().any(|p| names.contains(&p.name)) {
-        return false;
-    }
-    let Some(i) = spec.states.iter().position(|s| s.name == eq) else {
-        return false;
-    };
-    let symbols: Vec<&str> = spec.equations[i]
+/// The symbols of a list of terms.
+fn symbols(terms: &[String]) -> Vec<&str> {
+    terms
         .iter()
         .flat_map(|t| t.split(|c: char| !(c.is_alphanumeric() || c == '_')))
-        .collect();
+        .collect()
+}
+
+/// Whether equation `i` of `spec` has a free parameter (an equation
+/// without one, such as `ẋ = v`, is a definition, not a law the data could
+/// correct).
+fn is_law(spec: &PhysicsSpec, i: usize) -> bool {
+    let syms = symbols(&spec.equations[i]);
     spec.parameters
         .iter()
-        .any(|p| !p.fixed && symbols.contains(&p.name.as_str()))
+        .any(|p| !p.fixed && syms.contains(&p.name.as_str()))
+}
+
+/// Whether `spec` can take the terms of `kind` at `at` in `var`: their
+/// parameters are new, a state equation is a law, a spill has a ceiling to
+/// spill from and goes elsewhere, a limit sits on its own state.
+fn applies(spec: &PhysicsSpec, kind: Kind, at: &Place, var: &str) -> bool {
+    let names = kind.parameters(at, var);
+    let has = |n: &str| spec.parameters.iter().any(|p| p.name == n);
+    if names.iter().any(|n| has(n)) {
+        return false;
+    }
+    let state = |s: &str| spec.states.iter().position(|x| x.name == s);
+    match at {
+        Place::Output(o) => {
+            matches!(kind, Kind::Offset | Kind::Clip) && spec.outputs.iter().any(|x| &x.name == o)
+        }
+        Place::State(eq) => {
+            let Some(i) = state(eq) else { return false };
+            if !is_law(spec, i) {
+                return false;
+            }
+            match kind {
+                Kind::Poly | Kind::Centred | Kind::Hinge => state(var).is_some(),
+                Kind::Ceiling => var == eq && spec.states[i].upper == f64::INFINITY,
+                Kind::Floor => var == eq && spec.states[i].lower == f64::NEG_INFINITY,
+                Kind::Spill => var != eq && state(var).is_some() && has(&ceiling_name(var)),
+                Kind::Offset | Kind::Clip => false,
+            }
+        }
+    }
 }
 
 /// The value at quantile `q` of `v` (sorted copy, nearest rank).
@@ -105,9 +208,30 @@ fn quantile(v: &[f64], q: f64) -> f64 {
     s[((q * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)]
 }
 
-/// The terms of `kind` in the state trajectory `x` (of `var`), as
-/// expressions of the new parameters.
-fn terms(kind: Kind, names: &[String; 2], var: &str, x: &[f64]) -> [String; 2] {
+/// `(a)+(b)+…`: a list of terms as one expression.
+fn sum_text(terms: &[String]) -> String {
+    if terms.is_empty() {
+        return "0".into();
+    }
+    terms
+        .iter()
+        .map(|t| format!("({t})"))
+        .collect::<Vec<_>>()
+        .join("+")
+}
+
+/// `min(0, z)` and `max(0, z)` as `(z ∓ |z|)/2` (the expression grammar
+/// does not nest two-argument functions).
+fn neg_part(z: &str) -> String {
+    format!("(({z})-abs({z}))/2")
+}
+fn pos_part(z: &str) -> String {
+    format!("(({z})+abs({z}))/2")
+}
+
+/// The terms of a smooth law (`poly`, `centred`, `hinge`) in the state
+/// trajectory `x` (of `var`), as expressions of the new parameters.
+fn law_terms(kind: Kind, names: &[String], var: &str, x: &[f64]) -> Vec<String> {
     match kind {
         Kind::Poly => {
             let h = x
@@ -116,18 +240,18 @@ fn terms(kind: Kind, names: &[String; 2], var: &str, x: &[f64]) -> [String; 2] {
                 .fold(0.0_f64, |m, v| m.max(v.abs()))
                 .max(1e-300);
             let s = format!("({var}/{h})");
-            [format!("{}*{s}^2", names[0]), format!("{}*{s}^3", names[1])]
+            vec![format!("{}*{s}^2", names[0]), format!("{}*{s}^3", names[1])]
         }
         Kind::Centred => {
             let (lo, hi) = (quantile(x, 0.0), quantile(x, 1.0));
             let c = 0.5 * (lo + hi);
             let h = (0.5 * (hi - lo)).max(1e-12 * c.abs().max(1.0));
             let w = format!("(({var}-({c}))/{h})");
-            [format!("{}*{w}^2", names[0]), format!("{}*{w}^3", names[1])]
+            vec![format!("{}*{w}^2", names[0]), format!("{}*{w}^3", names[1])]
         }
-        Kind::Hinge => {
+        _ => {
             let (q10, q90) = (quantile(x, 0.1), quantile(x, 0.9));
-            [
+            vec![
                 format!("{}*max({var}-({q90}),0)", names[0]),
                 format!("{}*max(({q10})-{var},0)", names[1]),
             ]
@@ -135,42 +259,172 @@ fn terms(kind: Kind, names: &[String; 2], var: &str, x: &[f64]) -> [String; 2] {
     }
 }
 
-/// `cur`'s spec started at its estimates with the terms of `kind` in the
-/// equation of `eq`, normalised on `cur`'s simulation of `fit`.
+/// The unlimited law of state `i`: its terms without the ceiling term.
+fn unlimited(spec: &PhysicsSpec, i: usize) -> Vec<String> {
+    let l = ceiling_name(&spec.states[i].name);
+    spec.equations[i]
+        .iter()
+        .filter(|t| !symbols(std::slice::from_ref(t)).contains(&l.as_str()))
+        .cloned()
+        .collect()
+}
+
+/// The new parameters (with start values) and terms of `kind` at state
+/// equation `i` in variable `j`.
+fn state_terms(
+    spec: &PhysicsSpec,
+    kind: Kind,
+    names: &[String],
+    (i, j): (usize, usize),
+    x: &[Vec<f64>],
+    (rate, q): (f64, f64),
+) -> Vec<(f64, String)> {
+    let (xi, var) = (&spec.states[i].name, &spec.states[j].name);
+    let limit = |l: &str, own: &str| format!("({l}-{own})*{rate}");
+    match kind {
+        Kind::Ceiling => {
+            let z = format!(
+                "{}-({})",
+                limit(&names[0], xi),
+                sum_text(&spec.equations[i])
+            );
+            vec![(quantile(&x[i], q), neg_part(&z))]
+        }
+        Kind::Floor => {
+            let z = format!(
+                "{}-({})",
+                limit(&names[0], xi),
+                sum_text(&spec.equations[i])
+            );
+            vec![(quantile(&x[i], 1.0 - q), pos_part(&z))]
+        }
+        Kind::Spill => {
+            // the overflow of the source state j (= var) into equation i
+            let z = format!(
+                "({})-{}",
+                sum_text(&unlimited(spec, j)),
+                limit(&ceiling_name(var), var)
+            );
+            vec![(0.0, format!("{}*{}", names[0], pos_part(&z)))]
+        }
+        _ => law_terms(kind, names, var, &x[j])
+            .into_iter()
+            .map(|t| (0.0, t))
+            .collect(),
+    }
+}
+
+/// `cur`'s spec started at its estimates with the terms of `kind` at `at`
+/// (in `var`), normalised on `cur`'s simulation of `fit`; a limit starts
+/// at the quantile `q` of the simulated state or output (the upper one;
+/// `1 − q` for a floor).
 fn extended(
     cur: &PhysicsModel,
     fit: &gb_core::Record,
-    kind: Kind,
-    eq: &str,
-    var: &str,
+    (kind, at, var): (Kind, &Place, &str),
+    q: f64,
 ) -> Result<PhysicsSpec, DiagnoseError> {
     let bad = |m: String| DiagnoseError::InvalidArgument(format!("physics-terms: {m}"));
-    let spec = cur.spec();
-    let i = spec
-        .states
-        .iter()
-        .position(|s| s.name == eq)
-        .ok_or_else(|| bad(format!("no state '{eq}'")))?;
-    let j = spec
-        .states
-        .iter()
-        .position(|s| s.name == var)
-        .ok_or_else(|| bad(format!("no state '{var}'")))?;
-    let x = cur
-        .state_trajectory(&fit.inputs, Init::Stored)
-        .map_err(gb_core::CoreError::from)?;
-    let mut s = cur
-        .with_start_at_values()
-        .map_err(gb_core::CoreError::from)?
-        .spec()
-        .clone();
-    let names = kind.parameters(eq, var);
-    for (n, t) in names.iter().zip(terms(kind, &names, var, &x[j])) {
-        s.parameters.push(Parameter::new(n, 0.0));
-        s.add_term(TermTarget::State(i), &t)
-            .map_err(gb_core::CoreError::from)?;
+    let core =
+        |e: gb_model::physics::PhysicsError| DiagnoseError::from(gb_core::CoreError::from(e));
+    let mut s = cur.with_start_at_values().map_err(core)?.spec().clone();
+    let names = kind.parameters(at, var);
+    let (target, terms) = match at {
+        Place::Output(o) => {
+            let k = s
+                .outputs
+                .iter()
+                .position(|x| &x.name == o)
+                .ok_or_else(|| bad(format!("no output '{o}'")))?;
+            let terms = if kind == Kind::Clip {
+                let y = cur.simulate(&fit.inputs, Init::Stored)?;
+                let z = format!("{}-({})", names[0], sum_text(&s.outputs[k].terms));
+                vec![(quantile(&y, q), neg_part(&z))]
+            } else {
+                vec![(0.0, names[0].clone())]
+            };
+            (TermTarget::Output(k), terms)
+        }
+        Place::State(eq) => {
+            let pos = |n: &str| {
+                s.states
+                    .iter()
+                    .position(|x| x.name == n)
+                    .ok_or_else(|| bad(format!("no state '{n}'")))
+            };
+            let (i, j) = (pos(eq)?, pos(var)?);
+            let x = cur
+                .state_trajectory(&fit.inputs, Init::Stored)
+                .map_err(core)?;
+            let rate = s.substeps.max(1) as f64 / cur.sample_time().map_err(core)?;
+            let terms = state_terms(&s, kind, &names, (i, j), &x, (rate, q));
+            (TermTarget::State(i), terms)
+        }
+    };
+    for (n, (start, t)) in names.iter().zip(terms) {
+        s.parameters.push(Parameter::new(n, start));
+        s.add_term(target, &t).map_err(core)?;
     }
     Ok(s)
+}
+
+/// The quantiles of the simulation a limit starts from (each start is
+/// fitted and the lowest training RMSE wins: the least-squares fit of a
+/// limit has local optima where it stops binding).
+const LIMIT_STARTS: [f64; 4] = [0.8, 0.9, 0.95, 0.99];
+
+/// What a candidate adds, in words.
+fn describe(kind: Kind, at: &Place, var: &str, names: &[String]) -> String {
+    let p = |k: usize| names.get(k).map_or("?", String::as_str);
+    let lhs = at.label();
+    match (kind, at) {
+        (Kind::Poly, _) => format!(
+            "{lhs} += {}·s² + {}·s³, s = {var}/max|{var}| of its simulation",
+            p(0),
+            p(1)
+        ),
+        (Kind::Centred, _) => format!(
+            "{lhs} += {}·w² + {}·w³, w = ({var} − mid)/half-range of its simulation",
+            p(0),
+            p(1)
+        ),
+        (Kind::Hinge, _) => format!(
+            "{lhs} += {}·max({var} − q90, 0) + {}·max(q10 − {var}, 0) at the quantiles of the simulated {var}",
+            p(0),
+            p(1)
+        ),
+        (Kind::Ceiling, _) => format!(
+            "an upper limit {} on {var} ({lhs} = min(law, (limit − {var})/step): an overflow, an end stop)",
+            p(0)
+        ),
+        (Kind::Floor, _) => format!(
+            "a lower limit {} on {var} ({lhs} = max(law, (limit − {var})/step): an empty tank, an end stop)",
+            p(0)
+        ),
+        (Kind::Spill, _) => format!(
+            "{lhs} += {}·(what the limit of {var} cuts off): the overflow of {var} flows on",
+            p(0)
+        ),
+        (Kind::Offset, _) => format!("{lhs} += {} (a sensor offset)", p(0)),
+        (Kind::Clip, _) => format!("{lhs} = min(g, {}) (a sensor range)", p(0)),
+    }
+}
+
+/// Every place and variable a kind can go to in `spec`.
+fn places(spec: &PhysicsSpec, kind: Kind) -> Vec<(Place, String)> {
+    let mut out = vec![];
+    if matches!(kind, Kind::Offset | Kind::Clip) {
+        for o in &spec.outputs {
+            out.push((Place::Output(o.name.clone()), String::new()));
+        }
+        return out;
+    }
+    for eq in &spec.states {
+        for var in &spec.states {
+            out.push((Place::State(eq.name.clone()), var.name.clone()));
+        }
+    }
+    out
 }
 
 impl Extension for PhysicsTerms {
@@ -190,45 +444,56 @@ impl Extension for PhysicsTerms {
         let spec = m.spec();
         let mut out = vec![];
         for kind in Kind::ALL {
-            for eq in &spec.states {
-                for var in &spec.states {
-                    let (e, v) = (eq.name.as_str(), var.name.as_str());
-                    if !applies(spec, kind, e, v) {
-                        continue;
-                    }
-                    let [p1, p2] = kind.parameters(e, v);
-                    let text = match kind {
-                        Kind::Poly => format!(
-                            "d{e}/dt += {p1}·s² + {p2}·s³, s = {v}/max|{v}| of its simulation"
-                        ),
-                        Kind::Centred => format!(
-                            "d{e}/dt += {p1}·w² + {p2}·w³, w = ({v} − mid)/half-range of its simulation"
-                        ),
-                        Kind::Hinge => format!(
-                            "d{e}/dt += {p1}·max({v} − q90, 0) + {p2}·max(q10 − {v}, 0) at the quantiles of the simulated {v}"
-                        ),
-                    };
-                    out.push(Proposal {
-                        cause: Cause::Nonlinearity,
-                        lineage: Lineage::Other {
-                            spec: format!("{base}{}", marker(kind, e, v)),
-                            order: spec.states.len(),
-                        },
-                        text: format!("{text} in the user's model, every parameter refitted"),
-                    });
+            for (at, var) in places(spec, kind) {
+                if !applies(spec, kind, &at, &var) {
+                    continue;
                 }
+                let text = describe(kind, &at, &var, &kind.parameters(&at, &var));
+                out.push(Proposal {
+                    cause: Cause::Nonlinearity,
+                    lineage: Lineage::Other {
+                        spec: format!("{base}{}", marker(kind, &at, &var)),
+                        order: spec.states.len(),
+                    },
+                    text: format!("{text} in the user's model, every parameter refitted"),
+                });
             }
         }
         out
     }
     /// Started from the current model's estimates (of this fold under
-    /// cross-validation) with the new coefficients at 0.
+    /// cross-validation) with the new coefficients at 0 and new limits at
+    /// a quantile of the simulation.
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-terms: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
-        let (kind, eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
-        let s = extended(cur, ctx.fit, kind, &eq, &var)?;
-        fit_physics(&s, ctx.fit, ctx.observer)
+        let (kind, at, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
+        let starts: &[f64] = match kind {
+            Kind::Ceiling | Kind::Floor | Kind::Clip => &LIMIT_STARTS,
+            _ => &[1.0],
+        };
+        let mut best: Option<(f64, FittedModel)> = None;
+        let mut last_err = None;
+        for &q in starts {
+            match extended(cur, ctx.fit, (kind, &at, &var), q)
+                .and_then(|s| fit_physics(&s, ctx.fit, ctx.observer))
+            {
+                Ok(m) => {
+                    let rmse = physics_of(&m)
+                        .and_then(PhysicsModel::fit_report)
+                        .map_or(f64::INFINITY, |r| r.rmse);
+                    if best.as_ref().is_none_or(|(b, _)| rmse < *b) {
+                        best = Some((rmse, m));
+                    }
+                }
+                Err(e) => last_err = Some(e),
+            }
+        }
+        match (best, last_err) {
+            (Some((_, m)), _) => Ok(m),
+            (None, Some(e)) => Err(e),
+            (None, None) => Err(bad("no start")),
+        }
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()

@@ -148,8 +148,9 @@ impl<'c> Integrator<'c> {
     #[inline(always)]
     fn stage_slots(&mut self, stage: usize, a: f64) {
         let k = &self.k[stage];
-        for ((v, x), ki) in self.fs.v.iter_mut().zip(&self.x).zip(k) {
-            *v = x + a * ki;
+        for (((v, x), ki), &(lo, hi)) in self.fs.v.iter_mut().zip(&self.x).zip(k).zip(&self.c.range)
+        {
+            *v = (x + a * ki).max(lo).min(hi);
         }
     }
 
@@ -170,7 +171,10 @@ impl<'c> Integrator<'c> {
             let [k1, k2, k3, k4] = &self.k;
             // the new state, also into the slots of the next sub-step
             for (i, (x, v)) in self.x.iter_mut().zip(&mut self.fs.v).enumerate() {
-                *x += h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+                let (lo, hi) = self.c.range[i];
+                *x = (*x + h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]))
+                    .max(lo)
+                    .min(hi);
                 *v = *x;
             }
         }
@@ -194,11 +198,15 @@ impl<'c> Integrator<'c> {
     }
 
     fn stage_point(&mut self, stage: usize, a: f64) {
-        for (i, xt) in self.xt.iter_mut().enumerate() {
-            *xt = self.x[i] + a * self.k[stage][i];
-        }
         for (j, st) in self.st.iter_mut().enumerate() {
             *st = self.s[j] + a * self.ks[stage][j];
+        }
+        let l = self.st.len() / self.xt.len().max(1);
+        for (i, xt) in self.xt.iter_mut().enumerate() {
+            *xt = self.x[i] + a * self.k[stage][i];
+            if clamp_to(xt, self.c.range[i]) {
+                self.st[i * l..(i + 1) * l].fill(0.0);
+            }
         }
     }
 
@@ -221,8 +229,29 @@ impl<'c> Integrator<'c> {
             for (j, s) in self.s.iter_mut().enumerate() {
                 *s += h / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j]);
             }
+            let l = self.s.len() / self.x.len().max(1);
+            for (i, x) in self.x.iter_mut().enumerate() {
+                if clamp_to(x, self.c.range[i]) {
+                    self.s[i * l..(i + 1) * l].fill(0.0);
+                }
+            }
         }
         self.x.iter().all(|v| v.is_finite()) && self.s.iter().all(|v| v.is_finite())
+    }
+}
+
+/// Clamp `x` into `[lo, hi]`; `true` when it was outside (its
+/// sensitivity is then 0: the bound does not move with θ).
+#[inline]
+fn clamp_to(x: &mut f64, (lo, hi): (f64, f64)) -> bool {
+    if *x < lo {
+        *x = lo;
+        true
+    } else if *x > hi {
+        *x = hi;
+        true
+    } else {
+        false
     }
 }
 

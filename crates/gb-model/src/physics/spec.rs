@@ -62,8 +62,10 @@ impl Parameter {
     }
 }
 
-/// A state: its initial value, fixed or estimated, and optional bounds on
-/// the estimated initial value.
+/// A state: its initial value, fixed or estimated, and its optional
+/// physical range `[lower, upper]` (a level that cannot be negative, an
+/// end stop): the estimated initial value stays inside it, and the
+/// simulation clamps the state into it after every RK4 stage and step.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct State {
     /// Name (a symbol in the equations).
@@ -72,9 +74,9 @@ pub struct State {
     pub initial: f64,
     /// Estimate the initial value.
     pub free: bool,
-    /// Lower bound of the initial value.
+    /// Lower bound of the state (and of its initial value).
     pub lower: f64,
-    /// Upper bound of the initial value.
+    /// Upper bound of the state (and of its initial value).
     pub upper: f64,
 }
 
@@ -470,6 +472,7 @@ impl PhysicsSpec {
             np: self.parameters.len(),
             f_used,
             g_used,
+            range: self.states.iter().map(|s| (s.lower, s.upper)).collect(),
         })
     }
 
@@ -516,6 +519,9 @@ pub(crate) struct Compiled {
     pub(crate) f_used: Vec<Vec<usize>>,
     /// Variables each output uses.
     pub(crate) g_used: Vec<Vec<usize>>,
+    /// The physical range `[min, max]` of each state: the simulation
+    /// keeps the state inside it.
+    pub(crate) range: Vec<(f64, f64)>,
 }
 
 impl Compiled {

@@ -122,7 +122,9 @@ fn apply(op: Op, a: f64, b: f64) -> f64 {
 /// `(∂out/∂a, ∂out/∂b)` at `(a, b)` with `out = op(a, b)`. Non-smooth
 /// operators take the one-sided convention of their subgradient:
 /// `∂|a|/∂a = sign(a)` with 0 at 0, `signum`/`floor`/… have derivative 0,
-/// `min`/`max` follow the chosen argument.
+/// `min`/`max` follow the chosen argument; `√a`, `∛a` and `a^b` (b < 1)
+/// have derivative 0 at `a = 0` (a state resting on its bound 0, such as
+/// an empty tank, keeps finite sensitivities).
 #[inline(always)]
 fn partials(op: Op, a: f64, b: f64, out: f64) -> (f64, f64) {
     let sign0 = |x: f64| {
@@ -141,6 +143,7 @@ fn partials(op: Op, a: f64, b: f64, out: f64) -> (f64, f64) {
         Op::Div => (1.0 / b, -out / b),
         Op::Neg => (-1.0, 0.0),
         Op::Powi(n) => (n as f64 * a.powi(n - 1), 0.0),
+        Op::PowC if a == 0.0 && b < 1.0 => (0.0, 0.0),
         Op::PowC => (b * a.powf(b - 1.0), 0.0),
         Op::Pow => (
             b * a.powf(b - 1.0),
@@ -180,6 +183,7 @@ fn partials(op: Op, a: f64, b: f64, out: f64) -> (f64, f64) {
         Op::Acosh => (1.0 / (a * a - 1.0).sqrt(), 0.0),
         Op::Atanh => (1.0 / (1.0 - a * a), 0.0),
         Op::Exp => (out, 0.0),
+        Op::Sqrt | Op::Cbrt if a == 0.0 => (0.0, 0.0),
         Op::Sqrt => (0.5 / out, 0.0),
         Op::Cbrt => (1.0 / (3.0 * out * out), 0.0),
         Op::Ln => (1.0 / a, 0.0),
