@@ -29,7 +29,7 @@ pub struct StateBand {
 }
 
 impl StateBand {
-    fn from_summaries(s: &[StepSummary], n: usize) -> Self {
+    pub(crate) fn from_summaries(s: &[StepSummary], n: usize) -> Self {
         let col = |f: &dyn Fn(&StepSummary, usize) -> f64| -> Vec<Vec<f64>> {
             (0..n)
                 .map(|i| s.iter().map(|st| f(st, i)).collect())

@@ -7,6 +7,7 @@ use crate::progress::Bar;
 use crate::{FitArgs, Result};
 use clap::Args;
 use gb_core::{CsvTable, Records};
+use gb_model::physics::PhysicsModel;
 use gb_model::{SmcParams, SparseStateSpace};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -18,7 +19,7 @@ const MIN_ESS: f64 = 100.0;
 
 #[derive(Args)]
 pub(crate) struct FilterArgs {
-    /// Model file of the state-space class with process noise (`greybox fit --model state-space --method smc`).
+    /// Model with process noise: the state-space class (`greybox fit --model state-space --method smc`) or a physics model (`greybox fit --model-file m.toml --method smc`; batch only, no --smooth).
     pub(crate) model: PathBuf,
     /// Data with the model's input columns and its output column; `-` reads rows from standard input (header first) and writes each filtered row to standard output as it arrives.
     pub(crate) data: PathBuf,
@@ -115,6 +116,9 @@ fn state_space<'a>(path: &Path, m: &'a gb_core::FittedModel) -> Result<&'a Spars
 /// particle log-likelihood of the data.
 pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
     let m = gb_model::registry::load(&a.model).map_err(|e| e.to_string())?;
+    if let Some(pm) = m.dynamics.as_any().downcast_ref::<PhysicsModel>() {
+        return filter_physics(&a, &m, pm, quiet);
+    }
     let ss = state_space(&a.model, &m)?;
     if !ss.process_noise.iter().all(|n| n.is_valid()) {
         return Err(format!(
@@ -172,6 +176,59 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
         y.len(),
         ss.n_states,
         if a.smooth { ", smoothed" } else { "" }
+    );
+    println!("log-likelihood: {:.4}", est.log_likelihood);
+    println!("states written to {}", out.display());
+    Ok(())
+}
+
+/// `greybox filter` of a physics model fitted by `--method smc`: filtered
+/// states with 95 % bands (no smoothing, no streaming).
+fn filter_physics(
+    a: &FilterArgs,
+    m: &gb_core::FittedModel,
+    pm: &PhysicsModel,
+    quiet: bool,
+) -> Result<()> {
+    if a.smooth || a.data.as_os_str() == "-" {
+        return Err(format!(
+            "{}: a physics model is filtered from a file, without --smooth (smoothing and streaming take state-space models)",
+            a.model.display()
+        ));
+    }
+    let out = a.out.as_ref().ok_or("-o FILE is needed")?;
+    let out_name = a.output.clone().unwrap_or_else(|| m.output_name().into());
+    let particles = usize::try_from(a.particles).map_err(|e| e.to_string())?;
+    let smc = SmcParams::new()
+        .particles(particles)
+        .seed(a.seed)
+        .check()
+        .map_err(|e| e.to_string())?;
+    let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
+    let inputs = crate::io::columns(&t, &m.input_names)?;
+    let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
+    let bar = Bar::spinner(quiet, &format!("filtering with {particles} particles"));
+    let est = smc
+        .filter_physics(pm, &inputs, &y)
+        .map_err(|e| format!("{}: {e}", a.model.display()))?;
+    bar.finish();
+    let states: Vec<&str> = pm.spec().states.iter().map(|s| s.name.as_str()).collect();
+    let mut names: Vec<String> = m.input_names.clone();
+    names.push(out_name);
+    let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
+    cols.push(&y);
+    for (i, s) in states.iter().enumerate() {
+        names.extend(["mean", "lo", "hi"].map(|k| format!("{s}_{k}")));
+        let b = &est.filtered;
+        cols.extend([&b.mean[i], &b.lo[i], &b.hi[i]].map(Vec::as_slice));
+    }
+    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
+    gb_core::write_csv_atomic(out, &refs, &cols).map_err(|e| e.to_string())?;
+    let mean_ess = est.ess.iter().sum::<f64>() / est.ess.len().max(1) as f64;
+    println!(
+        "{} samples, states {}, {particles} particles (mean ESS {mean_ess:.0})",
+        y.len(),
+        states.join(", ")
     );
     println!("log-likelihood: {:.4}", est.log_likelihood);
     println!("states written to {}", out.display());
@@ -312,8 +369,9 @@ fn print_posterior(rep: &gb_model::SmcReport, particles: usize, iterations: usiz
 /// `greybox fit --model-file m.toml --method smc`: the output-error fit of
 /// the file (printed as `fit --model-file` prints it), then PMMH from it on
 /// the training record (at most `SMC_SAMPLES` samples); prints the
-/// posterior and saves the output-error model (the model file format has
-/// no process-noise section: `simulate` runs the deterministic model).
+/// posterior and saves the identified stochastic model (its parameters and
+/// noise levels: `simulate` runs the deterministic part, `filter` the
+/// particle filter).
 fn fit_model_file(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
     let mf = crate::cmd_physics::read_model_file(path)?;
     let d = crate::cmd_physics::load_for_model(&a.train, &a.signals, &mf, "--method smc")?;
@@ -341,16 +399,27 @@ fn fit_model_file(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
     let part = d.slice(0..n);
     let (smc, particles, iterations) = a.smc.sampler()?;
     let bar = Bar::new(quiet, iterations + 1, "PMMH");
-    let rep = smc
-        .fit_physics(&oe, &part, &bar)
+    let (rep, model) = smc
+        .fit_physics_model(&oe, &part, &bar)
         .map_err(|e| format!("{}: {e}", a.train.display()))?;
     bar.finish();
     print_posterior(&rep, particles, iterations);
-    let fitted = oe.to_fitted().map_err(|e| e.to_string())?;
+    let levels = model.state_noise().map_or(String::new(), |n| {
+        let mut v: Vec<String> = n
+            .process_sd
+            .iter()
+            .zip(&model.spec().states)
+            .filter_map(|(sd, s)| sd.map(|sd| format!("process sd [{}] {sd:.4e}", s.name)))
+            .collect();
+        v.push(format!("measurement sd {:.4e}", n.measurement_sd));
+        v.join(", ")
+    });
+    let fitted = model.to_fitted().map_err(|e| e.to_string())?;
     fitted.save(&a.out).map_err(|e| e.to_string())?;
     println!(
-        "saved to {} (the output-error model: the model file format has no process-noise section)",
-        a.out.display()
+        "saved to {} (parameters of the {:?} path; {levels}; `greybox filter` estimates the states with them)",
+        a.out.display(),
+        rep.path
     );
     Ok(())
 }

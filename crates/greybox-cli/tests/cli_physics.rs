@@ -642,3 +642,125 @@ fn diagnose_model_file_finds_the_overflow_of_a_tank() {
         "held-out NRMSE {base:.4} -> {fin:.4}, noise floor {floor:.4}"
     );
 }
+
+/// The msd truth driven by `F` and a hidden force disturbance `d ~ N(0,
+/// sd_d²)` held over each sample, position measured with noise `sd`;
+/// written as `t,F,y`. Returns the true velocity and the velocity of the
+/// same truth without the disturbance (the best any deterministic
+/// simulation can do).
+fn disturbed_msd_csv(path: &Path, n: usize, seed: u64, sd: f64, sd_d: f64) -> [Vec<f64>; 2] {
+    let mut rng = gb_core::rng::seeded(seed);
+    let u = steps(n, &mut rng);
+    let dist = Normal::new(0.0, sd_d).unwrap();
+    let d: Vec<f64> = (0..n).map(|_| dist.sample(&mut rng)).collect();
+    let mut spec = ModelFile::read(&example("msd.toml")).unwrap().spec;
+    spec.substeps = 20;
+    spec.sample_time = Some(TS);
+    spec.inputs.push("d".into());
+    spec.add_term(gb_model::physics::TermTarget::State(1), "d/m")
+        .unwrap();
+    let truth = PhysicsModel::new(spec)
+        .unwrap()
+        .with_values(TRUTH.to_vec(), vec![0.0, 0.0])
+        .unwrap();
+    let x = truth
+        .state_trajectory(&[u.clone(), d], Init::Stored)
+        .unwrap();
+    let x_det = truth
+        .state_trajectory(&[u.clone(), vec![0.0; n]], Init::Stored)
+        .unwrap();
+    let noise = Normal::new(0.0, sd).unwrap();
+    let mut s = String::from("t,F,y\n");
+    for (k, (f, p)) in u.iter().zip(&x[0]).enumerate() {
+        let v = p + noise.sample(&mut rng);
+        s.push_str(&format!("{},{f},{v}\n", k as f64 * TS));
+    }
+    std::fs::write(path, s).unwrap();
+    [x[1].clone(), x_det[1].clone()]
+}
+
+/// `fit --method smc` saves the stochastic model, and `filter` estimates
+/// the hidden velocity of held-out data under the force disturbance that
+/// no deterministic simulation can follow: the filtered mean is closer to
+/// the true velocity than the undisturbed truth's, and the 95 % band covers
+/// most of it.
+#[test]
+fn filter_estimates_the_hidden_velocity_of_a_disturbed_physics_model() {
+    let d = tmp("filter");
+    let (train, val) = (d.join("train.csv"), d.join("val.csv"));
+    disturbed_msd_csv(&train, 400, 41, 0.01, 0.5);
+    let [v_true, v_det] = disturbed_msd_csv(&val, 400, 42, 0.01, 0.5);
+    let model = d.join("msd.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "--method",
+        "smc",
+        "--particles",
+        "100",
+        "--iterations",
+        "400",
+        "--seed",
+        "3",
+        "-o",
+        model.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    assert!(so.contains("process sd [v]"), "{so}");
+    let states = d.join("states.csv");
+    let o = run(&[
+        "filter",
+        model.to_str().unwrap(),
+        val.to_str().unwrap(),
+        "-o",
+        states.to_str().unwrap(),
+        "--particles",
+        "500",
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let csv = std::fs::read_to_string(&states).unwrap();
+    let (mean, lo, hi) = (
+        column(&csv, "v_mean"),
+        column(&csv, "v_lo"),
+        column(&csv, "v_hi"),
+    );
+    let rms = |a: &[f64], b: &[f64]| {
+        (a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>() / a.len() as f64).sqrt()
+    };
+    let (e_filter, e_det) = (rms(&mean, &v_true), rms(&v_det, &v_true));
+    let covered = v_true
+        .iter()
+        .zip(lo.iter().zip(&hi))
+        .filter(|(v, (l, h))| *l <= *v && *v <= *h)
+        .count() as f64
+        / v_true.len() as f64;
+    println!("velocity RMS error: filter {e_filter:.4}, undisturbed truth {e_det:.4}; band covers {covered:.3}");
+    assert!(e_filter < 0.5 * e_det, "filter {e_filter} vs {e_det}");
+    assert!(covered > 0.8, "the 95 % band covers {covered}");
+    // a model without state noise is refused with a one-line error
+    let oe = d.join("oe.gbm");
+    let o = run(&[
+        "fit",
+        train.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "-o",
+        oe.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+    let o = run(&[
+        "filter",
+        oe.to_str().unwrap(),
+        val.to_str().unwrap(),
+        "-o",
+        d.join("x.csv").to_str().unwrap(),
+    ]);
+    let (_, se) = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{se}");
+    assert!(se.contains("no state noise"), "{se}");
+    assert!(!d.join("x.csv").exists());
+}

@@ -57,7 +57,7 @@ pub use error::{Item, Location, PhysicsError, PhysicsResult};
 pub use file::ModelFile;
 pub use fit::{t_quantile_95, Coordinate, Estimate, FitReport, ILL_CONDITIONED, ZERO_SENSITIVITY};
 pub use identify::{PhysicsFit, PhysicsFitParams};
-pub use model::{PhysicsModel, CLASS};
+pub use model::{PhysicsModel, StateNoise, CLASS};
 pub use spec::{Output, Parameter, PhysicsSpec, Prior, State, TermTarget};
 
 impl PhysicsModel {

@@ -12,8 +12,21 @@ use std::any::Any;
 
 /// The class tag of physics models in model files.
 pub const CLASS: &str = "physics";
-/// The encoding version of the class.
-const CLASS_VERSION: u32 = 1;
+/// The encoding version of the class (2: the state noise of the SMC path).
+const CLASS_VERSION: u32 = 2;
+
+/// The noise of the stochastic model `x_t = Φ_θ(x_{t−1}, u_{t−1}) + v_t`,
+/// `y_t = g(x_t, u_t, θ) + w_t` that the SMC path identifies
+/// ([`crate::Smc::fit_physics_model`]): Gaussian `v_{t,i} ~ N(0, σ_{p,i}²)`
+/// per state (`None`: a kinematic state, no noise) and
+/// `w_t ~ N(0, σ_m²)`. `greybox filter` runs the particle filter with it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StateNoise {
+    /// `σ_{p,i}` per state.
+    pub process_sd: Vec<Option<f64>>,
+    /// `σ_m`.
+    pub measurement_sd: f64,
+}
 
 /// The engineer's continuous-time model with its (fitted) parameter
 /// values, initial state and, after a fit, the uncertainty.
@@ -24,12 +37,24 @@ pub struct PhysicsModel {
     x0: Vec<f64>,
     fit: Option<FitReport>,
     source: Option<String>,
+    noise: Option<StateNoise>,
     compiled: Compiled,
 }
 
 /// What a model file stores (postcard).
 #[derive(Serialize, Deserialize)]
 struct Stored {
+    spec: PhysicsSpec,
+    theta: Vec<f64>,
+    x0: Vec<f64>,
+    fit: Option<FitReport>,
+    source: Option<String>,
+    noise: Option<StateNoise>,
+}
+
+/// What a version-1 model file stores (no state noise).
+#[derive(Deserialize)]
+struct StoredV1 {
     spec: PhysicsSpec,
     theta: Vec<f64>,
     x0: Vec<f64>,
@@ -47,6 +72,7 @@ impl PhysicsModel {
             spec,
             fit: None,
             source: None,
+            noise: None,
             compiled,
         })
     }
@@ -111,6 +137,31 @@ impl PhysicsModel {
         self.x0 = x0;
         self.spec.sample_time = Some(ts);
         self.fit = Some(report);
+        self.noise = None;
+    }
+
+    /// The state noise identified by the SMC path, if any.
+    pub fn state_noise(&self) -> Option<&StateNoise> {
+        self.noise.as_ref()
+    }
+
+    /// With state noise (one entry per state, every level finite and
+    /// positive, at least one state with process noise).
+    pub fn with_state_noise(mut self, noise: StateNoise) -> PhysicsResult<Self> {
+        let ok = |v: f64| v.is_finite() && v > 0.0;
+        if noise.process_sd.len() != self.x0.len()
+            || !noise.process_sd.iter().flatten().all(|&v| ok(v))
+            || noise.process_sd.iter().all(Option::is_none)
+            || !ok(noise.measurement_sd)
+        {
+            return Err(PhysicsError::Data(format!(
+                "state noise: {} process levels (finite, positive, at least one) and a positive measurement level are needed for {} states",
+                noise.process_sd.len(),
+                self.x0.len()
+            )));
+        }
+        self.noise = Some(noise);
+        Ok(self)
     }
 
     /// The sample time (from the model file or the fit's data).
@@ -225,7 +276,19 @@ impl PhysicsModel {
 
     /// Decode a model-file body (checked).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
-        let s: Stored = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
+        let s: Stored = if version < 2 {
+            let v: StoredV1 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
+            Stored {
+                spec: v.spec,
+                theta: v.theta,
+                x0: v.x0,
+                fit: v.fit,
+                source: v.source,
+                noise: None,
+            }
+        } else {
+            gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?
+        };
         let bad = |m: String| CoreError::ModelFile(format!("inconsistent '{CLASS}' model ({m})"));
         let mut m = Self::new(s.spec).map_err(|e| bad(e.to_string()))?;
         m = m
@@ -244,6 +307,9 @@ impl PhysicsModel {
         }
         m.fit = s.fit;
         m.source = s.source;
+        if let Some(n) = s.noise {
+            m = m.with_state_noise(n).map_err(|e| bad(e.to_string()))?;
+        }
         Ok(m)
     }
 
@@ -386,6 +452,7 @@ impl DynamicModel for PhysicsModel {
             x0: self.x0.clone(),
             fit: self.fit.clone(),
             source: self.source.clone(),
+            noise: self.noise.clone(),
         };
         postcard::to_allocvec(&s)
             .map_err(|e| CoreError::ModelFile(format!("cannot encode the physics model: {e}")))

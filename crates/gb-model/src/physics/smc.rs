@@ -268,6 +268,21 @@ impl Smc {
         data: &Record,
         obs: &dyn Observer,
     ) -> PhysicsResult<SmcReport> {
+        Ok(self.fit_physics_model(oe, data, obs)?.0)
+    }
+
+    /// [`fit_physics`](Self::fit_physics), and the identified stochastic
+    /// model: the parameters of the report's `path` (posterior mean, or the
+    /// output-error estimate when the posterior mean's likelihood does not
+    /// beat it) with the process and measurement noise levels at that point
+    /// ([`PhysicsModel::state_noise`]); its fit report (standard errors)
+    /// stays the output-error one.
+    pub fn fit_physics_model(
+        &self,
+        oe: &PhysicsModel,
+        data: &Record,
+        obs: &dyn Observer,
+    ) -> PhysicsResult<(SmcReport, PhysicsModel)> {
         let p = self.params();
         let spec = oe.spec();
         let bad = |m: String| Err(PhysicsError::Data(m));
@@ -366,12 +381,13 @@ impl Smc {
         };
         let (ll_oe, ll_smc) = (ll(&theta0), ll(&mean));
         obs.progress(total + 1, total + 1, "done");
-        let (path, best) = if ll_smc > ll_oe {
-            (IdentificationPath::Smc, ll_smc)
+        let (path, best, at) = if ll_smc > ll_oe {
+            (IdentificationPath::Smc, ll_smc, &mean)
         } else {
-            (IdentificationPath::OutputError, ll_oe)
+            (IdentificationPath::OutputError, ll_oe, &theta0)
         };
-        Ok(SmcReport {
+        let model = problem.stochastic_model(at)?;
+        let report = SmcReport {
             path,
             log_likelihood_oe: ll_oe,
             log_likelihood_smc: ll_smc,
@@ -380,7 +396,28 @@ impl Smc {
             posterior_mean: mean,
             posterior_sd: sd,
             parameters,
-        })
+        };
+        Ok((report, model))
+    }
+}
+
+impl Problem<'_> {
+    /// The physics model at the sampled point `theta` with its noise levels.
+    fn stochastic_model(&self, theta: &[f64]) -> PhysicsResult<PhysicsModel> {
+        let params = self
+            .parameters_at(theta)
+            .unwrap_or_else(|| self.model.parameters().to_vec());
+        let mut process_sd = vec![None; self.proc_scale.len()];
+        for (k, &i) in self.noisy.iter().enumerate() {
+            process_sd[i] = Some(self.proc_scale[i] * theta[k].exp());
+        }
+        self.model
+            .clone()
+            .with_values(params, self.model.initial_state().to_vec())?
+            .with_state_noise(super::StateNoise {
+                process_sd,
+                measurement_sd: self.meas_scale * theta[self.noisy.len()].exp(),
+            })
     }
 }
 
@@ -423,4 +460,82 @@ fn proposal_factor(fit: &super::FitReport, free: &[usize], theta: &[f64]) -> Vec
 /// A kinematic equation: one term that is the name of a state.
 fn kinematic(terms: &[String], spec: &super::PhysicsSpec) -> bool {
     matches!(terms, [t] if spec.states.iter().any(|s| s.name == t.trim()))
+}
+
+impl Smc {
+    /// Filtered states `p(x_t | y_{0:t})` of a physics model identified by
+    /// the SMC path (its [`PhysicsModel::state_noise`]), by the bootstrap
+    /// particle filter from the stored initial state: mean, variance and
+    /// 95 % band per state and sample, the ESS and the particle
+    /// log-likelihood. Smoothing is not offered: a kinematic state has no
+    /// transition density for backward simulation.
+    pub fn filter_physics(
+        &self,
+        m: &PhysicsModel,
+        inputs: &[Vec<f64>],
+        y: &[f64],
+    ) -> PhysicsResult<crate::StateEstimate> {
+        let spec = m.spec();
+        let noise = m.state_noise().ok_or_else(|| {
+            PhysicsError::Data(format!(
+                "'{}' has no state noise (an output-error fit), so the filter would only repeat the simulation; fit it with `greybox fit --model-file … --method smc`",
+                spec.name
+            ))
+        })?;
+        let n = spec.states.len();
+        if spec.outputs.len() != 1 || n > SMC_MAX_STATES {
+            return Err(PhysicsError::Data(format!(
+                "the filter handles models of one output and at most {SMC_MAX_STATES} states; '{}' has {} and {n}",
+                spec.name,
+                spec.outputs.len()
+            )));
+        }
+        if inputs.len() != spec.inputs.len()
+            || inputs.iter().any(|u| u.len() != y.len())
+            || y.iter().any(|v| !v.is_finite())
+        {
+            return Err(PhysicsError::Data(
+                "the data's inputs are not the model's, or an output is not finite".into(),
+            ));
+        }
+        let gauss = |sd: f64| {
+            Noise::from_model(&gb_core::NoiseModel::Gaussian { sd })
+                .map_err(|e| PhysicsError::Numerical(e.to_string()))
+        };
+        let process = noise
+            .process_sd
+            .iter()
+            .map(|v| v.map(gauss).transpose())
+            .collect::<PhysicsResult<Vec<_>>>()?;
+        let model = NoisyPhysics {
+            n,
+            inputs,
+            x0: m.initial_state().to_vec(),
+            process,
+            measurement: gauss(noise.measurement_sd)?,
+            rk4: Mutex::new(Integrator::new(
+                m.compiled(),
+                m.parameters(),
+                m.sample_time()?,
+                spec.substeps,
+                &Lanes::default(),
+            )),
+        };
+        let p = self.params();
+        let num = |e: gb_smc::SmcError| PhysicsError::Numerical(e.to_string());
+        let pf = FilterConfig::new(p.particles)
+            .seed(p.seed)
+            .build()
+            .map_err(num)?;
+        let (out, sums) = pf
+            .run_summaries(&model, &Observations::new(y), &[0.025, 0.975])
+            .map_err(num)?;
+        Ok(crate::StateEstimate {
+            log_likelihood: out.log_likelihood,
+            increments: out.log_likelihood_increments,
+            ess: out.ess,
+            filtered: crate::StateBand::from_summaries(&sums, n),
+            smoothed: None,
+        })
+    }
 }

@@ -115,3 +115,41 @@ fn value_simulation_is_bit_identical_to_the_dual_one() {
         assert_eq!(a.to_bits(), b.to_bits(), "sample {t}: {a:e} vs {b:e}");
     }
 }
+
+/// The state noise survives the model file; a version-1 body (before the
+/// state noise) still loads, without noise.
+#[test]
+fn state_noise_round_trips_and_version_1_files_load() {
+    use super::{PhysicsModel, StateNoise};
+    use gb_core::DynamicModel;
+    let m = PhysicsModel::new(bouc_wen())
+        .unwrap()
+        .with_state_noise(StateNoise {
+            process_sd: vec![None, Some(0.5), Some(2.0)],
+            measurement_sd: 1e-5,
+        })
+        .unwrap();
+    let back = PhysicsModel::decode(&m.encode().unwrap(), m.class_version()).unwrap();
+    assert_eq!(back.state_noise(), m.state_noise());
+    let v1 = postcard::to_allocvec(&(
+        m.spec(),
+        m.parameters(),
+        m.initial_state(),
+        None::<super::FitReport>,
+        None::<String>,
+    ))
+    .unwrap();
+    let old = PhysicsModel::decode(&v1, 1).unwrap();
+    assert!(old.state_noise().is_none());
+    assert_eq!(old.parameters(), m.parameters());
+    // malformed levels are refused
+    for bad in [vec![None, None, None], vec![Some(-1.0), None, None]] {
+        let r = PhysicsModel::new(bouc_wen())
+            .unwrap()
+            .with_state_noise(StateNoise {
+                process_sd: bad,
+                measurement_sd: 1.0,
+            });
+        assert!(r.is_err());
+    }
+}
