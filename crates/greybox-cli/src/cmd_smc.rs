@@ -113,14 +113,22 @@ fn state_space<'a>(path: &Path, m: &'a gb_core::FittedModel) -> Result<&'a Spars
 }
 
 /// `greybox filter`: filtered (and smoothed) states with 95 % bands, and the
-/// particle log-likelihood of the data.
+/// particle log-likelihood of the data. A physics model fitted by
+/// `--method smc` is filtered from a file (no smoothing, no streaming).
 pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
     let m = gb_model::registry::load(&a.model).map_err(|e| e.to_string())?;
-    if let Some(pm) = m.dynamics.as_any().downcast_ref::<PhysicsModel>() {
-        return filter_physics(&a, &m, pm, quiet);
-    }
-    let ss = state_space(&a.model, &m)?;
-    if !ss.process_noise.iter().all(|n| n.is_valid()) {
+    let physics = m.dynamics.as_any().downcast_ref::<PhysicsModel>();
+    let ss = match physics {
+        Some(_) if a.smooth || a.data.as_os_str() == "-" => {
+            return Err(format!(
+                "{}: a physics model is filtered from a file, without --smooth (smoothing and streaming take state-space models)",
+                a.model.display()
+            ))
+        }
+        Some(_) => None,
+        None => Some(state_space(&a.model, &m)?),
+    };
+    if ss.is_some_and(|ss| !ss.process_noise.iter().all(|n| n.is_valid())) {
         return Err(format!(
             "{}: the model has no process noise (an output-error fit), so the filter would only repeat the simulation; fit it with `greybox fit --model state-space --method smc`",
             a.model.display()
@@ -133,7 +141,7 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
         .seed(a.seed)
         .check()
         .map_err(|e| e.to_string())?;
-    if a.data.as_os_str() == "-" {
+    if let (Some(ss), true) = (ss, a.data.as_os_str() == "-") {
         if a.out.is_some() || a.smooth {
             return Err(
                 "filter MODEL - streams to standard output: no -o or --smooth (smoothing needs the whole record)"
@@ -150,9 +158,21 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
     let inputs = crate::io::columns(&t, &m.input_names)?;
     let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
     let bar = Bar::spinner(quiet, &format!("filtering with {particles} particles"));
-    let est = smc
-        .filter_states(ss, &inputs, &y, a.smooth)
-        .map_err(|e| format!("{}: {e}", a.data.display()))?;
+    let (est, states) = match (physics, ss) {
+        (Some(pm), _) => (
+            smc.filter_physics(pm, &inputs, &y)
+                .map_err(|e| format!("{}: {e}", a.model.display()))?,
+            pm.spec().states.iter().map(|s| s.name.clone()).collect(),
+        ),
+        (None, Some(ss)) => (
+            smc.filter_states(ss, &inputs, &y, a.smooth)
+                .map_err(|e| format!("{}: {e}", a.data.display()))?,
+            (1..=ss.n_states)
+                .map(|i| format!("x{i}"))
+                .collect::<Vec<_>>(),
+        ),
+        (None, None) => return Err("no model to filter".into()),
+    };
     bar.finish();
     let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
     cols.push(&y);
@@ -163,8 +183,8 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
     let mut names: Vec<String> = m.input_names.clone();
     names.push(out_name.clone());
     for (tag, b) in &bands {
-        names.extend(band_columns(ss.n_states, tag));
-        for i in 0..ss.n_states {
+        for (i, s) in states.iter().enumerate() {
+            names.extend(["mean", "lo", "hi"].map(|k| format!("{s}_{tag}{k}")));
             cols.extend([&b.mean[i], &b.lo[i], &b.hi[i]].map(Vec::as_slice));
         }
     }
@@ -174,61 +194,8 @@ pub fn filter(a: FilterArgs, quiet: bool) -> Result<()> {
     println!(
         "{} samples, {} states, {particles} particles (mean ESS {mean_ess:.0}){}",
         y.len(),
-        ss.n_states,
+        states.len(),
         if a.smooth { ", smoothed" } else { "" }
-    );
-    println!("log-likelihood: {:.4}", est.log_likelihood);
-    println!("states written to {}", out.display());
-    Ok(())
-}
-
-/// `greybox filter` of a physics model fitted by `--method smc`: filtered
-/// states with 95 % bands (no smoothing, no streaming).
-fn filter_physics(
-    a: &FilterArgs,
-    m: &gb_core::FittedModel,
-    pm: &PhysicsModel,
-    quiet: bool,
-) -> Result<()> {
-    if a.smooth || a.data.as_os_str() == "-" {
-        return Err(format!(
-            "{}: a physics model is filtered from a file, without --smooth (smoothing and streaming take state-space models)",
-            a.model.display()
-        ));
-    }
-    let out = a.out.as_ref().ok_or("-o FILE is needed")?;
-    let out_name = a.output.clone().unwrap_or_else(|| m.output_name().into());
-    let particles = usize::try_from(a.particles).map_err(|e| e.to_string())?;
-    let smc = SmcParams::new()
-        .particles(particles)
-        .seed(a.seed)
-        .check()
-        .map_err(|e| e.to_string())?;
-    let t = CsvTable::read(&a.data).map_err(|e| e.to_string())?;
-    let inputs = crate::io::columns(&t, &m.input_names)?;
-    let y = t.column(&out_name).map_err(|e| e.to_string())?.to_vec();
-    let bar = Bar::spinner(quiet, &format!("filtering with {particles} particles"));
-    let est = smc
-        .filter_physics(pm, &inputs, &y)
-        .map_err(|e| format!("{}: {e}", a.model.display()))?;
-    bar.finish();
-    let states: Vec<&str> = pm.spec().states.iter().map(|s| s.name.as_str()).collect();
-    let mut names: Vec<String> = m.input_names.clone();
-    names.push(out_name);
-    let mut cols: Vec<&[f64]> = inputs.iter().map(Vec::as_slice).collect();
-    cols.push(&y);
-    for (i, s) in states.iter().enumerate() {
-        names.extend(["mean", "lo", "hi"].map(|k| format!("{s}_{k}")));
-        let b = &est.filtered;
-        cols.extend([&b.mean[i], &b.lo[i], &b.hi[i]].map(Vec::as_slice));
-    }
-    let refs: Vec<&str> = names.iter().map(String::as_str).collect();
-    gb_core::write_csv_atomic(out, &refs, &cols).map_err(|e| e.to_string())?;
-    let mean_ess = est.ess.iter().sum::<f64>() / est.ess.len().max(1) as f64;
-    println!(
-        "{} samples, states {}, {particles} particles (mean ESS {mean_ess:.0})",
-        y.len(),
-        states.join(", ")
     );
     println!("log-likelihood: {:.4}", est.log_likelihood);
     println!("states written to {}", out.display());
