@@ -38,6 +38,8 @@ use std::any::Any;
 
 /// Bound on |ŷ| (normalised units) beyond which a simulation has diverged.
 const DIVERGED: f64 = 1e3;
+/// Free knots stay between these quantiles of their map's training input.
+const KNOT_MARGIN: f64 = 0.1;
 /// Poles are kept inside this radius.
 const MAX_RADIUS: f64 = 0.999;
 
@@ -427,8 +429,13 @@ struct Problem<'a> {
     model: BlockModel,
     un: &'a [Vec<f64>],
     yn: &'a [f64],
-    /// Basis values of the nonlinear inputs (fixed knots).
+    /// Basis values of the nonlinear inputs (at the current knots).
     base: Mapped,
+    /// Whether the knots of the piecewise-linear input maps are parameters
+    /// too (after all others; Hammerstein models only).
+    free_knots: bool,
+    /// Per input map, the interval its knots stay in (free knots).
+    knot_bounds: Vec<(f64, f64)>,
 }
 
 impl Problem<'_> {
@@ -462,7 +469,14 @@ impl Problem<'_> {
     /// Cost and, with `lin`, Gram matrix and gradient of the simulation
     /// error at θ.
     fn eval(&mut self, theta: &[f64], lin: Option<(&mut [f64], &mut [f64])>) -> Option<f64> {
-        self.model.set_parameters(theta);
+        let np0 = self.model.parameters().len();
+        self.model.set_parameters(&theta[..np0]);
+        if self.free_knots {
+            if !set_knots(&mut self.model, &theta[np0..], &self.knot_bounds) {
+                return None;
+            }
+            self.base = self.model.mapped(self.un);
+        }
         if spectral_radius(&self.model.a) >= MAX_RADIUS {
             return None;
         }
@@ -579,12 +593,71 @@ impl Problem<'_> {
             }
             i += nm;
         }
+        if !self.free_knots {
+            return;
+        }
+        // ∂φ₁₊c/∂κc = −1 where the hinge is active (φ₁₊c > 0), linear
+        // extrapolation included
+        let mut pi = 0;
+        for (inp, map) in m.input_maps.iter().enumerate() {
+            let Some(map) = map else { continue };
+            let nm = map.coef.len();
+            let ph = &self.base.phi[pi];
+            pi += 1;
+            for c in 0..map.knots.len() {
+                let mut v = 0.0;
+                for (j, bj) in m.b[inp].iter().enumerate() {
+                    if ph[(k - m.nk[inp] - j) * nm + 1 + c] > 0.0 {
+                        v += bj;
+                    }
+                }
+                r[i] = -map.coef[1 + c] * v;
+                i += 1;
+            }
+        }
     }
+}
+
+/// The knots of every input map of `m` in order (all hinge maps); `false`
+/// (nothing set) unless each map's knots stay strictly increasing inside
+/// its interval of `bounds`.
+fn set_knots(m: &mut BlockModel, knots: &[f64], bounds: &[(f64, f64)]) -> bool {
+    let mut at = 0;
+    for (map, &(lo, hi)) in m.input_maps.iter().flatten().zip(bounds) {
+        let kn = &knots[at..at + map.knots.len()];
+        at += map.knots.len();
+        // a segment at least a quarter of the even spacing: two knots that
+        // meet would make a step that fits the noise
+        let gap = 0.25 * (hi - lo) / (kn.len() + 1) as f64;
+        let inside = kn.first().is_none_or(|&k| k > lo)
+            && kn.last().is_none_or(|&k| k < hi)
+            && kn.windows(2).all(|w| w[1] - w[0] > gap);
+        if !inside || kn.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+    }
+    let mut at = 0;
+    for map in m.input_maps.iter_mut().flatten() {
+        let n = map.knots.len();
+        map.knots.copy_from_slice(&knots[at..at + n]);
+        at += n;
+    }
+    true
 }
 
 impl LeastSquaresProblem for Problem<'_> {
     fn n_params(&self) -> usize {
-        self.model.parameters().len()
+        let knots: usize = if self.free_knots {
+            self.model
+                .input_maps
+                .iter()
+                .flatten()
+                .map(|m| m.knots.len())
+                .sum()
+        } else {
+            0
+        };
+        self.model.parameters().len() + knots
     }
     fn cost(&mut self, theta: &[f64]) -> Option<f64> {
         self.eval(theta, None)
@@ -602,7 +675,7 @@ impl LeastSquaresProblem for Problem<'_> {
 /// | `delay` | 1 per input | dead time per input |
 /// | `input_maps` | none | which inputs get a static map |
 /// | `output_map` | false | a static map of the output |
-/// | `maps` | spline 4, 8, 16; piecewise linear 8, 16 | map structures (basis, knots) tried; several: chosen on a 20 % hold-out |
+/// | `maps` | spline 4, 8, 16; piecewise linear 2, 4, 8, 16 (free knots) | map structures (basis, knots) tried; several: chosen on a 20 % hold-out |
 /// | `lm_iterations` | 60 | Levenberg–Marquardt iterations of each fit |
 #[derive(Debug, Clone, PartialEq)]
 pub struct BlockParams {
@@ -643,6 +716,8 @@ impl BlockParams {
             input_maps: vec![],
             output_map: false,
             maps: vec![
+                (MapBasis::Hinge, 2),
+                (MapBasis::Hinge, 4),
                 (MapBasis::Spline, 4),
                 (MapBasis::Spline, 8),
                 (MapBasis::Hinge, 8),
@@ -754,6 +829,8 @@ impl ValidBlockParams {
             un,
             yn,
             base,
+            free_knots: false,
+            knot_bounds: vec![],
         };
         let lm = LmParams::default()
             .max_iter(self.0.lm_iterations)
@@ -764,6 +841,63 @@ impl ValidBlockParams {
         let mut m = prob.model;
         m.set_parameters(&st.theta);
         Some(m)
+    }
+
+    /// Levenberg–Marquardt on the simulation error with the knots of the
+    /// piecewise-linear input maps free as well (a dead zone or a
+    /// saturation has its kink where the data put it, not at a quantile of
+    /// the input). `None` unless `m` is a Hammerstein model whose maps are
+    /// all piecewise linear, or when the fit fails.
+    fn refine_knots(&self, m: &BlockModel, un: &[Vec<f64>], yn: &[f64]) -> Option<BlockModel> {
+        let maps: Vec<&StaticMap> = m.input_maps.iter().flatten().collect();
+        if m.output_map.is_some()
+            || maps.is_empty()
+            || maps.iter().any(|f| f.basis != MapBasis::Hinge)
+        {
+            return None;
+        }
+        let mut theta0 = m.parameters();
+        let np0 = theta0.len();
+        theta0.extend(maps.iter().flat_map(|f| f.knots.iter().copied()));
+        // the outer segments keep at least 10 % of the samples each: a knot
+        // at the edge of the data would leave a steep last segment that the
+        // linear extrapolation carries beyond the training range
+        let knot_bounds: Vec<(f64, f64)> = un
+            .iter()
+            .zip(&m.input_maps)
+            .filter(|(_, f)| f.is_some())
+            .map(|(u, _)| {
+                let mut s: Vec<f64> = u.iter().copied().filter(|v| v.is_finite()).collect();
+                s.sort_by(f64::total_cmp);
+                let q = |p: f64| s[((p * (s.len() - 1) as f64).round() as usize).min(s.len() - 1)];
+                (q(KNOT_MARGIN), q(1.0 - KNOT_MARGIN))
+            })
+            .collect();
+        let mut start = m.clone();
+        let ok = {
+            let kn: Vec<f64> = maps.iter().flat_map(|f| f.knots.iter().copied()).collect();
+            set_knots(&mut start, &kn, &knot_bounds)
+        };
+        if !ok {
+            return None;
+        }
+        let mut prob = Problem {
+            model: m.clone(),
+            un,
+            yn,
+            base: m.mapped(un),
+            free_knots: true,
+            knot_bounds,
+        };
+        let lm = LmParams::default()
+            .max_iter(self.0.lm_iterations)
+            .tol(1e-9)
+            .check()
+            .ok()?;
+        let st = lm.minimize(&mut prob, &theta0, &gb_core::Silent).ok()?;
+        let mut out = prob.model;
+        out.set_parameters(&st.theta[..np0]);
+        set_knots(&mut out, &st.theta[np0..], &prob.knot_bounds).then_some(out)
     }
 
     /// The linear model with the maps of the parameters (identity) added.
@@ -872,12 +1006,18 @@ impl ValidBlockParams {
     ) -> Option<(f64, BlockModel)> {
         let identity = self.with_maps(lin, mp, un, yn);
         let over = self.over_parameterised_start(&identity, un, yn);
-        [Some(identity), over]
+        let (e, m) = [Some(identity), over]
             .into_iter()
             .flatten()
             .filter_map(|m0| self.refine(m0, un, yn))
             .filter_map(|m| sse(&m, un, yn).map(|e| (e, m)))
-            .min_by(|a, b| a.0.total_cmp(&b.0))
+            .min_by(|a, b| a.0.total_cmp(&b.0))?;
+        // piecewise-linear maps: the knots move to where the data put the kinks
+        let moved = self
+            .refine_knots(&m, un, yn)
+            .and_then(|k| sse(&k, un, yn).map(|ek| (ek, k)))
+            .filter(|(ek, _)| *ek < e);
+        Some(moved.unwrap_or((e, m)))
     }
 
     /// The Hammerstein start of Bai (1998): least squares of
@@ -1379,6 +1519,53 @@ mod tests {
             e_wrong > 0.8 * e_lin && e_lin > 10.0 * sd,
             "{e_wrong} {e_lin}"
         );
+    }
+
+    /// An asymmetric dead zone on [−0.3, 1.0]: the two knots of a
+    /// piecewise-linear map start at the input's terciles (about ±0.54)
+    /// and move to the kinks, so the fit reaches the noise on fresh data.
+    #[test]
+    fn free_knots_move_to_the_kinks_of_a_dead_zone() {
+        let dz = |v: f64| {
+            if v < -0.3 {
+                v + 0.3
+            } else if v > 1.0 {
+                v - 1.0
+            } else {
+                0.0
+            }
+        };
+        let truth = |u: &[f64]| filter(&u.iter().map(|&v| dz(v)).collect::<Vec<_>>());
+        let u = input(3000, 11);
+        let y0 = truth(&u);
+        let sd = 0.01 * gb_core::metrics::std(&y0);
+        let y: Vec<f64> = y0
+            .iter()
+            .zip(noise(3000, sd, 12))
+            .map(|(a, b)| a + b)
+            .collect();
+        let d = Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        let m = BlockParams {
+            input_maps: vec![true],
+            maps: vec![(MapBasis::Hinge, 2)],
+            ..BlockParams::linear(2)
+        }
+        .check()
+        .unwrap()
+        .fit(&d)
+        .unwrap();
+        let map = m.input_maps[0].as_ref().unwrap();
+        let sc = &m.input_scaling[0];
+        let knots: Vec<f64> = map.knots.iter().map(|&k| sc.from_norm(k)).collect();
+        assert!(
+            (knots[0] + 0.3).abs() < 0.05 && (knots[1] - 1.0).abs() < 0.05,
+            "knots {knots:?}"
+        );
+        let v = input(2000, 13);
+        let yv = truth(&v);
+        let sim = m.simulate(&[v], Init::History(&yv[..2])).unwrap();
+        let e = rms_err(&sim, &yv);
+        assert!(e < 0.5 * sd, "fresh-data error {e} vs noise {sd}");
     }
 
     /// Wiener with a tanh sensor: the fit reaches the noise on fresh data,
