@@ -249,7 +249,7 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
 /// The model with both a network and hysteresis, fitted like any candidate
 /// (on the plan's record and, under cross-validation, on every fold).
 fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluated, DiagnoseError> {
-    let (Some(pl), Some(_)) = (lmn.lineage.io(), hyst.lineage.io()) else {
+    let (Some(pl), Some(ph)) = (lmn.lineage.io(), hyst.lineage.io()) else {
         return Err(DiagnoseError::InvalidArgument(
             "not input-output networks".into(),
         ));
@@ -257,6 +257,7 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
     let both = gb_lmn::IoNetworkParams {
         network: true,
         hysteresis: true,
+        hysteresis_on: ph.hysteresis_on,
         ..pl.clone()
     };
     let fold =

@@ -9,6 +9,7 @@
 //! | `delay` | 1 per input | dead time n_k per input; 0 = direct feedthrough, and then the input enters with lags 0..n (n + 1 coefficients: the biproper transfer function of order n) |
 //! | `network` | false | LOLIMOT local model network instead of one linear model |
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
+//! | `hysteresis_on` | both | which signals carry those columns: both, the inputs only (hysteresis before the dynamics, a backlash) or the simulated output only (a hysteretic force on the state) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
@@ -20,6 +21,21 @@ use gb_core::{Identify, Observer, Record, Records, Silent};
 
 /// Largest order of an input–output network.
 pub const MAX_IO_ORDER: usize = 30;
+
+/// Which signals carry the hysteresis columns of an input–output network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HysteresisOn {
+    /// Play operators and a relay grid on the simulated output, play
+    /// operators on every input.
+    #[default]
+    Both,
+    /// Play operators on every input only: u ↦ P_r(u) before the linear
+    /// dynamics (a backlash, a hysteretic actuator).
+    Inputs,
+    /// Play operators and the relay grid on the simulated output only: a
+    /// hysteretic force F = Σ w_r P_r(ŷ) acting on the dynamics' state.
+    Output,
+}
 
 /// Parameters of an input–output network fit (see the module docs).
 #[derive(Debug, Clone, PartialEq)]
@@ -37,6 +53,8 @@ pub struct IoNetworkParams {
     pub network: bool,
     /// Play-operator / discrete Preisach columns.
     pub hysteresis: bool,
+    /// Which signals carry the hysteresis columns.
+    pub hysteresis_on: HysteresisOn,
     /// Student-t noise model with a robust (IRLS) fit.
     pub robust: bool,
     /// Capacity level of the nonlinear parts.
@@ -56,6 +74,7 @@ impl IoNetworkParams {
             feedthrough: false,
             network: false,
             hysteresis: false,
+            hysteresis_on: HysteresisOn::Both,
             robust: false,
             detail: 0,
             fit: FitOptions::default(),
@@ -96,13 +115,17 @@ impl IoNetworkParams {
             // thresholds in normalised (unit-variance) output units
             let d = 1 + self.detail as usize;
             let (no, ni) = (6 * d, 8 * d);
-            spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
-            spec.output_relays = 6 + 2 * self.detail as usize;
+            if self.hysteresis_on != HysteresisOn::Inputs {
+                spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
+                spec.output_relays = 6 + 2 * self.detail as usize;
+            }
             // lags 1..n+1: the hysteretic force acts inside n-th order
             // continuous dynamics and varies between samples
             spec.hysteresis_lags = self.order + 1;
-            spec.input_play =
-                vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+            if self.hysteresis_on != HysteresisOn::Output {
+                spec.input_play =
+                    vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+            }
         }
         spec
     }

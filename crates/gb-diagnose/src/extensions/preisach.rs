@@ -5,6 +5,16 @@ use crate::evaluate::{Lineage, Residuals};
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, ModelView, Series, ViewData};
+use gb_lmn::HysteresisOn;
+
+/// The hysteresis columns of a candidate, in words.
+fn columns_text(on: HysteresisOn) -> &'static str {
+    match on {
+        HysteresisOn::Both => "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input",
+        HysteresisOn::Output => "Preisach component on the simulated output alone (6 play operators + a 21-relay discrete Preisach operator: a hysteretic force on the state)",
+        HysteresisOn::Inputs => "8 play operators per input alone (hysteresis before the dynamics)",
+    }
+}
 
 /// Add Preisach-type columns whose weights enter linearly (Hauth 2008,
 /// ch. 3), trained output-error.
@@ -17,31 +27,46 @@ impl Extension for PreisachColumns {
     fn cause(&self) -> Cause {
         Cause::Hysteresis
     }
+    /// At the current order and one more: the full set of columns, the
+    /// output side alone (a hysteretic force on the state) and, at the
+    /// current order, the input side alone (hysteresis before the
+    /// dynamics). The one-sided candidates have a third of the columns or
+    /// fewer: on short records the full set overfits where they do not.
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        match ctx.current.lineage.io() {
-            Some(p) if !p.hysteresis => {
-                // a hysteretic force inside continuous dynamics reaches the
-                // sampled output through one lag more than the linear part
-                let max = ctx.policy().max_order;
-                let mut orders = vec![p.order];
-                if p.order < max {
-                    orders.push(p.order + 1);
-                }
-                orders
-                    .into_iter()
-                    .map(|order| Proposal {
-                        cause: Cause::Hysteresis,
-                        lineage: Lineage::Io(gb_lmn::IoNetworkParams {
-                            hysteresis: true,
-                            order,
-                            ..p.clone()
-                        }),
-                        text: format!("Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input, at lags 1..{}, weights linear, regressor order {order}, trained output-error", order + 1),
-                    })
-                    .collect()
+        let Some(p) = ctx.current.lineage.io().filter(|p| !p.hysteresis) else {
+            return vec![];
+        };
+        // a hysteretic force inside continuous dynamics reaches the
+        // sampled output through one lag more than the linear part
+        let max = ctx.policy().max_order;
+        let mut variants = vec![];
+        for order in [p.order, p.order + 1] {
+            if order > max {
+                continue;
             }
-            _ => vec![],
+            variants.push((order, HysteresisOn::Both));
+            variants.push((order, HysteresisOn::Output));
+            if order == p.order {
+                variants.push((order, HysteresisOn::Inputs));
+            }
         }
+        variants
+            .into_iter()
+            .map(|(order, on)| Proposal {
+                cause: Cause::Hysteresis,
+                lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                    hysteresis: true,
+                    hysteresis_on: on,
+                    order,
+                    ..p.clone()
+                }),
+                text: format!(
+                    "{}, at lags 1..{}, weights linear, regressor order {order}, trained output-error",
+                    columns_text(on),
+                    order + 1
+                ),
+            })
+            .collect()
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)
