@@ -174,10 +174,14 @@ pub(crate) fn choose(
         .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
         .map(|(i, _)| i);
     let mut note = None;
+    if let Some((pick, text)) = chosen.and_then(|ci| memory_priority(cands, ci, ctx)) {
+        chosen = Some(pick);
+        note = Some(text);
+    }
     if let Some(ci) = chosen {
         if let Some((pick, text)) = tie_break(cands, ci, ctx) {
             chosen = Some(pick);
-            note = Some(text);
+            note = Some(note.unwrap_or_default() + &text);
         }
     }
     let _ = it;
@@ -195,6 +199,35 @@ pub(crate) fn choose(
         })
     });
     (chosen, note)
+}
+
+/// The chosen candidate is a plain order increase, the memory test on the
+/// current residuals rejects at the policy's `memory_priority_p` (the
+/// residual depends on the direction of motion at equal level: a loop), and
+/// a paying hysteresis candidate's gain interval overlaps the order
+/// increase's: the hysteresis candidate with the largest gain among those.
+/// Its model nests an order increase (hysteresis columns at lags 1..n+1, at
+/// the current order and one more), so it explains what the order increase
+/// explains and the loop.
+fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
+    let memory = ctx.evidence.memory;
+    if cands[ci].cause() != Cause::Dynamics || memory.1 >= ctx.policy().memory_priority_p {
+        return None;
+    }
+    let best = cands[ci].ci;
+    let (h, _) = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == Cause::Hysteresis)
+        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    Some((
+        h,
+        format!(
+            "; preferred to the order increase ({:+.3} [{:+.2},{:+.2}]): the intervals overlap and the residual has a loop (memory F={:.1}, p={:.1e})",
+            cands[ci].gain, best[0], best[1], memory.0, memory.1
+        ),
+    ))
 }
 
 /// Hysteresis and nonlinearity both pay and their intervals overlap: fit
@@ -258,6 +291,7 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
         network: true,
         hysteresis: true,
         hysteresis_on: ph.hysteresis_on,
+        separable_hysteresis: ph.separable_hysteresis,
         ..pl.clone()
     };
     let fold =
@@ -303,8 +337,11 @@ fn combined_fit(
     let best_cost = cost(&best);
     let spec = both.network_spec(fit.n_inputs());
     if let Some(start) = gb_lmn::embed_hysteresis(&nl, &spec) {
-        if let Ok((net, _)) =
-            gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &ctx.options.fit)
+        let opts = gb_lmn::FitOptions {
+            separable_hysteresis: both.separable_hysteresis,
+            ..ctx.options.fit.clone()
+        };
+        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &opts)
         {
             if cost(&net) < best_cost {
                 best = net;

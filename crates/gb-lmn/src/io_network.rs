@@ -9,6 +9,7 @@
 //! | `delay` | 1 per input | dead time n_k per input; 0 = direct feedthrough, and then the input enters with lags 0..n (n + 1 coefficients: the biproper transfer function of order n) |
 //! | `network` | false | LOLIMOT local model network instead of one linear model |
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
+//! | `separable_hysteresis` | false | the hysteresis weights at lags 1..L as one shape times one lag filter (one hysteretic force; W + L − 1 weights instead of W·L) |
 //! | `hysteresis_on` | both | which signals carry those columns: both, the inputs only (hysteresis before the dynamics, a backlash) or the simulated output only (a hysteretic force on the state) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
@@ -55,6 +56,9 @@ pub struct IoNetworkParams {
     pub hysteresis: bool,
     /// Which signals carry the hysteresis columns.
     pub hysteresis_on: HysteresisOn,
+    /// Train the hysteresis weights as one hysteretic force through one
+    /// lag filter (β[l, i] = c_l wᵢ; `FitOptions::separable_hysteresis`).
+    pub separable_hysteresis: bool,
     /// Student-t noise model with a robust (IRLS) fit.
     pub robust: bool,
     /// Capacity level of the nonlinear parts.
@@ -75,6 +79,7 @@ impl IoNetworkParams {
             network: false,
             hysteresis: false,
             hysteresis_on: HysteresisOn::Both,
+            separable_hysteresis: false,
             robust: false,
             detail: 0,
             fit: FitOptions::default(),
@@ -193,6 +198,7 @@ impl ValidIoNetworkParams {
         let spec = p.network_spec(data.n_inputs());
         let mut fopts = p.fit.clone();
         fopts.robust = p.robust;
+        fopts.separable_hysteresis |= p.separable_hysteresis;
         if p.network {
             let mut lopts = p.lolimot.clone();
             lopts.max_leaves = lopts.max_leaves.max(p.max_leaves());

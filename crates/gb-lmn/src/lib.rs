@@ -70,6 +70,7 @@ pub mod poly;
 mod prune;
 mod regressors;
 mod scaling;
+mod separable;
 mod spec;
 pub mod ssnet;
 pub mod tree;

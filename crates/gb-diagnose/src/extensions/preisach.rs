@@ -31,7 +31,9 @@ impl Extension for PreisachColumns {
     /// output side alone (a hysteretic force on the state) and, at the
     /// current order, the input side alone (hysteresis before the
     /// dynamics). The one-sided candidates have a third of the columns or
-    /// fewer: on short records the full set overfits where they do not.
+    /// fewer, and the output block's weights are trained as one force
+    /// through one lag filter (β[l, i] = c_l wᵢ): on short records a weight
+    /// per column and lag overfits.
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         let Some(p) = ctx.current.lineage.io().filter(|p| !p.hysteresis) else {
             return vec![];
@@ -57,6 +59,10 @@ impl Extension for PreisachColumns {
                 lineage: Lineage::Io(gb_lmn::IoNetworkParams {
                     hysteresis: true,
                     hysteresis_on: on,
+                    // the output block's many columns as one force
+                    // through one lag filter; the few input plays keep a
+                    // weight per lag
+                    separable_hysteresis: on != HysteresisOn::Inputs,
                     order,
                     ..p.clone()
                 }),
