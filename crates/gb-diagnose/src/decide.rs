@@ -341,8 +341,7 @@ fn combined_fit(
             separable_hysteresis: both.separable_hysteresis,
             ..ctx.options.fit.clone()
         };
-        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &opts)
-        {
+        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &opts) {
             if cost(&net) < best_cost {
                 best = net;
             }
