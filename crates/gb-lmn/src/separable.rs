@@ -201,3 +201,96 @@ impl<P: LeastSquaresProblem> LeastSquaresProblem for SeparableProblem<'_, P> {
         self.inner.admissible(&self.sep.full(theta))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{HysteresisOn, IoNetworkParams};
+
+    /// A linear network with the hysteresis columns of `on` at order 2.
+    fn net(on: HysteresisOn) -> LocalModelNetwork {
+        let spec = IoNetworkParams {
+            hysteresis: true,
+            hysteresis_on: on,
+            ..IoNetworkParams::linear(2)
+        }
+        .network_spec(1);
+        let u = vec![(0..50)
+            .map(|k| (k as f64 * 0.3).sin())
+            .collect::<Vec<f64>>()];
+        let y: Vec<f64> = (0..50).map(|k| (k as f64 * 0.2).cos()).collect();
+        let lin = crate::noe::zero_linear_network(&NetworkSpec::order(2, 1), &u, &y);
+        crate::noe::embed_hysteresis(&lin, &spec).expect("same dynamic structure")
+    }
+
+    #[test]
+    fn one_side_only_has_its_columns() {
+        let o = net(HysteresisOn::Output).spec;
+        assert!(o.input_play.iter().all(Vec::is_empty) && o.output_block() > 0);
+        let i = net(HysteresisOn::Inputs).spec;
+        assert!(i.output_block() == 0 && i.input_play[0].len() == 8);
+    }
+
+    #[test]
+    fn a_separable_point_round_trips_and_the_gram_is_projected() {
+        let n = net(HysteresisOn::Both);
+        let s = Separable::new(&n).expect("three lags");
+        let nr = s.n_reduced();
+        let r: Vec<f64> = (0..nr)
+            .map(|j| ((j * 37 % 11) as f64 - 5.0) / 7.0)
+            .collect();
+        let th = s.full(&r);
+        let back = s.reduce(&th);
+        for (a, b) in s.full(&back).iter().zip(&th) {
+            assert!((a - b).abs() < 1e-9);
+        }
+        // a quadratic V = ½|θ − t|²: G = I, g = t − θ; the reduced gradient
+        // is Mᵀ g, checked against finite differences of V(full(r))
+        struct Quad(Vec<f64>);
+        impl LeastSquaresProblem for Quad {
+            fn n_params(&self) -> usize {
+                self.0.len()
+            }
+            fn cost(&mut self, th: &[f64]) -> Option<f64> {
+                Some(
+                    0.5 * th
+                        .iter()
+                        .zip(&self.0)
+                        .map(|(a, b)| (a - b).powi(2))
+                        .sum::<f64>(),
+                )
+            }
+            fn linearize(&mut self, th: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+                let n = th.len();
+                gram.iter_mut().for_each(|v| *v = 0.0);
+                for i in 0..n {
+                    gram[i * n + i] = 1.0;
+                    grad[i] = self.0[i] - th[i];
+                }
+                self.cost(th)
+            }
+        }
+        let target: Vec<f64> = (0..th.len()).map(|j| (j as f64 * 0.3).sin()).collect();
+        let mut q = Quad(target);
+        let mut p = SeparableProblem::new(&mut q, &s);
+        let (mut gram, mut grad) = (vec![0.0; nr * nr], vec![0.0; nr]);
+        p.linearize(&r, &mut gram, &mut grad).expect("finite");
+        for j in 0..nr {
+            let h = 1e-6;
+            let (mut a, mut b) = (r.clone(), r.clone());
+            a[j] += h;
+            b[j] -= h;
+            let d = (p.cost(&a).unwrap() - p.cost(&b).unwrap()) / (2.0 * h);
+            assert!(
+                (d + grad[j]).abs() < 1e-5,
+                "parameter {j}: {d} vs {}",
+                grad[j]
+            );
+        }
+        for a in 0..nr {
+            for b in 0..nr {
+                assert!((gram[a * nr + b] - gram[b * nr + a]).abs() < 1e-12);
+            }
+        }
+    }
+}
