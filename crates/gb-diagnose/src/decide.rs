@@ -335,7 +335,7 @@ fn combined_fit(
     };
     let mut best = nh;
     let best_cost = cost(&best);
-    let spec = both.network_spec(fit.n_inputs());
+    let spec = both.network_spec_on(fit);
     if let Some(start) = gb_lmn::embed_hysteresis(&nl, &spec) {
         let opts = gb_lmn::FitOptions {
             separable_hysteresis: both.separable_hysteresis,

@@ -135,6 +135,23 @@ impl IoNetworkParams {
         spec
     }
 
+    /// [`network_spec`](Self::network_spec) for the record `data`: every
+    /// input's play thresholds above R = (q₉₉ − q₁) / 2 of the normalised
+    /// input dropped (keeping at least one): such a play barely moves, its
+    /// column is a constant set by the record's first sample, which a new
+    /// record does not share. For a Gaussian input R ≈ 2.3.
+    pub fn network_spec_on(&self, data: &Record) -> NetworkSpec {
+        let mut spec = self.network_spec(data.n_inputs());
+        for (plays, u) in spec.input_play.iter_mut().zip(&data.inputs) {
+            let r = half_range(u);
+            if r.is_finite() && plays.len() > 1 {
+                let keep = plays.iter().filter(|&&t| t <= r).count().max(1);
+                plays.truncate(keep);
+            }
+        }
+        spec
+    }
+
     /// Validate once; the result fits.
     pub fn check(&self) -> Result<ValidIoNetworkParams, LmnError> {
         if self.order == 0 || self.order > MAX_IO_ORDER {
@@ -195,7 +212,7 @@ impl ValidIoNetworkParams {
                 data.n_inputs()
             )));
         }
-        let spec = p.network_spec(data.n_inputs());
+        let spec = p.network_spec_on(data);
         let mut fopts = p.fit.clone();
         fopts.robust = p.robust;
         fopts.separable_hysteresis |= p.separable_hysteresis;
@@ -240,4 +257,22 @@ impl Identify for ValidIoNetworkParams {
         }
         self.fit_with_observer(data.first(), WarmStart::default(), observer)
     }
+}
+
+/// Half the 1 %–99 % quantile range of `u` in units of its standard
+/// deviation (NaN for a constant or too short signal).
+fn half_range(u: &[f64]) -> f64 {
+    let n = u.len();
+    if n < 10 {
+        return f64::NAN;
+    }
+    let m = u.iter().sum::<f64>() / n as f64;
+    let sd = (u.iter().map(|v| (v - m).powi(2)).sum::<f64>() / n as f64).sqrt();
+    if !(sd > 0.0 && sd.is_finite()) {
+        return f64::NAN;
+    }
+    let mut z: Vec<f64> = u.iter().map(|v| (v - m) / sd).collect();
+    z.sort_by(f64::total_cmp);
+    let q = |p: f64| z[((n - 1) as f64 * p).round() as usize];
+    (q(0.99) - q(0.01)) / 2.0
 }
