@@ -10,9 +10,9 @@ use gb_lmn::HysteresisOn;
 /// The hysteresis columns of a candidate, in words.
 fn columns_text(on: HysteresisOn) -> &'static str {
     match on {
-        HysteresisOn::Both => "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input",
+        HysteresisOn::Both => "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and up to 8 play operators per input (thresholds within its range)",
         HysteresisOn::Output => "Preisach component on the simulated output alone (6 play operators + a 21-relay discrete Preisach operator: a hysteretic force on the state)",
-        HysteresisOn::Inputs => "8 play operators per input alone (hysteresis before the dynamics)",
+        HysteresisOn::Inputs => "up to 8 play operators per input alone (thresholds within its range: hysteresis before the dynamics)",
     }
 }
 
