@@ -19,7 +19,7 @@ use crate::DiagnoseError;
 /// | `noise_nrmse_tolerance` | 1.02 | a noise model may not worsen the select-block NRMSE by more than 2 % |
 /// | `tie_bootstrap`, `tie_seed` | 50, 0 | replicates and seed of the unique-contribution comparison when nonlinearity and hysteresis tie |
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
-/// | `memory_priority_p` | 1e-3 | when the best new cause is a plain order increase and a paying hysteresis candidate's gain interval overlaps its interval, the hysteresis candidate is chosen if the direction-of-motion memory test rejects at this level (its model nests the order increase, and the residual's loop is evidence an order increase cannot explain) |
+/// | `memory_priority_p` | 0.01 | when the best new cause is a plain order increase and a paying hysteresis candidate's gain interval overlaps its interval, the hysteresis candidate is chosen if the direction-of-motion memory test rejects at this level (its model nests the order increase, and the residual's loop is evidence an order increase cannot explain) |
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
 /// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
 /// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
@@ -175,7 +175,7 @@ impl Default for DecisionPolicy {
             tie_bootstrap: 50,
             tie_seed: 0,
             unexplained_p: 1e-3,
-            memory_priority_p: 1e-3,
+            memory_priority_p: 0.01,
             hidden_state_fit_samples: 4000,
             nonlinear_fit_samples: 20_000,
             expensive_fit_samples: 8000,

@@ -10,7 +10,7 @@
 //! | `network` | false | LOLIMOT local model network instead of one linear model |
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
 //! | `separable_hysteresis` | false | the hysteresis weights at lags 1..L as one shape times one lag filter (one hysteretic force; W + L − 1 weights instead of W·L) |
-//! | `hysteresis_on` | both | which signals carry those columns: both, the inputs only (hysteresis before the dynamics, a backlash) or the simulated output only (a hysteretic force on the state) |
+//! | `hysteresis_on` | both | which signals carry those columns: both, the input plays only (hysteresis before the dynamics, a backlash) or the output plays only (a Prandtl–Ishlinskii force on the state, no relay grid: shift-invariant) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
@@ -33,8 +33,9 @@ pub enum HysteresisOn {
     /// Play operators on every input only: u ↦ P_r(u) before the linear
     /// dynamics (a backlash, a hysteretic actuator).
     Inputs,
-    /// Play operators and the relay grid on the simulated output only: a
-    /// hysteretic force F = Σ w_r P_r(ŷ) acting on the dynamics' state.
+    /// Play operators on the simulated output only (no relay grid): a
+    /// Prandtl–Ishlinskii force F = Σ w_r P_r(ŷ) acting on the dynamics'
+    /// state, invariant to a shift of the operating point.
     Output,
 }
 
@@ -122,7 +123,9 @@ impl IoNetworkParams {
             let (no, ni) = (6 * d, 8 * d);
             if self.hysteresis_on != HysteresisOn::Inputs {
                 spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
-                spec.output_relays = 6 + 2 * self.detail as usize;
+                if self.hysteresis_on == HysteresisOn::Both {
+                    spec.output_relays = 6 + 2 * self.detail as usize;
+                }
             }
             // lags 1..n+1: the hysteretic force acts inside n-th order
             // continuous dynamics and varies between samples
