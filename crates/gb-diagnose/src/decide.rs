@@ -251,7 +251,9 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     } else {
         (o, ci)
     };
-    let comb = combined(&cands[ni].fitted, &cands[hi].fitted, ctx).ok()?;
+    let Ok(comb) = combined(&cands[ni].fitted, &cands[hi].fitted, ctx) else {
+        return without_loop(cands, ci, ctx);
+    };
     let pol = ctx.policy();
     let block = pol.block(comb.select.e.len());
     let (g_h, _) = relative_gain_ci(
@@ -275,6 +277,32 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
             "; tie with {other} resolved by unique contributions: hysteresis adds {:+.1}% to a network, a network adds {:+.1}% to hysteresis",
             100.0 * g_h,
             100.0 * g_n
+        ),
+    ))
+}
+
+/// A tie the unique contributions cannot resolve (the nonlinear candidate
+/// is not an input–output network), hysteresis chosen, and the memory test
+/// does not reject at the policy's `memory_priority_p`: the static
+/// explanation, the paying overlapping nonlinearity candidate with the
+/// largest gain (no loop in the residual speaks for memory).
+fn without_loop(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
+    let memory = ctx.evidence.memory;
+    if cands[ci].cause() != Cause::Hysteresis || memory.1 < ctx.policy().memory_priority_p {
+        return None;
+    }
+    let best = cands[ci].ci;
+    let (n, _) = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == Cause::Nonlinearity)
+        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    Some((
+        n,
+        format!(
+            "; tie with hysteresis ({:+.3} [{:+.2},{:+.2}]) resolved for the static map: no loop in the residual (memory F={:.1}, p={:.1e})",
+            cands[ci].gain, best[0], best[1], memory.0, memory.1
         ),
     ))
 }
