@@ -356,6 +356,10 @@ mod tests {
                 ..p.clone()
             },
             DecisionPolicy {
+                memory_priority_p: 1.0,
+                ..p.clone()
+            },
+            DecisionPolicy {
                 block_min: 300,
                 ..p.clone()
             },

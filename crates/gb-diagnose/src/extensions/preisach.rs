@@ -27,13 +27,13 @@ impl Extension for PreisachColumns {
     fn cause(&self) -> Cause {
         Cause::Hysteresis
     }
-    /// At the current order and one more: the full set of columns, the
-    /// output side alone (a hysteretic force on the state) and, at the
-    /// current order, the input side alone (hysteresis before the
-    /// dynamics). The one-sided candidates have a third of the columns or
-    /// fewer, and the output block's weights are trained as one force
-    /// through one lag filter (β[l, i] = c_l wᵢ): on short records a weight
-    /// per column and lag overfits.
+    /// At the current order and one more: the full set of columns and the
+    /// output plays alone (a Prandtl–Ishlinskii force on the state), and at
+    /// the current order the input plays alone (hysteresis before the
+    /// dynamics). The one-sided candidates have a fraction of the columns,
+    /// and the output-side weights are trained as one force through one lag
+    /// filter (β[l, i] = c_l wᵢ): on short records a weight per column and
+    /// lag overfits.
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         let Some(p) = ctx.current.lineage.io().filter(|p| !p.hysteresis) else {
             return vec![];
