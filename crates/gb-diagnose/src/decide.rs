@@ -174,10 +174,14 @@ pub(crate) fn choose(
         .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
         .map(|(i, _)| i);
     let mut note = None;
+    if let Some((pick, text)) = chosen.and_then(|ci| memory_priority(cands, ci, ctx)) {
+        chosen = Some(pick);
+        note = Some(text);
+    }
     if let Some(ci) = chosen {
         if let Some((pick, text)) = tie_break(cands, ci, ctx) {
             chosen = Some(pick);
-            note = Some(text);
+            note = Some(note.unwrap_or_default() + &text);
         }
     }
     let _ = it;
@@ -195,6 +199,35 @@ pub(crate) fn choose(
         })
     });
     (chosen, note)
+}
+
+/// The chosen candidate is a plain order increase, the memory test on the
+/// current residuals rejects at the policy's `memory_priority_p` (the
+/// residual depends on the direction of motion at equal level: a loop), and
+/// a paying hysteresis candidate's gain interval overlaps the order
+/// increase's: the hysteresis candidate with the largest gain among those.
+/// Its model nests an order increase (hysteresis columns at lags 1..n+1, at
+/// the current order and one more), so it explains what the order increase
+/// explains and the loop.
+fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
+    let memory = ctx.evidence.memory;
+    if cands[ci].cause() != Cause::Dynamics || memory.1 >= ctx.policy().memory_priority_p {
+        return None;
+    }
+    let best = cands[ci].ci;
+    let (h, _) = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == Cause::Hysteresis)
+        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    Some((
+        h,
+        format!(
+            "; preferred to the order increase ({:+.3} [{:+.2},{:+.2}]): the intervals overlap and the residual has a loop (memory F={:.1}, p={:.1e})",
+            cands[ci].gain, best[0], best[1], memory.0, memory.1
+        ),
+    ))
 }
 
 /// Hysteresis and nonlinearity both pay and their intervals overlap: fit
@@ -218,7 +251,9 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     } else {
         (o, ci)
     };
-    let comb = combined(&cands[ni].fitted, &cands[hi].fitted, ctx).ok()?;
+    let Ok(comb) = combined(&cands[ni].fitted, &cands[hi].fitted, ctx) else {
+        return without_loop(cands, ci, ctx);
+    };
     let pol = ctx.policy();
     let block = pol.block(comb.select.e.len());
     let (g_h, _) = relative_gain_ci(
@@ -246,10 +281,36 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     ))
 }
 
+/// A tie the unique contributions cannot resolve (the nonlinear candidate
+/// is not an input–output network), hysteresis chosen, and the memory test
+/// does not reject at the policy's `memory_priority_p`: the static
+/// explanation, the paying overlapping nonlinearity candidate with the
+/// largest gain (no loop in the residual speaks for memory).
+fn without_loop(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
+    let memory = ctx.evidence.memory;
+    if cands[ci].cause() != Cause::Hysteresis || memory.1 < ctx.policy().memory_priority_p {
+        return None;
+    }
+    let best = cands[ci].ci;
+    let (n, _) = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == Cause::Nonlinearity)
+        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    Some((
+        n,
+        format!(
+            "; tie with hysteresis ({:+.3} [{:+.2},{:+.2}]) resolved for the static map: no loop in the residual (memory F={:.1}, p={:.1e})",
+            cands[ci].gain, best[0], best[1], memory.0, memory.1
+        ),
+    ))
+}
+
 /// The model with both a network and hysteresis, fitted like any candidate
 /// (on the plan's record and, under cross-validation, on every fold).
 fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluated, DiagnoseError> {
-    let (Some(pl), Some(_)) = (lmn.lineage.io(), hyst.lineage.io()) else {
+    let (Some(pl), Some(ph)) = (lmn.lineage.io(), hyst.lineage.io()) else {
         return Err(DiagnoseError::InvalidArgument(
             "not input-output networks".into(),
         ));
@@ -257,6 +318,8 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
     let both = gb_lmn::IoNetworkParams {
         network: true,
         hysteresis: true,
+        hysteresis_on: ph.hysteresis_on,
+        separable_hysteresis: ph.separable_hysteresis,
         ..pl.clone()
     };
     let fold =
@@ -300,11 +363,13 @@ fn combined_fit(
     };
     let mut best = nh;
     let best_cost = cost(&best);
-    let spec = both.network_spec(fit.n_inputs());
+    let spec = both.network_spec_on(fit);
     if let Some(start) = gb_lmn::embed_hysteresis(&nl, &spec) {
-        if let Ok((net, _)) =
-            gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &ctx.options.fit)
-        {
+        let opts = gb_lmn::FitOptions {
+            separable_hysteresis: both.separable_hysteresis,
+            ..ctx.options.fit.clone()
+        };
+        if let Ok((net, _)) = gb_lmn::refine_output_error(&start, &fit.inputs, &fit.output, &opts) {
             if cost(&net) < best_cost {
                 best = net;
             }

@@ -38,6 +38,13 @@ impl Lineage {
         match self {
             Lineage::Io(p) => {
                 let mut s = p.spec_name();
+                if p.hysteresis {
+                    match p.hysteresis_on {
+                        gb_lmn::HysteresisOn::Both => {}
+                        gb_lmn::HysteresisOn::Inputs => s.push_str(" (inputs)"),
+                        gb_lmn::HysteresisOn::Output => s.push_str(" (output)"),
+                    }
+                }
                 if p.detail > 0 {
                     s.push_str(&format!(" (detail {})", p.detail));
                 }

@@ -19,6 +19,7 @@ use crate::DiagnoseError;
 /// | `noise_nrmse_tolerance` | 1.02 | a noise model may not worsen the select-block NRMSE by more than 2 % |
 /// | `tie_bootstrap`, `tie_seed` | 50, 0 | replicates and seed of the unique-contribution comparison when nonlinearity and hysteresis tie |
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
+/// | `memory_priority_p` | 0.01 | when the best new cause is a plain order increase and a paying hysteresis candidate's gain interval overlaps its interval, the hysteresis candidate is chosen if the direction-of-motion memory test rejects at this level (its model nests the order increase, and the residual's loop is evidence an order increase cannot explain) |
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
 /// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
 /// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
@@ -80,6 +81,9 @@ pub struct DecisionPolicy {
     pub tie_seed: u64,
     /// p-value below which residual evidence counts as unexplained.
     pub unexplained_p: f64,
+    /// Memory-test p-value below which an overlapping hysteresis candidate
+    /// is preferred to a plain order increase.
+    pub memory_priority_p: f64,
     /// Most fit samples of the hidden-state model.
     pub hidden_state_fit_samples: usize,
     /// Most fit samples of the polynomial and block-oriented candidates.
@@ -171,6 +175,7 @@ impl Default for DecisionPolicy {
             tie_bootstrap: 50,
             tie_seed: 0,
             unexplained_p: 1e-3,
+            memory_priority_p: 0.01,
             hidden_state_fit_samples: 4000,
             nonlinear_fit_samples: 20_000,
             expensive_fit_samples: 8000,
@@ -236,7 +241,11 @@ impl DecisionPolicy {
             return bad("tolerances and verdict_noise_ratio >= 1");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
-        if !p_ok(self.heavy_tail_p) || !p_ok(self.unexplained_p) || !p_ok(self.verdict_level) {
+        if !p_ok(self.heavy_tail_p)
+            || !p_ok(self.unexplained_p)
+            || !p_ok(self.verdict_level)
+            || !p_ok(self.memory_priority_p)
+        {
             return bad("p-value levels in (0,1)");
         }
         if self.tie_bootstrap < 10 || self.min_block < 10 || self.min_fit < 10 {
@@ -344,6 +353,10 @@ mod tests {
             },
             DecisionPolicy {
                 heavy_tail_p: 0.0,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                memory_priority_p: 1.0,
                 ..p.clone()
             },
             DecisionPolicy {

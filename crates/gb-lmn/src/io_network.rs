@@ -9,6 +9,8 @@
 //! | `delay` | 1 per input | dead time n_k per input; 0 = direct feedthrough, and then the input enters with lags 0..n (n + 1 coefficients: the biproper transfer function of order n) |
 //! | `network` | false | LOLIMOT local model network instead of one linear model |
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
+//! | `separable_hysteresis` | false | the hysteresis weights at lags 1..L as one shape times one lag filter (one hysteretic force; W + L − 1 weights instead of W·L) |
+//! | `hysteresis_on` | both | which signals carry those columns: both, the input plays only (hysteresis before the dynamics, a backlash) or the output plays only (a Prandtl–Ishlinskii force on the state, no relay grid: shift-invariant) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
@@ -20,6 +22,22 @@ use gb_core::{Identify, Observer, Record, Records, Silent};
 
 /// Largest order of an input–output network.
 pub const MAX_IO_ORDER: usize = 30;
+
+/// Which signals carry the hysteresis columns of an input–output network.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum HysteresisOn {
+    /// Play operators and a relay grid on the simulated output, play
+    /// operators on every input.
+    #[default]
+    Both,
+    /// Play operators on every input only: u ↦ P_r(u) before the linear
+    /// dynamics (a backlash, a hysteretic actuator).
+    Inputs,
+    /// Play operators on the simulated output only (no relay grid): a
+    /// Prandtl–Ishlinskii force F = Σ w_r P_r(ŷ) acting on the dynamics'
+    /// state, invariant to a shift of the operating point.
+    Output,
+}
 
 /// Parameters of an input–output network fit (see the module docs).
 #[derive(Debug, Clone, PartialEq)]
@@ -37,6 +55,11 @@ pub struct IoNetworkParams {
     pub network: bool,
     /// Play-operator / discrete Preisach columns.
     pub hysteresis: bool,
+    /// Which signals carry the hysteresis columns.
+    pub hysteresis_on: HysteresisOn,
+    /// Train the hysteresis weights as one hysteretic force through one
+    /// lag filter (β[l, i] = c_l wᵢ; `FitOptions::separable_hysteresis`).
+    pub separable_hysteresis: bool,
     /// Student-t noise model with a robust (IRLS) fit.
     pub robust: bool,
     /// Capacity level of the nonlinear parts.
@@ -56,6 +79,8 @@ impl IoNetworkParams {
             feedthrough: false,
             network: false,
             hysteresis: false,
+            hysteresis_on: HysteresisOn::Both,
+            separable_hysteresis: false,
             robust: false,
             detail: 0,
             fit: FitOptions::default(),
@@ -96,13 +121,36 @@ impl IoNetworkParams {
             // thresholds in normalised (unit-variance) output units
             let d = 1 + self.detail as usize;
             let (no, ni) = (6 * d, 8 * d);
-            spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
-            spec.output_relays = 6 + 2 * self.detail as usize;
+            if self.hysteresis_on != HysteresisOn::Inputs {
+                spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
+                if self.hysteresis_on == HysteresisOn::Both {
+                    spec.output_relays = 6 + 2 * self.detail as usize;
+                }
+            }
             // lags 1..n+1: the hysteretic force acts inside n-th order
             // continuous dynamics and varies between samples
             spec.hysteresis_lags = self.order + 1;
-            spec.input_play =
-                vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+            if self.hysteresis_on != HysteresisOn::Output {
+                spec.input_play =
+                    vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+            }
+        }
+        spec
+    }
+
+    /// [`network_spec`](Self::network_spec) for the record `data`: every
+    /// input's play thresholds above R = (q₉₉ − q₁) / 2 of the normalised
+    /// input dropped (keeping at least one): such a play barely moves, its
+    /// column is a constant set by the record's first sample, which a new
+    /// record does not share. For a Gaussian input R ≈ 2.3.
+    pub fn network_spec_on(&self, data: &Record) -> NetworkSpec {
+        let mut spec = self.network_spec(data.n_inputs());
+        for (plays, u) in spec.input_play.iter_mut().zip(&data.inputs) {
+            let r = half_range(u);
+            if r.is_finite() && plays.len() > 1 {
+                let keep = plays.iter().filter(|&&t| t <= r).count().max(1);
+                plays.truncate(keep);
+            }
         }
         spec
     }
@@ -167,9 +215,10 @@ impl ValidIoNetworkParams {
                 data.n_inputs()
             )));
         }
-        let spec = p.network_spec(data.n_inputs());
+        let spec = p.network_spec_on(data);
         let mut fopts = p.fit.clone();
         fopts.robust = p.robust;
+        fopts.separable_hysteresis |= p.separable_hysteresis;
         if p.network {
             let mut lopts = p.lolimot.clone();
             lopts.max_leaves = lopts.max_leaves.max(p.max_leaves());
@@ -211,4 +260,22 @@ impl Identify for ValidIoNetworkParams {
         }
         self.fit_with_observer(data.first(), WarmStart::default(), observer)
     }
+}
+
+/// Half the 1 %–99 % quantile range of `u` in units of its standard
+/// deviation (NaN for a constant or too short signal).
+fn half_range(u: &[f64]) -> f64 {
+    let n = u.len();
+    if n < 10 {
+        return f64::NAN;
+    }
+    let m = u.iter().sum::<f64>() / n as f64;
+    let sd = (u.iter().map(|v| (v - m).powi(2)).sum::<f64>() / n as f64).sqrt();
+    if !(sd > 0.0 && sd.is_finite()) {
+        return f64::NAN;
+    }
+    let mut z: Vec<f64> = u.iter().map(|v| (v - m) / sd).collect();
+    z.sort_by(f64::total_cmp);
+    let q = |p: f64| z[((n - 1) as f64 * p).round() as usize];
+    (q(0.99) - q(0.01)) / 2.0
 }

@@ -70,6 +70,7 @@ pub mod poly;
 mod prune;
 mod regressors;
 mod scaling;
+mod separable;
 mod spec;
 pub mod ssnet;
 pub mod tree;
@@ -78,7 +79,9 @@ mod wiener_hammerstein;
 
 pub use block::{BlockModel, BlockParams, MapBasis, StaticMap, ValidBlockParams};
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
-pub use io_network::{IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER};
+pub use io_network::{
+    HysteresisOn, IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER,
+};
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
 pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
 pub use narx::RefineReport;

@@ -12,6 +12,7 @@
 //! fly without storing J; steps that make any local model unstable (spectral
 //! radius ≥ 1) or the simulation diverge are rejected.
 use crate::network::{spectral_radius, EvalScratch, Leaf};
+use crate::separable::{Separable, SeparableProblem};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
 use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
 use gb_core::{NoiseModel, Observer, Silent};
@@ -39,6 +40,10 @@ pub struct FitOptions {
     /// instead of copying the first measured samples. `true` by default;
     /// `false` gives the former fits bit for bit.
     pub estimate_start: bool,
+    /// Train hysteresis weights at several lags as one shape times one lag
+    /// filter (β[l, i] = c_l wᵢ, c_0 = 1): W + L − 1
+    /// parameters instead of W·L. `false` by default.
+    pub separable_hysteresis: bool,
 }
 
 impl Default for FitOptions {
@@ -49,6 +54,7 @@ impl Default for FitOptions {
             ridge: 1e-8,
             robust: false,
             estimate_start: true,
+            separable_hysteresis: false,
         }
     }
 }
@@ -1133,7 +1139,14 @@ pub fn refine_output_error_with_observer(
     p.estimate = opts.estimate_start;
     let n = y.len();
     let k0 = net.spec.max_lag();
-    let np = net.n_parameters();
+    let sep = if opts.separable_hysteresis {
+        Separable::new(net)
+    } else {
+        None
+    };
+    let np = sep
+        .as_ref()
+        .map_or_else(|| net.n_parameters(), Separable::n_reduced);
     if n < k0 + 2 * np + 2 {
         return Err(LmnError::TooShort {
             needed: k0 + 2 * np + 2,
@@ -1177,10 +1190,21 @@ pub fn refine_output_error_with_observer(
         };
         let lm = oe_solver(iters, opts.tol)?;
         let mut problem = OutputErrorProblem::new(&cur, &mut p, weights.as_deref());
-        match lm.minimize(&mut problem, &cur.parameters(), observer) {
-            Ok(state) => {
-                total_iter += state.iterations;
-                cur.set_parameters(&state.theta);
+        let fitted = match &sep {
+            Some(s) => {
+                let start = s.reduce(&cur.parameters());
+                let mut sp = SeparableProblem::new(&mut problem, s);
+                lm.minimize(&mut sp, &start, observer)
+                    .map(|st| (st.iterations, s.full(&st.theta)))
+            }
+            None => lm
+                .minimize(&mut problem, &cur.parameters(), observer)
+                .map(|st| (st.iterations, st.theta)),
+        };
+        match fitted {
+            Ok((iterations, theta)) => {
+                total_iter += iterations;
+                cur.set_parameters(&theta);
             }
             // the start diverges: the round's first iteration fails
             Err(_) => total_iter += iters.min(1),

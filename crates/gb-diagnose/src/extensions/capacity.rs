@@ -51,10 +51,21 @@ impl Extension for Capacity {
             )
         } else {
             let l = 6 + 2 * s.detail as usize;
+            let d = 1 + s.detail as usize;
+            let cols = match s.hysteresis_on {
+                gb_lmn::HysteresisOn::Both => format!(
+                    "{} play operators and {} relays on the output, up to {} play operators per input",
+                    6 * d,
+                    l * (l + 1) / 2,
+                    8 * d
+                ),
+                gb_lmn::HysteresisOn::Output => format!("{} play operators on the output", 6 * d),
+                gb_lmn::HysteresisOn::Inputs => {
+                    format!("up to {} play operators per input", 8 * d)
+                }
+            };
             format!(
-                "more capacity for the named hysteresis: {} play operators and {} relays on the output, regressor lags {}",
-                6 * (1 + s.detail as usize),
-                l * (l + 1) / 2,
+                "more capacity for the named hysteresis: {cols}, regressor lags {}",
                 s.order
             )
         };

@@ -5,6 +5,16 @@ use crate::evaluate::{Lineage, Residuals};
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, ModelView, Series, ViewData};
+use gb_lmn::HysteresisOn;
+
+/// The hysteresis columns of a candidate, in words.
+fn columns_text(on: HysteresisOn) -> &'static str {
+    match on {
+        HysteresisOn::Both => "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and up to 8 play operators per input (thresholds within its range)",
+        HysteresisOn::Output => "6 play operators on the simulated output alone (a Prandtl-Ishlinskii operator: a hysteretic force on the state that depends on the motion, not on the absolute position)",
+        HysteresisOn::Inputs => "up to 8 play operators per input alone (thresholds within its range: hysteresis before the dynamics)",
+    }
+}
 
 /// Add Preisach-type columns whose weights enter linearly (Hauth 2008,
 /// ch. 3), trained output-error.
@@ -17,31 +27,52 @@ impl Extension for PreisachColumns {
     fn cause(&self) -> Cause {
         Cause::Hysteresis
     }
+    /// At the current order and one more: the full set of columns and the
+    /// output plays alone (a Prandtl–Ishlinskii force on the state), and at
+    /// the current order the input plays alone (hysteresis before the
+    /// dynamics). The one-sided candidates have a fraction of the columns,
+    /// and the output-side weights are trained as one force through one lag
+    /// filter (β[l, i] = c_l wᵢ): on short records a weight per column and
+    /// lag overfits.
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        match ctx.current.lineage.io() {
-            Some(p) if !p.hysteresis => {
-                // a hysteretic force inside continuous dynamics reaches the
-                // sampled output through one lag more than the linear part
-                let max = ctx.policy().max_order;
-                let mut orders = vec![p.order];
-                if p.order < max {
-                    orders.push(p.order + 1);
-                }
-                orders
-                    .into_iter()
-                    .map(|order| Proposal {
-                        cause: Cause::Hysteresis,
-                        lineage: Lineage::Io(gb_lmn::IoNetworkParams {
-                            hysteresis: true,
-                            order,
-                            ..p.clone()
-                        }),
-                        text: format!("Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and 8 play operators per input, at lags 1..{}, weights linear, regressor order {order}, trained output-error", order + 1),
-                    })
-                    .collect()
+        let Some(p) = ctx.current.lineage.io().filter(|p| !p.hysteresis) else {
+            return vec![];
+        };
+        // a hysteretic force inside continuous dynamics reaches the
+        // sampled output through one lag more than the linear part
+        let max = ctx.policy().max_order;
+        let mut variants = vec![];
+        for order in [p.order, p.order + 1] {
+            if order > max {
+                continue;
             }
-            _ => vec![],
+            variants.push((order, HysteresisOn::Both));
+            variants.push((order, HysteresisOn::Output));
+            if order == p.order {
+                variants.push((order, HysteresisOn::Inputs));
+            }
         }
+        variants
+            .into_iter()
+            .map(|(order, on)| Proposal {
+                cause: Cause::Hysteresis,
+                lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                    hysteresis: true,
+                    hysteresis_on: on,
+                    // the output block's many columns as one force
+                    // through one lag filter; the few input plays keep a
+                    // weight per lag
+                    separable_hysteresis: on != HysteresisOn::Inputs,
+                    order,
+                    ..p.clone()
+                }),
+                text: format!(
+                    "{}, at lags 1..{}, weights linear, regressor order {order}, trained output-error",
+                    columns_text(on),
+                    order + 1
+                ),
+            })
+            .collect()
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)
