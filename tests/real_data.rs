@@ -42,8 +42,8 @@ fn check(
     d
 }
 
-/// Bouc-Wen: the hysteretic benchmark must be diagnosed as `hysteresis`
-/// first, and with the default four steps the diagnosis must go on from the
+/// Bouc-Wen: the hysteretic benchmark must be diagnosed as `hysteresis`,
+/// and with the default four steps the diagnosis must go on from the
 /// Preisach extension to the hidden-state model (gb-model) and cut the
 /// baseline error at least fivefold.
 #[test]
@@ -54,18 +54,7 @@ fn bouc_wen_benchmark_is_hysteresis() {
     let train = train.slice(8192..8192 * 3);
     let val = load(dir.join("bouc_wen/test_multisine.csv"));
     let d = check("Bouc-Wen", train, val, "hysteresis", 4);
-    // no static nonlinearity or noise cause; an order increase between the
-    // play model and the hidden-state model is named as `dynamics` since
-    // the one-sided hysteresis candidates (a known labelling fault on this
-    // record, stated in docs/results.md)
-    assert!(
-        d.report
-            .cause_names()
-            .iter()
-            .all(|c| ["hysteresis", "dynamics"].contains(c)),
-        "{:?}",
-        d.report.cause_names()
-    );
+    assert_eq!(d.report.cause_names(), ["hysteresis"]);
     assert_eq!(
         d.model.dynamics.class(),
         "state-space",

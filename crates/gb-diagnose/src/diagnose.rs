@@ -287,7 +287,13 @@ fn iterate(
     let (mut chosen, note) = choose(&mut cands, &ctx, it);
     let new_cause = chosen
         .is_some_and(|i| cands[i].role() == Role::NewCause && !causes.contains(&cands[i].cause()));
-    if !new_cause {
+    // an order increase after a named hysteresis may only stand in for the
+    // hysteresis the simple extension missed: the escalation competes
+    // with it (and must beat it)
+    let order_after_hysteresis = chosen.is_some_and(|i| {
+        new_cause && cands[i].cause() == Cause::Dynamics && causes.contains(&Cause::Hysteresis)
+    });
+    if !new_cause || order_after_hysteresis {
         let escalation = EXTENSIONS
             .iter()
             .filter(|e| e.role() == Role::Escalation && !tried.contains(e.name()))
