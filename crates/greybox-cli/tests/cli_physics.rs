@@ -285,22 +285,7 @@ fn fit_model_file_by_smc_prints_the_posterior() {
     let data = d.join("train.csv");
     msd_csv(&data, 400, 6, 0.02, 0.0);
     let out = d.join("msd.gbm");
-    let o = run(&[
-        "fit",
-        data.to_str().unwrap(),
-        "--model-file",
-        example("msd.toml").to_str().unwrap(),
-        "--method",
-        "smc",
-        "--particles",
-        "100",
-        "--iterations",
-        "400",
-        "--seed",
-        "2",
-        "-o",
-        out.to_str().unwrap(),
-    ]);
+    let o = fit_msd_by_smc(&data, &out, "2");
     let (so, se) = text(&o);
     assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
     let mean_of = |name: &str| -> f64 {
@@ -326,6 +311,27 @@ fn fit_model_file_by_smc_prints_the_posterior() {
         sim.to_str().unwrap(),
     ]);
     assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
+}
+
+/// `greybox fit DATA --model-file msd.toml --method smc` with 100
+/// particles and 400 iterations, saved to `out`.
+fn fit_msd_by_smc(data: &Path, out: &Path, seed: &str) -> Output {
+    run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+        "--method",
+        "smc",
+        "--particles",
+        "100",
+        "--iterations",
+        "400",
+        "--seed",
+        seed,
+        "-o",
+        out.to_str().unwrap(),
+    ])
 }
 
 /// A failing call: exit 2, one line on stderr containing `needle`, no
@@ -691,22 +697,7 @@ fn filter_estimates_the_hidden_velocity_of_a_disturbed_physics_model() {
     disturbed_msd_csv(&train, 400, 41, 0.01, 0.5);
     let [v_true, v_det] = disturbed_msd_csv(&val, 400, 42, 0.01, 0.5);
     let model = d.join("msd.gbm");
-    let o = run(&[
-        "fit",
-        train.to_str().unwrap(),
-        "--model-file",
-        example("msd.toml").to_str().unwrap(),
-        "--method",
-        "smc",
-        "--particles",
-        "100",
-        "--iterations",
-        "400",
-        "--seed",
-        "3",
-        "-o",
-        model.to_str().unwrap(),
-    ]);
+    let o = fit_msd_by_smc(&train, &model, "3");
     let (so, se) = text(&o);
     assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
     assert!(so.contains("process sd [v]"), "{so}");

@@ -377,36 +377,36 @@ const LIMIT_STARTS: [f64; 4] = [0.8, 0.9, 0.95, 0.99];
 fn describe(kind: Kind, at: &Place, var: &str, names: &[String]) -> String {
     let p = |k: usize| names.get(k).map_or("?", String::as_str);
     let lhs = at.label();
-    match (kind, at) {
-        (Kind::Poly, _) => format!(
+    match kind {
+        Kind::Poly => format!(
             "{lhs} += {}·s² + {}·s³, s = {var}/max|{var}| of its simulation",
             p(0),
             p(1)
         ),
-        (Kind::Centred, _) => format!(
+        Kind::Centred => format!(
             "{lhs} += {}·w² + {}·w³, w = ({var} − mid)/half-range of its simulation",
             p(0),
             p(1)
         ),
-        (Kind::Hinge, _) => format!(
+        Kind::Hinge => format!(
             "{lhs} += {}·max({var} − q90, 0) + {}·max(q10 − {var}, 0) at the quantiles of the simulated {var}",
             p(0),
             p(1)
         ),
-        (Kind::Ceiling, _) => format!(
+        Kind::Ceiling => format!(
             "an upper limit {} on {var} ({lhs} = min(law, (limit − {var})/step): an overflow, an end stop)",
             p(0)
         ),
-        (Kind::Floor, _) => format!(
+        Kind::Floor => format!(
             "a lower limit {} on {var} ({lhs} = max(law, (limit − {var})/step): an empty tank, an end stop)",
             p(0)
         ),
-        (Kind::Spill, _) => format!(
+        Kind::Spill => format!(
             "{lhs} += {}·(what the limit of {var} cuts off): the overflow of {var} flows on",
             p(0)
         ),
-        (Kind::Offset, _) => format!("{lhs} += {} (a sensor offset)", p(0)),
-        (Kind::Clip, _) => format!("{lhs} = min(g, {}) (a sensor range)", p(0)),
+        Kind::Offset => format!("{lhs} += {} (a sensor offset)", p(0)),
+        Kind::Clip => format!("{lhs} = min(g, {}) (a sensor range)", p(0)),
     }
 }
 
