@@ -12,7 +12,7 @@ use gb_core::{FittedModel, Init, Observer, Silent};
 use gb_lmn::{FitOptions, LolimotOptions};
 use rayon::prelude::*;
 use std::collections::HashSet;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 /// How the baseline order is chosen.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -337,8 +337,10 @@ fn tried_summary(steps: &[Step]) -> Vec<String> {
 
 /// Run the diagnosis on `d`, reporting progress to `obs`.
 ///
-/// Training records of the policy's `long_record` samples or more are
-/// searched on a subsample of `search_samples`, within `search_budget_s`,
+/// No extension step starts after `search_budget_s` (the report's
+/// decision line says when the budget ended the search). Training records
+/// of the policy's `long_record` samples or more are searched on a
+/// subsample of `search_samples` within that budget,
 /// and the chosen baseline and final structures are refitted on the whole
 /// fit block (see [`DecisionPolicy`]).
 pub fn diagnose(
@@ -354,7 +356,8 @@ pub fn diagnose(
     if opts.physics.is_none() && d.select.end - d.fit.start >= pol.long_record {
         return crate::long::diagnose_long(d, opts, obs);
     }
-    search(d, opts, obs, None)
+    let budget = Duration::from_secs_f64(pol.search_budget_s);
+    search(d, opts, obs, Some(Instant::now() + budget))
 }
 
 /// The diagnosis loop; with a `deadline`, no step starts after it.
@@ -380,6 +383,10 @@ pub(crate) fn search(
     let mut tried = HashSet::new();
     for it in 1..=opts.max_steps {
         if deadline.is_some_and(|t| Instant::now() > t) {
+            choice.decision.push_str(&format!(
+                "; the search budget of {} s ended the search before step {it}",
+                opts.policy.search_budget_s
+            ));
             break;
         }
         obs.progress(
@@ -464,7 +471,7 @@ pub(crate) fn assemble(
             samples_validate: d.report_scored(plan.w).len(),
             split: d.split_text(),
             init_window: plan.w,
-            decision: plan.describe(d),
+            decision: structure.decision.clone(),
         },
         baseline: ModelSummary::of(base),
         structure,

@@ -412,7 +412,7 @@ fn view_table(v: &ModelView) -> Option<String> {
 /// Title, verdict and the gain table.
 fn summary_section(body: &mut String, r: &Report, title: &str) {
     let causes = if r.causes.is_empty() {
-        "none: no extension paid on held-out data".to_string()
+        format!("none: {}", r.no_cause_reason())
     } else {
         r.cause_names().join(", ")
     };

@@ -40,7 +40,7 @@ use crate::DiagnoseError;
 /// | `cv_folds` | 4 | contiguous folds of the cross-validation; each fold is scored by the structure refitted on the longer contiguous rest of the record (no regressor spans a gap), the pooled held-out residuals take the select block's place in every decision rule |
 /// | `long_record` | 100 000 | training records this long are searched on a subsample … |
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
-/// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search (the structure found so far is refitted and reported) |
+/// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search, on every record (`greybox diagnose --budget`); on a long record the structure found so far is refitted and reported |
 /// | `refit_iterations` | 10 | Levenberg–Marquardt iterations of the refit on the whole record (started from the subsample's model) |
 /// | `verdict_level` | 0.01 | overall level of the final residual tests (Bonferroni over the tests): "adequate" only when none rejects; also the level at which the process-noise candidate is proposed (only when these tests say "coloured noise": whiteness rejects, no input test does) |
 /// | `process_noise_rival_gain` | 0.05 | the process-noise candidate is chosen only when no structural candidate of its iteration gains this much on the select block, significant or not: the colour must be explained better by a noise model than by any deterministic extension (a missed hysteresis leaves input-driven colour the correlation tests do not see) |

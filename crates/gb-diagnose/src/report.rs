@@ -200,6 +200,16 @@ impl Report {
         self.causes.iter().map(|c| c.name()).collect()
     }
 
+    /// Why no cause was named: no candidate paid, or none was tried (the
+    /// search budget ended the search first, or no extension applied).
+    pub fn no_cause_reason(&self) -> &'static str {
+        if self.steps.is_empty() {
+            "no extension was tried; see the decisions line"
+        } else {
+            "no extension paid on held-out data"
+        }
+    }
+
     /// The step table and verdict as plain text (what `greybox diagnose`
     /// prints).
     pub fn to_text(&self) -> String {
@@ -254,7 +264,7 @@ impl Report {
             }
         }
         let causes = if r.causes.is_empty() {
-            "none (no extension paid on held-out data)".to_string()
+            format!("none ({})", r.no_cause_reason())
         } else {
             r.cause_names().join(", ")
         };

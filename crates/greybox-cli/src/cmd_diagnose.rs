@@ -71,6 +71,17 @@ fn plain_data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
     }
 }
 
+/// `--budget SECONDS`: the search budget of long records (positive).
+fn set_budget(opts: &mut DiagnoseOptions, budget: Option<f64>) -> Result<()> {
+    if let Some(b) = budget {
+        if !(b.is_finite() && b > 0.0) {
+            return Err(format!("--budget must be a positive number of seconds, got {b}"));
+        }
+        opts.policy.search_budget_s = b;
+    }
+    Ok(())
+}
+
 /// Run the diagnosis, print the report, then write the requested files
 /// (each atomically, only after everything succeeded).
 pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
@@ -83,12 +94,13 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
         return run_outputs(&a, order, quiet);
     }
     let (data, physics) = data(&a)?;
-    let opts = DiagnoseOptions {
+    let mut opts = DiagnoseOptions {
         order,
         max_steps: a.max_steps,
         physics,
         ..defaults
     };
+    set_budget(&mut opts, a.budget)?;
     let bar = Bar::new(quiet, 1 + a.max_steps, "");
     let d = diagnose(&data, &opts, Some(&bar)).map_err(|e| e.to_string())?;
     bar.finish();
@@ -143,11 +155,12 @@ fn run_outputs(a: &DiagnoseArgs, order: OrderChoice, quiet: bool) -> Result<()> 
         .as_ref()
         .map(|v| load_outputs(v, &a.signals))
         .transpose()?;
-    let opts = DiagnoseOptions {
+    let mut opts = DiagnoseOptions {
         order,
         max_steps: a.max_steps,
         ..DiagnoseOptions::default()
     };
+    set_budget(&mut opts, a.budget)?;
     let (mut sections, mut reported, mut parts) = (vec![], vec![], vec![]);
     for (o, tr) in train.into_iter().enumerate() {
         let name = a.signals.outputs[o].clone();

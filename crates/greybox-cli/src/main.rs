@@ -49,7 +49,7 @@ struct Cli {
 enum Command {
     /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
     #[command(
-        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm\n  greybox diagnose train.csv --validate val.csv --model-file examples/models/msd.toml"
+        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm\n  greybox diagnose train.csv --validate val.csv --model-file examples/models/msd.toml\n  greybox diagnose long.csv --budget 120 --save model.gbm\n\nTime: records shorter than 100 000 training samples are searched whole (with fewer than 300 select samples, decisions use 4-fold blocked cross-validation, so every candidate is fitted five times). No extension step starts after the --budget (300 s by default). Longer records are searched on their first 20 000 samples (fit/select 75/25) within it, then the baseline and the final structure are refitted on the whole fit block and every model is scored on the whole select and report blocks. Measured on 2 cores (docs/benchmarks.md, docs/results.md): a median of about 5 s for the generated systems of 600-13 000 samples, 4-240 s for the real benchmarks. A progress bar shows on a terminal (--quiet, or a pipe, hides it)."
     )]
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure (a SPEC of the model registry).
@@ -208,6 +208,9 @@ pub(crate) struct DiagnoseArgs {
     /// Most extension steps (1..=4).
     #[arg(long, default_value_t = 4)]
     pub(crate) max_steps: usize,
+    /// Search budget of a long record in seconds (default 300): no new extension step starts after it; the structure found so far is refitted on the whole record and reported.
+    #[arg(long, value_name = "SECONDS")]
+    pub(crate) budget: Option<f64>,
 }
 
 #[derive(Args)]

@@ -1054,3 +1054,54 @@ fn fit_method_smc_reports_the_posterior_and_warns_on_short_chains() {
         .names
         .contains(&"x2_hi".to_string()));
 }
+
+/// `--budget`: no extension step starts after it, the report says so and
+/// names no cause it did not test; the help states the budget; a bad
+/// budget is one line, exit 2, no file. Without the budget the same data
+/// name their cause (the budget, not the data, stopped the search).
+#[test]
+fn the_search_budget_ends_the_search_and_the_report_says_so() {
+    let s = stdout(&run(&["diagnose", "--help"]));
+    assert!(s.contains("--budget") && s.contains("300 s"), "{s}");
+    let d = tmp("budget");
+    let json = d.join("r.json");
+    let o = run(&[
+        "diagnose",
+        "--example",
+        "duffing",
+        "--budget",
+        "0.000001",
+        "--max-steps",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let text = stdout(&o);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        text.contains("the search budget of 0.000001 s ended the search before step 1"),
+        "{text}"
+    );
+    assert!(text.contains("causes: none (no extension was tried"), "{text}");
+    let r = std::fs::read_to_string(&json).unwrap();
+    assert!(r.contains("ended the search before step 1"), "{r}");
+    let o = run(&["diagnose", "--example", "duffing", "--max-steps", "1"]);
+    let text = stdout(&o);
+    assert!(text.contains("causes: nonlinearity"), "{text}");
+    assert!(!text.contains("search budget"), "{text}");
+    let out = d.join("m.gbm");
+    for bad in ["0", "nan", "-1"] {
+        assert_bad(
+            &[
+                "diagnose",
+                "--example",
+                "duffing",
+                &format!("--budget={bad}"),
+                "--save",
+                out.to_str().unwrap(),
+            ],
+            "--budget must be a positive number of seconds",
+            &out,
+        );
+    }
+}
