@@ -20,6 +20,9 @@ pub enum Lineage {
         order: usize,
         /// Whether it has a hysteretic part.
         hysteresis: bool,
+        /// 0: as the escalation fits it; 1: refined (finer sub-steps and
+        /// wavelet levels, more data).
+        detail: u8,
     },
     /// A model of another class (a nonlinear extension's: polynomial,
     /// block-oriented, tree or Wiener–Hammerstein network); the
@@ -50,11 +53,18 @@ impl Lineage {
                 }
                 s
             }
-            Lineage::HiddenState { hysteresis, .. } => {
-                if *hysteresis {
-                    "state-space+hysteresis".into()
+            Lineage::HiddenState {
+                hysteresis, detail, ..
+            } => {
+                let s = if *hysteresis {
+                    "state-space+hysteresis"
                 } else {
-                    "state-space".into()
+                    "state-space"
+                };
+                if *detail > 0 {
+                    format!("{s} (detail {detail})")
+                } else {
+                    s.into()
                 }
             }
             Lineage::Other { spec, .. } => spec.clone(),

@@ -6,8 +6,8 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, Hammerstein, HiddenState, LinearOrder, Lolimot, PhysicsTerms, PolyNoe,
-    PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
+    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot, PhysicsTerms,
+    PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -189,6 +189,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &ProcessNoise,
     &PhysicsTerms,
     &HiddenState,
+    &HiddenStateDetail,
 ];
 
 /// The extension that introduces `cause` as a new cause (for its evidence

@@ -79,6 +79,48 @@ fn mechanical(inputs: &[Vec<f64>], y: &[f64], names: &[String]) -> Option<Sparse
     best.map(|(m, _)| m)
 }
 
+/// A finer fit of a hidden-state model `current` found by
+/// [`fit_hidden_state`] (more capacity for the cause it answered):
+///
+/// * the mechanical structure (`hysteresis`, one input, 3 states): fitted
+///   again from its linear start with 8 sub-steps per sample (the symplectic
+///   Euler step of a lightly damped resonance is accurate to a few 10⁻⁶ of
+///   the response only on a finer grid) and wavelet levels 1–4, up to 40
+///   new coefficients per level, 40 Levenberg–Marquardt iterations per
+///   stage;
+/// * otherwise `current` refined from its own coefficients with one more
+///   wavelet level (1–4).
+///
+/// Errors when the fit fails; the caller judges the result on held-out
+/// data.
+pub fn refine_hidden_state(
+    current: &SparseStateSpace,
+    inputs: &[Vec<f64>],
+    y: &[f64],
+    hysteresis: bool,
+) -> ModelResult<SparseStateSpace> {
+    let silent = crate::Silent;
+    if hysteresis && inputs.len() == 1 && current.n_states == 3 {
+        let (mut s0, _) = crate::hysteretic_mechanical_start(&inputs[0], y, 0..y.len(), 1.0, 8)?;
+        s0.signal_names = current.signal_names.clone();
+        let (m, _) = OeParams::new()
+            .max_iter(40)
+            .coarse_level(1)
+            .max_level(4)
+            .max_new(40)
+            .check()?
+            .fit(s0, inputs, y, &silent)?;
+        return Ok(m);
+    }
+    let (m, _) = OeParams::new().coarse_level(1).max_level(4).check()?.fit(
+        current.clone(),
+        inputs,
+        y,
+        &silent,
+    )?;
+    Ok(m)
+}
+
 use gb_core::{CoreError, FittedModel, ModelSpec, NoiseModel, Observer, Options, Record, Records};
 
 /// What a recipe fitted, with lines worth printing.

@@ -75,7 +75,9 @@ fn plain_data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
 fn set_budget(opts: &mut DiagnoseOptions, budget: Option<f64>) -> Result<()> {
     if let Some(b) = budget {
         if !(b.is_finite() && b > 0.0) {
-            return Err(format!("--budget must be a positive number of seconds, got {b}"));
+            return Err(format!(
+                "--budget must be a positive number of seconds, got {b}"
+            ));
         }
         opts.policy.search_budget_s = b;
     }

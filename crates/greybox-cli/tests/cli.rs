@@ -1082,7 +1082,10 @@ fn the_search_budget_ends_the_search_and_the_report_says_so() {
         text.contains("the search budget of 0.000001 s ended the search before step 1"),
         "{text}"
     );
-    assert!(text.contains("causes: none (no extension was tried"), "{text}");
+    assert!(
+        text.contains("causes: none (no extension was tried"),
+        "{text}"
+    );
     let r = std::fs::read_to_string(&json).unwrap();
     assert!(r.contains("ended the search before step 1"), "{r}");
     let o = run(&["diagnose", "--example", "duffing", "--max-steps", "1"]);

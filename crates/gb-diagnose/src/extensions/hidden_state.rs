@@ -37,14 +37,22 @@ impl Extension for HiddenState {
         if ctx.named(Cause::Hysteresis) && p.hysteresis {
             return vec![Proposal {
                 cause: Cause::Hysteresis,
-                lineage: Lineage::HiddenState { order: p.order, hysteresis: true },
+                lineage: Lineage::HiddenState {
+                    order: p.order,
+                    hysteresis: true,
+                    detail: 0,
+                },
                 text: "hidden-state model (gb-model): a hidden hysteretic state with a sparse wavelet law (mechanical structure with restoring force z, ż = f(v, z), when the linear model oscillates; else hidden states with f(x₁, u₁) and a Preisach component with a wavelet Everett function), trained output-error".into(),
             }];
         }
         if ctx.named(Cause::Dynamics) {
             return vec![Proposal {
                 cause: Cause::Dynamics,
-                lineage: Lineage::HiddenState { order: p.order, hysteresis: p.hysteresis },
+                lineage: Lineage::HiddenState {
+                    order: p.order,
+                    hysteresis: p.hysteresis,
+                    detail: 0,
+                },
                 text: format!(
                     "hidden-state model (gb-model): {} hidden states with a sparse wavelet term f(x₁, u₁), trained output-error",
                     p.order
@@ -57,7 +65,10 @@ impl Extension for HiddenState {
     /// block (its output-error fit is the costliest; the select block judges
     /// it as usual).
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        let Lineage::HiddenState { order, hysteresis } = p.lineage else {
+        let Lineage::HiddenState {
+            order, hysteresis, ..
+        } = p.lineage
+        else {
             return Err(DiagnoseError::InvalidArgument(
                 "not a hidden-state proposal".into(),
             ));

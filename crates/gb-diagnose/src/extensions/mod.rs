@@ -2,6 +2,7 @@
 mod capacity;
 mod hammerstein;
 mod hidden_state;
+mod hidden_state_detail;
 mod kalman;
 mod lolimot;
 mod order;
@@ -16,6 +17,7 @@ mod wiener_hammerstein;
 pub use capacity::Capacity;
 pub use hammerstein::Hammerstein;
 pub use hidden_state::HiddenState;
+pub use hidden_state_detail::HiddenStateDetail;
 pub use lolimot::Lolimot;
 pub use order::LinearOrder;
 pub use physics_terms::PhysicsTerms;
