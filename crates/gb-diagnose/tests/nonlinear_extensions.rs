@@ -32,3 +32,28 @@ fn a_generated_hammerstein_system_is_named_and_reaches_the_floor() {
         out.steps
     );
 }
+
+/// `saturation` seed 6: a hard saturation dominates the response, the
+/// linear baseline's delay scan lands five samples late (nk 6), and the
+/// Hammerstein candidates at that delay and one sample either side stay
+/// 2.3× above the floor; the candidate at the plain one-sample delay
+/// reaches it.
+#[test]
+fn a_saturation_whose_linear_delay_is_far_off_reaches_the_floor() {
+    let c = draw("saturation", 6).unwrap();
+    let out = run_diagnosis(&c, OrderMode::Case).unwrap();
+    let ratio = out.final_nrmse / c.noise_floor_nrmse;
+    assert!(
+        c.causes_right(&out.causes),
+        "{}: named {:?}, steps {:?}",
+        c.description,
+        out.causes,
+        out.steps
+    );
+    assert!(
+        ratio <= 1.5,
+        "{}: final/floor {ratio:.2}, steps {:?}",
+        c.description,
+        out.steps
+    );
+}

@@ -10,7 +10,8 @@ use gb_core::FittedModel;
 /// Static maps of the inputs (cubic spline or piecewise linear, knots at
 /// quantiles, the structure chosen on a hold-out of the fit block) before
 /// the current linear dynamics, trained output-error, with the current
-/// input delay and the delays one sample either side ([`delay_variants`]).
+/// input delay, the delays one sample either side and the plain one-sample
+/// delay when the baseline's is further from it ([`delay_variants`]).
 /// With several inputs: one candidate per input (only that path nonlinear,
 /// the current delay) and the every-input candidates.
 pub struct Hammerstein;

@@ -55,10 +55,14 @@ pub(crate) fn plain_linear_structure(ctx: &Context) -> Option<(usize, String)> {
     Some(io_structure(p, ctx.fit.n_inputs()))
 }
 
-/// The delay list `d` (`a/b`, one per input) and the same list shifted by
-/// one sample either way (every input together; no negative delay): the
-/// block-oriented candidates re-check the baseline's delay, which a linear
-/// fit can misjudge when the nonlinearity dominates the response.
+/// The delay list `d` (`a/b`, one per input), the same list shifted by
+/// one sample either way (every input together; no negative delay), and
+/// the plain delay of one sample on every input when the list is further
+/// from it: the block-oriented candidates re-check the baseline's delay,
+/// which a linear fit can misjudge when the nonlinearity dominates the
+/// response — by more than a sample when the linear model explains little
+/// (a hard saturation), and the one-sample delay is the structure the
+/// baseline's scan always weighs too.
 pub(crate) fn delay_variants(d: &str) -> Vec<String> {
     let parsed: Option<Vec<usize>> = d.split('/').map(|v| v.parse().ok()).collect();
     let Some(v) = parsed else {
@@ -75,6 +79,10 @@ pub(crate) fn delay_variants(d: &str) -> Vec<String> {
         out.push(join(v.iter().map(|x| x - 1).collect()));
     }
     out.push(join(v.iter().map(|x| x + 1).collect()));
+    let plain = join(vec![1; v.len()]);
+    if !out.contains(&plain) {
+        out.push(plain);
+    }
     out
 }
 
@@ -114,4 +122,19 @@ pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, 
         },
     )?;
     io_model(net, ctx.fit)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::delay_variants;
+
+    #[test]
+    fn the_delay_variants_are_the_delay_its_neighbours_and_the_plain_delay() {
+        assert_eq!(delay_variants("1"), vec!["1", "0", "2"]);
+        assert_eq!(delay_variants("0"), vec!["0", "1"]);
+        assert_eq!(delay_variants("2"), vec!["2", "1", "3"]);
+        assert_eq!(delay_variants("6"), vec!["6", "5", "7", "1"]);
+        assert_eq!(delay_variants("4/0"), vec!["4/0", "5/1", "1/1"]);
+        assert_eq!(delay_variants("x"), vec!["x"]);
+    }
 }
