@@ -875,7 +875,7 @@ pub fn run(o: &BenchOptions) -> Result<usize, String> {
         } else {
             all.iter().map(|b| b.title).collect()
         };
-        write_results(p, &table, &keep)?;
+        write_results(p, &table, &keep, o.blind_only)?;
         println!("results written to {}", p.display());
     }
     Ok(n_run)
@@ -955,6 +955,52 @@ fn row_title(line: &str) -> Option<&str> {
     }
 }
 
+/// `new` (a `--blind-only` table) with the hand-built cells of `old` (a
+/// previous generated block): a row's fifth cell "—" takes the old row's
+/// cell of the same benchmark and test set, and a model line without a
+/// hand-built note takes the old line's note, marked with the date it was
+/// measured on when the old block says so.
+fn keep_recipes(old: &str, new: &str) -> String {
+    let cells = |l: &str| -> Vec<String> {
+        l.trim()
+            .trim_matches('|')
+            .split(" | ")
+            .map(|c| c.trim().to_string())
+            .collect()
+    };
+    let old_rows: Vec<Vec<String>> = old
+        .lines()
+        .filter(|l| l.starts_with("| ") && !l.starts_with("| benchmark |"))
+        .map(cells)
+        .collect();
+    const NOTE: &str = "; hand-built recipe: ";
+    let mut out = String::new();
+    for line in new.lines() {
+        let mut l = line.to_string();
+        if line.starts_with("| ") && !line.starts_with("| benchmark |") {
+            let mut c = cells(line);
+            let same = old_rows
+                .iter()
+                .find(|o| o.len() == c.len() && o.len() > 4 && o[0] == c[0] && o[1] == c[1]);
+            if let Some(o) = same.filter(|_| c.len() > 4 && c[4] == "—") {
+                c[4] = format!("{} (earlier run)", o[4].trim_end_matches(" (earlier run)"));
+                l = format!("| {} |", c.join(" | "));
+            }
+        } else if let Some(t) = row_title(line).filter(|_| line.starts_with("- ")) {
+            let note = old
+                .lines()
+                .filter(|o| o.starts_with("- ") && row_title(o) == Some(t))
+                .find_map(|o| o.find(NOTE).map(|i| &o[i..]));
+            if let (false, Some(n)) = (line.contains(NOTE), note) {
+                l.push_str(n);
+            }
+        }
+        out.push_str(&l);
+        out.push('\n');
+    }
+    out
+}
+
 /// The table of `new` with the rows and model lines of `old` (a previous
 /// generated block) added for the benchmarks `new` lacks, in the order of
 /// `titles`.
@@ -1002,17 +1048,28 @@ fn merge_tables(old: &str, new: &str, titles: &[&str]) -> String {
 
 /// Replace the generated block of `path` (between the markers) by `table`,
 /// or append a section with it. With `keep` (the titles of all benchmarks,
-/// in order) the rows of benchmarks that `table` lacks are kept.
-fn write_results(path: &Path, table: &str, keep: &[&str]) -> Result<(), String> {
+/// in order) the rows of benchmarks that `table` lacks are kept; with
+/// `recipes_from_old` (a `--blind-only` run) the hand-built cells and model
+/// notes of the previous block stay in the rows that were run again.
+fn write_results(
+    path: &Path,
+    table: &str,
+    keep: &[&str],
+    recipes_from_old: bool,
+) -> Result<(), String> {
     let old = std::fs::read_to_string(path).unwrap_or_default();
-    let merged;
-    let table = match (keep.is_empty(), old.find(BEGIN), old.find(END)) {
-        (false, Some(a), Some(b)) if b > a => {
-            merged = merge_tables(&old[a..b], table, keep);
-            merged.as_str()
-        }
-        _ => table,
+    let old_block = match (old.find(BEGIN), old.find(END)) {
+        (Some(a), Some(b)) if b > a => Some(&old[a..b]),
+        _ => None,
     };
+    let mut table = table.to_string();
+    if let (true, Some(ob)) = (recipes_from_old, old_block) {
+        table = keep_recipes(ob, &table);
+    }
+    if let (false, Some(ob)) = (keep.is_empty(), old_block) {
+        table = merge_tables(ob, &table, keep);
+    }
+    let table = table.as_str();
     let date = std::process::Command::new("date")
         .arg("-u")
         .arg("+%Y-%m-%d")
@@ -1038,6 +1095,31 @@ fn write_results(path: &Path, table: &str, keep: &[&str]) -> Result<(), String> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn blind_only_runs_keep_the_hand_built_cells() {
+        let old = "| benchmark | test | ours | t | hand | lin |\n|---|\n| A | t1 | 1 | 2 s | 0.5 | 9 |\n| A | t2 | 3 | 2 s | 0.7 | 9 |\n\nModels and fit times:\n\n- A: diagnose chose x, 2 s; hand-built recipe: r, 5 s\n";
+        let new = "| benchmark | test | ours | t | hand | lin |\n|---|\n| A | t1 | 0.9 | 1 s | — | 9 |\n| A | t2 | 2 | 1 s | — | 9 |\n| B | t1 | 4 | 1 s | — | 8 |\n\nModels and fit times:\n\n- A: diagnose chose y, 1 s\n- B: diagnose chose z, 1 s\n";
+        let m = keep_recipes(old, new);
+        assert!(
+            m.contains("| A | t1 | 0.9 | 1 s | 0.5 (earlier run) | 9 |"),
+            "{m}"
+        );
+        assert!(
+            m.contains("| A | t2 | 2 | 1 s | 0.7 (earlier run) | 9 |"),
+            "{m}"
+        );
+        assert!(m.contains("| B | t1 | 4 | 1 s | — | 8 |"), "{m}");
+        assert!(
+            m.contains("- A: diagnose chose y, 1 s; hand-built recipe: r, 5 s"),
+            "{m}"
+        );
+        assert!(m.contains("- B: diagnose chose z, 1 s\n"), "{m}");
+        // a second blind run does not stack the marks
+        let again = keep_recipes(&m, new);
+        assert!(again.contains("| 0.5 (earlier run) |"), "{again}");
+        assert!(!again.contains("(earlier run) (earlier run)"), "{again}");
+    }
 
     #[test]
     fn only_runs_keep_the_other_rows() {

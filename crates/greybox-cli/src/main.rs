@@ -98,7 +98,7 @@ pub(crate) struct BenchArgs {
     /// Small subsets and one diagnosis step: minutes, for CI; not comparable with published numbers.
     #[arg(long)]
     pub(crate) quick: bool,
-    /// Only the blind diagnosis: the hand-built recipes are not fitted (their column shows —).
+    /// Only the blind diagnosis: the hand-built recipes are not fitted (their column shows —; with --results the cells of the earlier run stay, marked "(earlier run)").
     #[arg(long)]
     pub(crate) blind_only: bool,
     /// Markdown file whose generated results block is replaced (default: docs/results.md for a full run, none for --quick); with --only, the rows of the other benchmarks stay.
