@@ -108,6 +108,14 @@ impl ModelSpec {
         }
     }
 
+    /// The raw value of option `key`, if given.
+    pub fn option(&self, key: &str) -> Option<&str> {
+        self.options
+            .iter()
+            .find(|(k, _)| k == key)
+            .map(|(_, v)| v.as_str())
+    }
+
     /// Typed access to the options, which records what was read.
     pub fn options(&self) -> Options {
         Options {

@@ -456,11 +456,15 @@ fn pick_delay(c: &[(usize, f64, usize)], tolerance: f64) -> Option<usize> {
 }
 
 /// The orders `--order auto` tries, in stages: the policy's `auto_orders`,
-/// then 8, 10, 12, then 16, 20, 24, 30 (up to `max_order`), a stage only
-/// when the best order so far is one of the two highest tried.
+/// then 8, 10, 12, then 16, 20, 24, 30 (every stage up to `max_order`), a
+/// stage only when the best order so far is one of the two highest tried.
 fn ladder(opts: &DiagnoseOptions) -> Vec<Vec<usize>> {
     let pol = &opts.policy;
-    let first: Vec<usize> = pol.auto_orders.clone().collect();
+    let first: Vec<usize> = pol
+        .auto_orders
+        .clone()
+        .filter(|&n| n <= pol.max_order)
+        .collect();
     let top = first.iter().copied().max().unwrap_or(0);
     let mut stages = vec![first];
     for s in [&[8usize, 10, 12][..], &[16, 20, 24, 30][..]] {

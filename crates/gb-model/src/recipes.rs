@@ -334,7 +334,8 @@ fn fit_io_network(
     wrap(d, Box::new(net), noise, vec![])
 }
 
-const TREE_KEYS: [&str; 11] = [
+/// Options of `lmn` that select the tree network (as do several records).
+pub const TREE_KEYS: [&str; 11] = [
     "weights",
     "splits",
     "prune",

@@ -223,7 +223,7 @@ pub(crate) struct FitArgs {
     /// Your own equations: a TOML model file (states, parameters, equations, outputs; see docs/physics.md), fitted with standard errors and 95 % intervals.
     #[arg(long, value_name = "FILE.toml", conflicts_with = "model")]
     pub(crate) model_file: Option<PathBuf>,
-    /// Dynamic order n (the option order=N of the SPEC), or `auto`: order and input delay chosen on the training data as `diagnose --order auto` chooses its baseline's.
+    /// Dynamic order n (the option order=N of the SPEC), or `auto`: order and input delay chosen on the training data as `diagnose --order auto` chooses its baseline's. Default: `auto` when neither this flag nor order= in the SPEC is given (for recipes with an order option).
     #[arg(long, value_name = "N|auto")]
     pub(crate) order: Option<String>,
     #[command(flatten)]
