@@ -88,14 +88,7 @@ impl Extension for HiddenState {
             hysteresis,
             names,
         )?;
-        let sim = ss.simulate(&sub.inputs)?;
-        let res: Vec<f64> = sub.output.iter().zip(&sim).map(|(a, b)| a - b).collect();
-        Ok(FittedModel::new(
-            sub.input_names.clone(),
-            vec![sub.output_name.clone()],
-            Box::new(ss),
-            NoiseModel::gaussian(&res),
-        )?)
+        state_space_model(ss, &sub)
     }
     fn evidence(&self, p: &Proposal, ctx: &Context) -> String {
         let ev = ctx.evidence;
@@ -107,4 +100,20 @@ impl Extension for HiddenState {
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
         format!("{} -> {}", p.text, fitted.dynamics.describe())
     }
+}
+
+/// The fitted model of a hidden-state model `ss` fitted on `rec`, with the
+/// Gaussian noise model of its free-run residual there.
+pub(crate) fn state_space_model(
+    ss: gb_model::SparseStateSpace,
+    rec: &gb_core::Record,
+) -> Result<FittedModel, DiagnoseError> {
+    let sim = ss.simulate(&rec.inputs)?;
+    let res: Vec<f64> = rec.output.iter().zip(&sim).map(|(a, b)| a - b).collect();
+    Ok(FittedModel::new(
+        rec.input_names.clone(),
+        vec![rec.output_name.clone()],
+        Box::new(ss),
+        NoiseModel::gaussian(&res),
+    )?)
 }

@@ -3,7 +3,7 @@
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal, Role};
 use crate::{Cause, DiagnoseError};
-use gb_core::{FittedModel, NoiseModel};
+use gb_core::FittedModel;
 
 /// The hidden-state model of the escalation fitted again with more
 /// capacity (`gb_model::recipes::refine_hidden_state`: the mechanical
@@ -73,14 +73,7 @@ impl Extension for HiddenStateDetail {
         let sub = ctx.fit.slice(0..n);
         let ss =
             gb_model::recipes::refine_hidden_state(current, &sub.inputs, &sub.output, hysteresis)?;
-        let sim = ss.simulate(&sub.inputs)?;
-        let res: Vec<f64> = sub.output.iter().zip(&sim).map(|(a, b)| a - b).collect();
-        Ok(FittedModel::new(
-            sub.input_names.clone(),
-            vec![sub.output_name.clone()],
-            Box::new(ss),
-            NoiseModel::gaussian(&res),
-        )?)
+        super::hidden_state::state_space_model(ss, &sub)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         let ev = ctx.evidence;
