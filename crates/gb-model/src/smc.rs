@@ -16,7 +16,7 @@ use crate::error::{ModelError, Result};
 use crate::identify::{get_params, layout, set_params, IdentificationPath, Param};
 use crate::model::{NoiseModel, SimScratch, SparseStateSpace};
 use gb_core::{Observer, SubTask};
-use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig};
+use gb_smc::estimation::{ParametricModel, ParticleChoice, ParticleTuning, Pmmh, PmmhConfig};
 use gb_smc::noise::Noise;
 use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel, TransitionDensity};
 use serde::{Deserialize, Serialize};
@@ -256,6 +256,57 @@ pub struct SmcParams {
     pub measurement_fraction: f64,
     /// Seed.
     pub seed: u64,
+    /// Also sample the free entries of `A` and `B` (flat prior), so that
+    /// the noise scales' intervals take their uncertainty into account
+    /// (otherwise they stay at the output-error estimate).
+    #[serde(default)]
+    pub sample_linear: bool,
+    /// The tuned sampler when set (`None`: the fixed one): the particle
+    /// number chosen at mid-burn-in so that the standard deviation of
+    /// `log p̂` is about 1.2 (Pitt et al. 2012; Doucet et al. 2015), between
+    /// `particles` and this bound, and the proposal covariance adapted on
+    /// the second half of burn-in only, then frozen ([`tuned_schedule`]).
+    #[serde(default)]
+    pub max_particles: Option<usize>,
+}
+
+/// The PMMH schedule of the tuned sampler, with burn-in `B`:
+///
+/// * iterations `B/5 … B/2`: adaptive random walk `(2.38²/d) Σ̂` on the
+///   chain so far (it leaves the start quickly);
+/// * after iteration `B/2`: `N` chosen by [`gb_smc::estimation::ParticleTuning`]
+///   (target sd of `log p̂` 1.2, `N ∈ [particles, max_particles]`), and `Σ̂`
+///   restarted, so that the transient from the start does not inflate it;
+/// * up to iteration `B`: `Σ̂` from the draws since `B/2` (once it holds
+///   `max(20 d, 100)`), and from `B/5` on a global scale `λ` of the
+///   proposal adapted towards an acceptance rate of 0.2 (`λ ∈ [1/3, 3]`);
+/// * after `B`: proposal and `N` frozen — the kept draws are an ordinary
+///   (pseudo-marginal) Metropolis–Hastings chain.
+///
+/// Without `max_particles` the fixed schedule: `N = particles` and the
+/// proposal adapted from `max(iterations/3, 50)` on, to the end.
+/// Acceptance rate the tuned sampler's proposal scale aims at during
+/// burn-in: near the optimum of a pseudo-marginal random walk whose
+/// log-likelihood noise has sd ≈ 1.2 (Sherlock, Thiery, Roberts &
+/// Rosenthal 2015 find 7–15 % in high dimension; low dimensions accept more).
+const TARGET_ACCEPTANCE: f64 = 0.2;
+
+pub(crate) fn tuned_schedule(cfg: &mut PmmhConfig, p: &SmcParams) {
+    let b = p.burn_in;
+    match p.max_particles {
+        Some(max) => {
+            cfg.adapt_start = b / 5;
+            cfg.adapt_restart = Some(b / 2);
+            cfg.adapt_end = Some(b);
+            cfg.target_acceptance = Some(TARGET_ACCEPTANCE);
+            cfg.particle_tuning = Some(ParticleTuning::new(
+                b / 2,
+                p.particles,
+                max.max(p.particles),
+            ));
+        }
+        None => cfg.adapt_start = (p.iterations / 3).max(50),
+    }
 }
 
 impl Default for SmcParams {
@@ -270,6 +321,8 @@ impl Default for SmcParams {
             process_fraction: 0.05,
             measurement_fraction: 1.0,
             seed: 1,
+            sample_linear: false,
+            max_particles: None,
         }
     }
 }
@@ -327,6 +380,17 @@ impl SmcParams {
         self.seed = s;
         self
     }
+    /// Samples the free entries of `A` and `B` too.
+    pub fn sample_linear(mut self, yes: bool) -> Self {
+        self.sample_linear = yes;
+        self
+    }
+    /// The tuned sampler (see [`SmcParams::max_particles`]): the particle
+    /// number chosen in burn-in, at most `max_particles`.
+    pub fn tuned(mut self, max_particles: usize) -> Self {
+        self.max_particles = Some(max_particles);
+        self
+    }
     /// Validates the options once.
     pub fn check(self) -> Result<Smc> {
         if self.particles == 0 || self.iterations == 0 || self.burn_in >= self.iterations {
@@ -367,6 +431,13 @@ pub struct SmcReport {
     /// scales, the sampled coefficients), from the draws after burn-in.
     #[serde(default)]
     pub parameters: Vec<PosteriorParameter>,
+    /// Particles of the filter after burn-in.
+    #[serde(default)]
+    pub particles: usize,
+    /// The particle choice of the tuned sampler (standard deviations of
+    /// `log p̂` before and after).
+    #[serde(default)]
+    pub particle_choice: Option<ParticleChoice>,
 }
 
 /// Posterior summary of one sampled quantity, with its chain diagnostics.
@@ -465,11 +536,18 @@ impl Problem<'_> {
             "measurement_scale".into(),
             &draws(1, self.meas_scale),
         ));
-        for k in 0..self.cols.len() {
-            out.push(posterior_parameter(
-                format!("coef[{}]", k + 1),
-                &draws(2 + k, 1.0),
-            ));
+        let n = self.base.n_states;
+        let mut k = 0;
+        for (j, c) in self.cols.iter().enumerate() {
+            let name = match c {
+                Param::A(i) => format!("A[{},{}]", i / n + 1, i % n + 1),
+                Param::B(i) => format!("B[{}]", i + 1),
+                _ => {
+                    k += 1;
+                    format!("coef[{k}]")
+                }
+            };
+            out.push(posterior_parameter(name, &draws(2 + j, 1.0)));
         }
         out
     }
@@ -595,12 +673,23 @@ impl Smc {
             .collect();
         coef.sort_by(|a, b| b.0.total_cmp(&a.0));
         coef.truncate(p.coefficients);
-        let cols: Vec<Param> = coef.iter().map(|c| c.1).collect();
         let mean_abs = coef.iter().map(|c| c.0).sum::<f64>() / coef.len().max(1) as f64;
+        // the free entries of A and B (flat prior: an infinite Laplace width), then the coefficients
+        let mut cols: Vec<Param> = if p.sample_linear {
+            all.iter()
+                .copied()
+                .filter(|c| matches!(c, Param::A(..) | Param::B(..)))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let mut laplace = vec![f64::INFINITY; cols.len()];
+        laplace.resize(cols.len() + coef.len(), mean_abs.max(1e-12));
+        cols.extend(coef.iter().map(|c| c.1));
         let hyst = oe.hysteresis_outputs(inputs)?;
         let problem = Problem {
             base: oe.clone(),
-            laplace: vec![mean_abs.max(1e-12); cols.len()],
+            laplace,
             cols,
             inputs,
             hyst: &hyst,
@@ -615,12 +704,16 @@ impl Smc {
         step.extend(
             theta0[2..]
                 .iter()
-                .map(|c| 0.01 * c.abs().max(mean_abs * 0.1)),
+                .zip(&problem.laplace)
+                .map(|(c, b)| match b.is_finite() {
+                    true => 0.01 * c.abs().max(mean_abs * 0.1),
+                    false => 0.005 * c.abs().max(0.1),
+                }),
         );
         let mut cfg = PmmhConfig::new(p.particles, p.iterations, step);
         cfg.burn_in = p.burn_in;
         cfg.seed = p.seed;
-        cfg.adapt_start = (p.iterations / 3).max(50);
+        tuned_schedule(&mut cfg, p);
         let observations = Observations::new(y);
         let total = p.iterations;
         // PMMH reports its iterations into 0..total of total + 1 steps
@@ -661,6 +754,8 @@ impl Smc {
                 posterior_mean: mean,
                 posterior_sd: sd,
                 parameters,
+                particles: res.n_particles,
+                particle_choice: res.particle_choice,
             },
         ))
     }

@@ -13,7 +13,15 @@
 //!   with the particle estimate `p̂_θ(y)` in place of the likelihood; because
 //!   `p̂` is unbiased the chain targets the exact posterior `p(θ | y)`. Proposals
 //!   are Gaussian random walks, adapted after `adapt_start` iterations to
-//!   `(2.38² / d) (Σ̂ + εI)` with `Σ̂` the running covariance of the chain (Haario et al. 2001).
+//!   `(2.38² / d) (Σ̂ + εI)` with `Σ̂` the running covariance of the chain (Haario et al. 2001);
+//!   optionally `Σ̂` forgets the draws before `adapt_restart` (the transient from
+//!   the start) and the proposal is frozen after `adapt_end` (adaptive burn-in,
+//!   then a plain Metropolis–Hastings chain). The particle number can be chosen
+//!   during burn-in by the rule of Pitt, Silva, Giordani & Kohn (2012) and
+//!   Doucet, Pitt, Deligiannidis & Kohn (2015): `N` such that the standard
+//!   deviation of `log p̂_θ(y)` at a central `θ` is about 1.2
+//!   ([`ParticleTuning`]). With too few particles the estimate of the current
+//!   point is sometimes far too high and the chain sticks there.
 //! * **IF2** (Ionides et al. 2015): a particle filter on the extended state
 //!   `(x_t, θ_t)` with `θ_t = θ_{t-1} + σ_m ε_t`, repeated with random-walk
 //!   scales `σ_m = σ_0 c^m` shrinking geometrically; the swarm of `θ` converges to the MLE.
@@ -77,6 +85,77 @@ pub struct PmmhConfig {
     pub resampling: Resampling,
     /// Kind of the inner filter.
     pub kind: FilterKind,
+    /// Iteration from which the running covariance `Σ̂` starts afresh (the
+    /// draws before it, a transient from the start, are forgotten); `None`:
+    /// the whole chain.
+    #[serde(default)]
+    pub adapt_restart: Option<usize>,
+    /// Last iteration whose proposal is adapted; later the proposal is
+    /// frozen (`None`: adapted to the end). Freezing at the end of burn-in
+    /// makes the kept draws an ordinary Metropolis–Hastings chain.
+    #[serde(default)]
+    pub adapt_end: Option<usize>,
+    /// Choice of the particle number during burn-in (`None`: `n_particles` throughout).
+    #[serde(default)]
+    pub particle_tuning: Option<ParticleTuning>,
+    /// Target acceptance rate of the global proposal scale, adapted from
+    /// `adapt_start` to `adapt_end` (`None`: scale `2.38²/d` only).
+    #[serde(default)]
+    pub target_acceptance: Option<f64>,
+}
+
+/// The particle number by the rule of Pitt et al. (2012) and Doucet et al.
+/// (2015): after iteration `at`, `runs` filters at the current `θ` with the
+/// current `N₀` estimate the standard deviation `s₀` of `log p̂_θ(y)`; since
+/// `Var(log p̂) ≈ c / N`, the chain continues with
+///
+/// ```text
+/// N = clamp(⌈N₀ (s₀ / target_sd)²⌉, min_particles, max_particles)
+/// ```
+///
+/// and a fresh estimate `log p̂` of the current point at `N` (the old one may
+/// be one of the lucky overestimates that make a chain stick). Doucet et al.
+/// find the computing time per effective draw smallest near `s ≈ 1.2`
+/// (1.0–1.7). `at` should lie inside burn-in, after the transient from the
+/// start: far from the posterior the filter's variance is much larger.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ParticleTuning {
+    /// Iteration after which `N` is chosen.
+    pub at: usize,
+    /// Filter runs for the standard deviation (≥ 3).
+    pub runs: usize,
+    /// Target standard deviation of `log p̂`.
+    pub target_sd: f64,
+    /// Smallest `N`.
+    pub min_particles: usize,
+    /// Largest `N`.
+    pub max_particles: usize,
+}
+
+impl ParticleTuning {
+    /// Target sd 1.2 from 10 runs after iteration `at`, `N` in `[min, max]`.
+    pub fn new(at: usize, min_particles: usize, max_particles: usize) -> Self {
+        Self {
+            at,
+            runs: 10,
+            target_sd: 1.2,
+            min_particles,
+            max_particles,
+        }
+    }
+}
+
+/// What [`ParticleTuning`] measured and chose.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ParticleChoice {
+    /// Particles before the choice.
+    pub before: usize,
+    /// Standard deviation of `log p̂` with `before` particles.
+    pub sd_before: f64,
+    /// Particles chosen.
+    pub chosen: usize,
+    /// Standard deviation of `log p̂` with `chosen` particles (a second set of runs).
+    pub sd_chosen: f64,
 }
 
 impl PmmhConfig {
@@ -92,6 +171,10 @@ impl PmmhConfig {
             adapt_start: 200,
             resampling: Resampling::Systematic,
             kind: FilterKind::Bootstrap,
+            adapt_restart: None,
+            adapt_end: None,
+            particle_tuning: None,
+            target_acceptance: None,
         }
     }
 }
@@ -115,8 +198,20 @@ pub struct PmmhState {
     pub running_mean: Vec<f64>,
     /// Running covariance of the chain (row-major `d × d`, sums of squares).
     running_m2: Vec<f64>,
+    /// Draws in the running mean and covariance.
+    #[serde(default)]
+    running_n: usize,
+    /// `ln λ`, the global proposal scale (`target_acceptance`).
+    #[serde(default)]
+    pub log_scale: f64,
     /// Cholesky factor of the proposal covariance (row-major lower triangle).
     pub proposal_chol: Vec<f64>,
+    /// Particles of the filter now.
+    #[serde(default)]
+    pub n_particles: usize,
+    /// The particle choice, once made ([`ParticleTuning`]).
+    #[serde(default)]
+    pub particle_choice: Option<ParticleChoice>,
 }
 
 impl PmmhState {
@@ -143,6 +238,12 @@ pub struct PmmhResult {
     pub acceptance_rate: f64,
     /// Posterior summaries after burn-in, one per parameter.
     pub summary: Vec<ParamSummary>,
+    /// Particles of the filter at the end of the chain.
+    #[serde(default)]
+    pub n_particles: usize,
+    /// The particle choice of [`ParticleTuning`], if configured and reached.
+    #[serde(default)]
+    pub particle_choice: Option<ParticleChoice>,
 }
 
 impl PmmhResult {
@@ -249,11 +350,118 @@ impl Pmmh {
                 "must be positive",
             )?;
         }
+        if let Some(t) = &config.particle_tuning {
+            let ok = t.runs >= 3
+                && t.min_particles >= 1
+                && t.min_particles <= t.max_particles
+                && t.target_sd > 0.0
+                && t.target_sd.is_finite();
+            if !ok {
+                return Err(SmcError::InvalidParameter {
+                    name: "particle_tuning",
+                    value: t.target_sd,
+                    reason: "need runs >= 3, 1 <= min_particles <= max_particles and target_sd > 0",
+                });
+            }
+        }
         let filter = FilterConfig::new(config.n_particles)
             .kind(config.kind)
             .resampling(config.resampling);
         ParticleFilter::new(filter.clone())?;
         Ok(Self { config, filter })
+    }
+
+    /// `log p̂_θ(y)` with `n` particles and the filter seed of `(domain, iter)`;
+    /// `None` where the model cannot be built at `theta`.
+    fn loglik_n<P: ParametricModel>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta: &[f64],
+        (dom, iter): (u64, u64),
+        n: usize,
+        ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
+    ) -> Option<Result<f64>> {
+        let model = problem.build(theta)?;
+        let seed = derive_seed(self.config.seed, dom, iter);
+        let mut config = self.filter.clone().seed(seed);
+        config.n_particles = n;
+        let pf = ParticleFilter { config };
+        Some(
+            pf.run_with(&model, obs, ws, |_| {})
+                .map(|o| o.log_likelihood),
+        )
+    }
+
+    /// The standard deviation of `log p̂_θ(y)` over `runs` filters with `n`
+    /// particles (tuning streams `first..first + runs`), and the first
+    /// estimate. A failed run (all weights zero) counts as `−∞`: the
+    /// standard deviation is then infinite.
+    #[allow(clippy::too_many_arguments)]
+    fn loglik_sd<P: ParametricModel>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        theta: &[f64],
+        n: usize,
+        runs: usize,
+        first: u64,
+        ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
+    ) -> (f64, f64) {
+        let lls: Vec<f64> = (0..runs as u64)
+            .map(|k| {
+                match self.loglik_n(problem, obs, theta, (domain::PMMH_TUNE, first + k), n, ws) {
+                    Some(Ok(ll)) if ll.is_finite() => ll,
+                    _ => f64::NEG_INFINITY,
+                }
+            })
+            .collect();
+        if lls.iter().any(|v| !v.is_finite()) {
+            return (f64::INFINITY, lls[0]);
+        }
+        let m = lls.iter().sum::<f64>() / runs as f64;
+        let var = lls.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / (runs - 1) as f64;
+        (var.sqrt(), lls[0])
+    }
+
+    /// Chooses the particle number at the current `θ` ([`ParticleTuning`])
+    /// and re-estimates the current `log p̂` with it.
+    fn tune_particles<P: ParametricModel>(
+        &self,
+        problem: &P,
+        obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
+        state: &mut PmmhState,
+        t: &ParticleTuning,
+        ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
+    ) {
+        let before = state.n_particles;
+        let (sd_before, _) = self.loglik_sd(problem, obs, &state.theta, before, t.runs, 0, ws);
+        // Var(log p̂) ≈ c / N
+        let want = before as f64 * (sd_before / t.target_sd).powi(2);
+        let chosen = if want.is_finite() {
+            (want.ceil() as usize).clamp(t.min_particles, t.max_particles)
+        } else {
+            t.max_particles
+        };
+        let (sd_chosen, ll) = self.loglik_sd(
+            problem,
+            obs,
+            &state.theta,
+            chosen,
+            t.runs,
+            t.runs as u64,
+            ws,
+        );
+        state.n_particles = chosen;
+        if ll.is_finite() {
+            state.log_likelihood = ll;
+        }
+        state.particle_choice = Some(ParticleChoice {
+            before,
+            sd_before,
+            chosen,
+            sd_chosen,
+        });
     }
 
     fn loglik<P: ParametricModel>(
@@ -262,16 +470,16 @@ impl Pmmh {
         obs: &Observations<'_, <P::Model as StateSpaceModel>::Obs>,
         theta: &[f64],
         iter: usize,
+        n: usize,
         ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
     ) -> Option<Result<f64>> {
-        let model = problem.build(theta)?;
-        let seed = derive_seed(self.config.seed, domain::PMMH_FILTER, iter as u64);
-        let pf = ParticleFilter {
-            config: self.filter.clone().seed(seed),
-        };
-        Some(
-            pf.run_with(&model, obs, ws, |_| {})
-                .map(|o| o.log_likelihood),
+        self.loglik_n(
+            problem,
+            obs,
+            theta,
+            (domain::PMMH_FILTER, iter as u64),
+            n,
+            ws,
         )
     }
 
@@ -299,8 +507,9 @@ impl Pmmh {
         if lp.is_nan() || lp == f64::NEG_INFINITY {
             return Err(SmcError::InvalidInitialParameter);
         }
+        let n = self.config.n_particles;
         let ll = self
-            .loglik(problem, obs, theta0, 0, ws)
+            .loglik(problem, obs, theta0, 0, n, ws)
             .ok_or(SmcError::InvalidInitialParameter)??;
         let mut chol = vec![0.0; d * d];
         for (i, s) in self.config.initial_step.iter().enumerate() {
@@ -315,7 +524,11 @@ impl Pmmh {
             last_accepted: false,
             running_mean: theta0.to_vec(),
             running_m2: vec![0.0; d * d],
+            running_n: 1,
+            log_scale: 0.0,
             proposal_chol: chol,
+            n_particles: n,
+            particle_choice: None,
         })
     }
 
@@ -328,6 +541,11 @@ impl Pmmh {
         ws: &mut FilterWorkspace<<P::Model as StateSpaceModel>::State>,
     ) -> Result<()> {
         let d = state.theta.len();
+        if let Some(t) = &self.config.particle_tuning {
+            if state.iter == t.at && state.particle_choice.is_none() {
+                self.tune_particles(problem, obs, state, t, ws);
+            }
+        }
         let it = state.iter + 1;
         let mut rng = stream(self.config.seed, domain::PMMH_MH, it as u64, 0);
         let z: Vec<f64> = (0..d).map(|_| standard_normal(&mut rng)).collect();
@@ -341,9 +559,11 @@ impl Pmmh {
             .collect();
         let lp = problem.log_prior(&prop);
         let mut accepted = false;
+        let mut alpha = 0.0;
         if lp > f64::NEG_INFINITY && !lp.is_nan() {
-            if let Some(Ok(ll)) = self.loglik(problem, obs, &prop, it, ws) {
+            if let Some(Ok(ll)) = self.loglik(problem, obs, &prop, it, state.n_particles, ws) {
                 let log_alpha = ll + lp - state.log_likelihood - state.log_prior;
+                alpha = log_alpha.min(0.0).exp();
                 let u: f64 = rng.random();
                 if u.ln() < log_alpha {
                     state.theta = prop;
@@ -356,20 +576,76 @@ impl Pmmh {
         state.iter = it;
         state.last_accepted = accepted;
         state.accepted += accepted as usize;
-        // Welford update of the running mean / covariance (the initial point counts as draw 0)
-        let n = (it + 1) as f64;
-        let delta: Vec<f64> = (0..d)
-            .map(|i| state.theta[i] - state.running_mean[i])
-            .collect();
-        for (m, dl) in state.running_mean.iter_mut().zip(&delta) {
-            *m += dl / n;
-        }
-        for (row, dl) in state.running_m2.chunks_mut(d).zip(&delta) {
-            for ((r, th), m) in row.iter_mut().zip(&state.theta).zip(&state.running_mean) {
-                *r += dl * (th - m);
+        self.adapt(state, if alpha.is_nan() { 0.0 } else { alpha });
+        Ok(())
+    }
+
+    /// Welford update of the running mean and covariance with the current
+    /// draw (the initial point counts as draw 0; at `adapt_restart` the
+    /// statistics start afresh from the current draw), then the adapted
+    /// proposal `(2.38²/d)(Σ̂ + εI)` with `ε = 10⁻⁶ σ_0²` from `adapt_start`
+    /// to `adapt_end`. After a restart `Σ̂` is used once it holds
+    /// `max(20 d, 100)` draws (a covariance of a few draws of a sticky chain
+    /// is degenerate). With `target_acceptance = α*` the proposal factor is
+    /// also scaled by `λ` (Andrieu & Thoms 2008, global adaptive scaling):
+    /// `ln λ_k = ln λ_{k−1} + k^{−2/3} (α_k − α*)`, `α_k` the Metropolis–Hastings
+    /// acceptance probability of iteration `k` after `adapt_start` (after a
+    /// restart: `λ = 1` again, and `k` counted from the first use of the new
+    /// `Σ̂`), `λ ∈ [1/3, 3]`; this undoes a `Σ̂` that came out too small (a chain that
+    /// then accepts almost every tiny step) or too large.
+    fn adapt(&self, state: &mut PmmhState, alpha: f64) {
+        let d = state.theta.len();
+        let it = state.iter;
+        let restarted = self.config.adapt_restart.is_some_and(|r| it >= r);
+        if self.config.adapt_restart == Some(it) {
+            state.running_mean.copy_from_slice(&state.theta);
+            state.running_m2.fill(0.0);
+            state.running_n = 1;
+            // the scale learnt on the transient starts afresh too
+            let f = (-state.log_scale).exp();
+            state.proposal_chol.iter_mut().for_each(|v| *v *= f);
+            state.log_scale = 0.0;
+        } else {
+            state.running_n += 1;
+            let n = state.running_n as f64;
+            let delta: Vec<f64> = (0..d)
+                .map(|i| state.theta[i] - state.running_mean[i])
+                .collect();
+            for (m, dl) in state.running_mean.iter_mut().zip(&delta) {
+                *m += dl / n;
+            }
+            for (row, dl) in state.running_m2.chunks_mut(d).zip(&delta) {
+                for ((r, th), m) in row.iter_mut().zip(&state.theta).zip(&state.running_mean) {
+                    *r += dl * (th - m);
+                }
             }
         }
-        if self.config.adapt && it >= self.config.adapt_start && it > d {
+        let min_window = (20 * d).max(100);
+        let enough = if restarted {
+            state.running_n >= min_window
+        } else {
+            it > d
+        };
+        let active = self.config.adapt
+            && it >= self.config.adapt_start
+            && self.config.adapt_end.is_none_or(|e| it <= e);
+        if let (true, true, Some(target)) =
+            (active, enough || !restarted, self.config.target_acceptance)
+        {
+            // k = 1 at adapt_start, or where the restarted Σ̂ is first used
+            let from = match self.config.adapt_restart {
+                Some(r) if restarted => (r + min_window - 1).max(self.config.adapt_start),
+                _ => self.config.adapt_start,
+            };
+            let k = (it + 1 - from) as f64;
+            let old = state.log_scale;
+            state.log_scale =
+                (old + k.powf(-2.0 / 3.0) * (alpha - target)).clamp(-3f64.ln(), 3f64.ln());
+            let f = (state.log_scale - old).exp();
+            state.proposal_chol.iter_mut().for_each(|v| *v *= f);
+        }
+        if active && enough {
+            let n = state.running_n as f64;
             let sd2 = 2.38 * 2.38 / d as f64;
             let cov: Vec<f64> = (0..d * d)
                 .map(|k| {
@@ -379,14 +655,13 @@ impl Pmmh {
                     } else {
                         0.0
                     };
-                    sd2 * (state.running_m2[k] / (n - 1.0) + eps)
+                    sd2 * (state.running_m2[k] / (n - 1.0) + eps) * (2.0 * state.log_scale).exp()
                 })
                 .collect();
             if let Some(l) = cholesky(&cov, d) {
                 state.proposal_chol = l;
             }
         }
-        Ok(())
     }
 
     /// Runs the chain from `theta0`, reporting each iteration to `observer`
@@ -433,6 +708,8 @@ impl Pmmh {
             chain,
             log_likelihoods: lls,
             acceptance_rate: state.acceptance_rate(),
+            n_particles: state.n_particles,
+            particle_choice: state.particle_choice,
         })
     }
 }

@@ -72,6 +72,7 @@ pub(crate) mod domain {
     pub const PMMH_FILTER: u64 = 5;
     pub const PMMH_MH: u64 = 6;
     pub const IF2: u64 = 7;
+    pub const PMMH_TUNE: u64 = 8;
 }
 
 /// Ziggurat tables (256 layers) for the standard normal, built once.

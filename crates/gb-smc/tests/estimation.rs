@@ -160,3 +160,59 @@ fn if2_finds_the_kalman_mle() {
     let b = pool(2).install(|| if2.run(&Ar1Params, &obs, &[0.5, 1.5], &Silent).unwrap());
     assert_eq!(a, b);
 }
+
+/// The particle number rule and the adaptive burn-in: from 50 particles on
+/// T = 300 (sd of `log p̂` well above 1.2) the chain chooses more particles
+/// after iteration 100, the standard deviation measured at the chosen `N`
+/// is near the target (0.6–2.0; it is an estimate from 10 runs), and the
+/// proposal and `N` stay frozen after iteration 300. A tuning with
+/// `max_particles = 50` keeps 50.
+#[test]
+fn pmmh_chooses_the_particle_number_and_freezes_the_proposal() {
+    use gb_smc::estimation::ParticleTuning;
+    let truth = LinearGaussian::ar1(TRUTH[0], TRUTH[1], 0.5).unwrap();
+    let (_, y) = truth.simulate(300, 11);
+    let obs = Observations::new(&y);
+    let mut cfg = PmmhConfig::new(50, 500, vec![0.05, 0.08]);
+    cfg.burn_in = 300;
+    cfg.adapt_start = 50;
+    cfg.adapt_restart = Some(100);
+    cfg.adapt_end = Some(300);
+    cfg.target_acceptance = Some(0.2);
+    cfg.particle_tuning = Some(ParticleTuning::new(100, 50, 5000));
+    cfg.seed = 4;
+    let mut frozen: Option<(Vec<f64>, usize)> = None;
+    let res = Pmmh::new(cfg.clone())
+        .unwrap()
+        .run_with(&Ar1Params, &obs, &[0.7, 1.2], &Silent, |s| {
+            if s.iter <= 100 {
+                assert_eq!(s.n_particles, 50);
+            }
+            if s.iter == 300 {
+                frozen = Some((s.proposal_chol.clone(), s.n_particles));
+            } else if let Some((chol, n)) = &frozen {
+                assert_eq!((&s.proposal_chol, s.n_particles), (chol, *n));
+            }
+        })
+        .unwrap();
+    let c = res.particle_choice.unwrap();
+    println!("{c:?}, acceptance {:.2}", res.acceptance_rate);
+    assert_eq!(c.before, 50);
+    assert!(c.sd_before > 2.0, "{c:?}");
+    assert!(
+        c.chosen > 100 && c.chosen < 5000 && c.chosen == res.n_particles,
+        "{c:?}"
+    );
+    assert!(c.sd_chosen > 0.6 && c.sd_chosen < 2.0, "{c:?}");
+    assert!(frozen.is_some());
+    cfg.particle_tuning = Some(ParticleTuning::new(100, 50, 50));
+    let res = Pmmh::new(cfg)
+        .unwrap()
+        .run(&Ar1Params, &obs, &[0.7, 1.2], &Silent)
+        .unwrap();
+    assert_eq!(res.n_particles, 50);
+    // invalid tuning is refused
+    let mut bad = PmmhConfig::new(20, 10, vec![0.05, 0.08]);
+    bad.particle_tuning = Some(ParticleTuning::new(5, 30, 20));
+    assert!(Pmmh::new(bad).is_err());
+}

@@ -55,6 +55,9 @@ pub(crate) struct SmcArgs {
     /// `--method smc`: random seed [default: 1].
     #[arg(long, value_name = "S")]
     pub(crate) seed: Option<u64>,
+    /// `--method smc`: the tuned sampler — the particle number chosen in burn-in so that the sd of the log-likelihood estimate is about 1.2 (between --particles and this bound), the proposal adapted in burn-in only, then frozen [default: off, fixed particles].
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
+    pub(crate) max_particles: Option<u64>,
 }
 
 impl SmcArgs {
@@ -65,12 +68,14 @@ impl SmcArgs {
             usize::try_from(self.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
         let particles =
             usize::try_from(self.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
-        let smc = SmcParams::new()
+        let mut smc = SmcParams::new()
             .particles(particles)
             .iterations(iterations, iterations / 4)
-            .seed(self.seed.unwrap_or(1))
-            .check()
-            .map_err(|e| e.to_string())?;
+            .seed(self.seed.unwrap_or(1));
+        if let Some(max) = self.max_particles {
+            smc = smc.tuned(usize::try_from(max).map_err(|e| e.to_string())?);
+        }
+        let smc = smc.check().map_err(|e| e.to_string())?;
         Ok((smc, particles, iterations))
     }
 
@@ -84,6 +89,7 @@ impl SmcArgs {
                     ("--particles", self.particles.is_some()),
                     ("--iterations", self.iterations.is_some()),
                     ("--seed", self.seed.is_some()),
+                    ("--max-particles", self.max_particles.is_some()),
                 ];
                 match given.iter().find(|(_, g)| *g) {
                     Some((flag, _)) => Err(format!(
@@ -309,6 +315,12 @@ fn print_posterior(rep: &gb_model::SmcReport, particles: usize, iterations: usiz
         iterations / 4,
         rep.acceptance_rate
     );
+    if let Some(c) = rep.particle_choice {
+        println!(
+            "particles chosen at mid-burn-in: {} (sd of log p̂ {:.2} with {}, {:.2} with {}; target 1.2)",
+            c.chosen, c.sd_before, c.before, c.sd_chosen, c.chosen
+        );
+    }
     println!(
         "log-likelihood (particle filter): output-error start {:.2}, posterior mean {:.2}",
         rep.log_likelihood_oe, rep.log_likelihood_smc

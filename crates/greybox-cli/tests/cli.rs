@@ -1053,6 +1053,45 @@ fn fit_method_smc_reports_the_posterior_and_warns_on_short_chains() {
         .unwrap()
         .names
         .contains(&"x2_hi".to_string()));
+    // the tuned sampler reports its particle choice, within the bounds
+    let tuned = d.join("tuned.gbm");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model",
+        "state-space",
+        "--method",
+        "smc",
+        "--particles",
+        "50",
+        "--max-particles",
+        "120",
+        "--iterations",
+        "40",
+        "-o",
+        tuned.to_str().unwrap(),
+    ]);
+    let s = stdout(&o);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let chosen: usize = s
+        .lines()
+        .find_map(|l| l.strip_prefix("particles chosen at mid-burn-in: "))
+        .and_then(|l| l.split_whitespace().next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no particle choice in:\n{s}"));
+    assert!((50..=120).contains(&chosen), "{s}");
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model",
+        "state-space",
+        "--max-particles",
+        "120",
+        "-o",
+        oe_model.to_str().unwrap(),
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--max-particles applies to --method smc only"));
 }
 
 /// `--budget`: no extension step starts after it, the report says so and

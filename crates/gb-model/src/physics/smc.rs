@@ -25,7 +25,7 @@
 use super::error::{PhysicsError, PhysicsResult};
 use super::model::PhysicsModel;
 use super::simulate::{Integrator, Lanes};
-use crate::smc::{posterior_parameter, Smc, SmcReport, SMC_MAX_STATES};
+use crate::smc::{posterior_parameter, tuned_schedule, Smc, SmcReport, SMC_MAX_STATES};
 use crate::IdentificationPath;
 use gb_core::{Init, Observer, Record, SubTask};
 use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig};
@@ -353,7 +353,7 @@ impl Smc {
         let mut cfg = PmmhConfig::new(p.particles, p.iterations, step);
         cfg.burn_in = p.burn_in;
         cfg.seed = p.seed;
-        cfg.adapt_start = (p.iterations / 3).max(50);
+        tuned_schedule(&mut cfg, p);
         let observations = Observations::new(&data.output);
         let total = p.iterations;
         let chain = SubTask {
@@ -396,6 +396,8 @@ impl Smc {
             posterior_mean: mean,
             posterior_sd: sd,
             parameters,
+            particles: res.n_particles,
+            particle_choice: res.particle_choice,
         };
         Ok((report, model))
     }
