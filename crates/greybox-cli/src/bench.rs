@@ -982,7 +982,7 @@ fn keep_recipes(old: &str, new: &str) -> String {
             let same = old_rows
                 .iter()
                 .find(|o| o.len() == c.len() && o.len() > 4 && o[0] == c[0] && o[1] == c[1]);
-            if let Some(o) = same.filter(|_| c.len() > 4 && c[4] == "—") {
+            if let Some(o) = same.filter(|o| c.len() > 4 && c[4] == "—" && o[4] != "—") {
                 c[4] = format!("{} (earlier run)", o[4].trim_end_matches(" (earlier run)"));
                 l = format!("| {} |", c.join(" | "));
             }
@@ -1098,8 +1098,8 @@ mod tests {
 
     #[test]
     fn blind_only_runs_keep_the_hand_built_cells() {
-        let old = "| benchmark | test | ours | t | hand | lin |\n|---|\n| A | t1 | 1 | 2 s | 0.5 | 9 |\n| A | t2 | 3 | 2 s | 0.7 | 9 |\n\nModels and fit times:\n\n- A: diagnose chose x, 2 s; hand-built recipe: r, 5 s\n";
-        let new = "| benchmark | test | ours | t | hand | lin |\n|---|\n| A | t1 | 0.9 | 1 s | — | 9 |\n| A | t2 | 2 | 1 s | — | 9 |\n| B | t1 | 4 | 1 s | — | 8 |\n\nModels and fit times:\n\n- A: diagnose chose y, 1 s\n- B: diagnose chose z, 1 s\n";
+        let old = "| benchmark | test | ours | t | hand | lin |\n|---|\n| A | t1 | 1 | 2 s | 0.5 | 9 |\n| A | t2 | 3 | 2 s | 0.7 | 9 |\n| C | t1 | 5 | 2 s | — | 9 |\n\nModels and fit times:\n\n- A: diagnose chose x, 2 s; hand-built recipe: r, 5 s\n";
+        let new = "| benchmark | test | ours | t | hand | lin |\n|---|\n| A | t1 | 0.9 | 1 s | — | 9 |\n| A | t2 | 2 | 1 s | — | 9 |\n| B | t1 | 4 | 1 s | — | 8 |\n| C | t1 | 6 | 1 s | — | 9 |\n\nModels and fit times:\n\n- A: diagnose chose y, 1 s\n- B: diagnose chose z, 1 s\n";
         let m = keep_recipes(old, new);
         assert!(
             m.contains("| A | t1 | 0.9 | 1 s | 0.5 (earlier run) | 9 |"),
@@ -1110,6 +1110,7 @@ mod tests {
             "{m}"
         );
         assert!(m.contains("| B | t1 | 4 | 1 s | — | 8 |"), "{m}");
+        assert!(m.contains("| C | t1 | 6 | 1 s | — | 9 |"), "{m}");
         assert!(
             m.contains("- A: diagnose chose y, 1 s; hand-built recipe: r, 5 s"),
             "{m}"
