@@ -29,6 +29,8 @@ pub(crate) struct Integrator<'c> {
     gs: Slots,
     h: f64,
     substeps: usize,
+    /// Some state has a finite `min` or `max` (else no clamping).
+    bounded: bool,
     x: Vec<f64>,
     xt: Vec<f64>,
     k: [Vec<f64>; 4],
@@ -73,6 +75,10 @@ impl<'c> Integrator<'c> {
             gs,
             h: ts / substeps as f64,
             substeps,
+            bounded: c
+                .range
+                .iter()
+                .any(|&(lo, hi)| lo > f64::NEG_INFINITY || hi < f64::INFINITY),
             x: z(n),
             xt: z(n),
             k: [z(n), z(n), z(n), z(n)],
@@ -148,6 +154,12 @@ impl<'c> Integrator<'c> {
     #[inline(always)]
     fn stage_slots(&mut self, stage: usize, a: f64) {
         let k = &self.k[stage];
+        if !self.bounded {
+            for ((v, x), ki) in self.fs.v.iter_mut().zip(&self.x).zip(k) {
+                *v = x + a * ki;
+            }
+            return;
+        }
         for (((v, x), ki), &(lo, hi)) in self.fs.v.iter_mut().zip(&self.x).zip(k).zip(&self.c.range)
         {
             *v = (x + a * ki).max(lo).min(hi);
@@ -171,10 +183,13 @@ impl<'c> Integrator<'c> {
             let [k1, k2, k3, k4] = &self.k;
             // the new state, also into the slots of the next sub-step
             for (i, (x, v)) in self.x.iter_mut().zip(&mut self.fs.v).enumerate() {
-                let (lo, hi) = self.c.range[i];
-                *x = (*x + h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]))
-                    .max(lo)
-                    .min(hi);
+                let next = *x + h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+                *x = if self.bounded {
+                    let (lo, hi) = self.c.range[i];
+                    next.max(lo).min(hi)
+                } else {
+                    next
+                };
                 *v = *x;
             }
         }

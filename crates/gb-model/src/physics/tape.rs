@@ -532,13 +532,15 @@ impl TapeBuilder {
                 }
             }
         }
-        Tape {
+        let tape = Tape {
             n_slots: next as usize,
             consts,
             pre,
             main,
             outputs: out_ids.iter().map(|&o| slot[o as usize]).collect(),
-        }
+        };
+        tape.check_slots();
+        tape
     }
 }
 
@@ -588,6 +590,21 @@ impl Tape {
         }
     }
 
+    /// Every slot a node reads or writes, every output and every constant
+    /// lies below `n_slots` (what the unchecked loop of [`run`] relies
+    /// on); a tape that breaks this is a bug of [`TapeBuilder::finish`].
+    fn check_slots(&self) {
+        let n = self.n_slots as u32;
+        let nodes_ok = self
+            .pre
+            .iter()
+            .chain(&self.main)
+            .all(|d| d.a < n && d.b < n && d.out < n);
+        let rest_ok =
+            self.outputs.iter().all(|&o| o < n) && self.consts.iter().all(|&(c, _)| c < n);
+        assert!(nodes_ok && rest_ok, "tape slot out of range");
+    }
+
     /// Operations per evaluation (prologue, main).
     #[cfg(test)]
     pub(crate) fn len(&self) -> (usize, usize) {
@@ -596,13 +613,13 @@ impl Tape {
 
     /// Evaluate the prologue (after the parameter slots were set).
     pub(crate) fn run_pre(&self, s: &mut Slots) {
-        run(&self.pre, &mut s.v);
+        run(&self.pre, self.n_slots, &mut s.v);
     }
 
     /// Evaluate the main nodes (after the variable slots were set).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn run(&self, s: &mut Slots) {
-        run(&self.main, &mut s.v);
+        run(&self.main, self.n_slots, &mut s.v);
     }
 
     /// The prologue with derivative lanes.
@@ -635,11 +652,24 @@ impl Tape {
     }
 }
 
+/// `v[out] = op(v[a], v[b])` for every node, in order. The hot loop of
+/// every simulation: the slot indices are checked once, when the tape is
+/// built ([`Tape::check_slots`]), and the length of `v` once per call.
 #[inline(always)]
-fn run(nodes: &[Node], v: &mut [f64]) {
+fn run(nodes: &[Node], n_slots: usize, v: &mut [f64]) {
+    assert!(v.len() >= n_slots, "slots of another tape");
     for n in nodes {
-        let r = apply(n.op, v[n.a as usize], v[n.b as usize]);
-        v[n.out as usize] = r;
+        // SAFETY: `Tape::finish` checks that every node's operands and
+        // output are below `n_slots` (`check_slots`), and `v` holds at
+        // least `n_slots` values (asserted above).
+        unsafe {
+            let r = apply(
+                n.op,
+                *v.get_unchecked(n.a as usize),
+                *v.get_unchecked(n.b as usize),
+            );
+            *v.get_unchecked_mut(n.out as usize) = r;
+        }
     }
 }
 
