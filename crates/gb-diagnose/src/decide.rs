@@ -215,12 +215,7 @@ fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usi
         return None;
     }
     let best = cands[ci].ci;
-    let (h, _) = cands
-        .iter()
-        .enumerate()
-        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == Cause::Hysteresis)
-        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
-        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    let h = best_overlapping(cands, best, Cause::Hysteresis)?;
     Some((
         h,
         format!(
@@ -228,6 +223,18 @@ fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usi
             cands[ci].gain, best[0], best[1], memory.0, memory.1
         ),
     ))
+}
+
+/// Of the paying new structural candidates of `cause` whose gain interval
+/// overlaps `best`, the one with the largest gain.
+fn best_overlapping(cands: &[Candidate], best: [f64; 2], cause: Cause) -> Option<usize> {
+    cands
+        .iter()
+        .enumerate()
+        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == cause)
+        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
+        .map(|(i, _)| i)
 }
 
 /// Hysteresis and nonlinearity both pay and their intervals overlap: fit
@@ -292,12 +299,7 @@ fn without_loop(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize,
         return None;
     }
     let best = cands[ci].ci;
-    let (n, _) = cands
-        .iter()
-        .enumerate()
-        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == Cause::Nonlinearity)
-        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0])
-        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    let n = best_overlapping(cands, best, Cause::Nonlinearity)?;
     Some((
         n,
         format!(

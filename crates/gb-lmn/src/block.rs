@@ -456,21 +456,9 @@ impl BlockModel {
                 for (i, r) in row.iter_mut().enumerate() {
                     *r = slope * s[i * w + k];
                 }
-                let e = yw[k] - y[k];
-                for i in 0..k0 {
-                    rhs[i] += row[i] * e;
-                    for j in 0..=i {
-                        g[(i, j)] += row[i] * row[j];
-                    }
-                }
+                add_normal_row(&mut g, &mut rhs, &row, yw[k] - y[k]);
             }
-            for i in 0..k0 {
-                for j in 0..i {
-                    g[(j, i)] = g[(i, j)];
-                }
-                g[(i, i)] += 1e-9 * (1.0 + g[(i, i)]);
-            }
-            let Some(d) = g.cholesky().map(|c| c.solve(&rhs)) else {
+            let Some(d) = solve_normal(g, &rhs) else {
                 break;
             };
             let cand: Vec<f64> = h.iter().zip(d.iter()).map(|(a, b)| a + b).collect();
@@ -832,21 +820,42 @@ fn lstsq(rows: &[Vec<f64>], y: &[f64]) -> Option<Vec<f64>> {
     let p = rows.first()?.len();
     let mut g = nalgebra::DMatrix::<f64>::zeros(p, p);
     let mut r = nalgebra::DVector::<f64>::zeros(p);
-    for (x, t) in rows.iter().zip(y) {
-        for i in 0..p {
-            r[i] += x[i] * t;
-            for j in 0..=i {
-                g[(i, j)] += x[i] * x[j];
-            }
+    for (x, &t) in rows.iter().zip(y) {
+        add_normal_row(&mut g, &mut r, x, t);
+    }
+    solve_normal(g, &r).map(|d| d.iter().copied().collect())
+}
+
+/// `G += x xᵀ` (lower triangle) and `r += x t`: one row of the normal
+/// equations.
+fn add_normal_row(
+    g: &mut nalgebra::DMatrix<f64>,
+    r: &mut nalgebra::DVector<f64>,
+    x: &[f64],
+    t: f64,
+) {
+    for i in 0..x.len() {
+        r[i] += x[i] * t;
+        for j in 0..=i {
+            g[(i, j)] += x[i] * x[j];
         }
     }
+}
+
+/// `(G + 10⁻⁹ diag(1 + Gᵢᵢ)) d = r` from the lower triangle of `G`, by
+/// Cholesky; `None` when singular.
+fn solve_normal(
+    mut g: nalgebra::DMatrix<f64>,
+    r: &nalgebra::DVector<f64>,
+) -> Option<nalgebra::DVector<f64>> {
+    let p = g.nrows();
     for i in 0..p {
         for j in 0..i {
             g[(j, i)] = g[(i, j)];
         }
         g[(i, i)] += 1e-9 * (1.0 + g[(i, i)]);
     }
-    g.cholesky().map(|c| c.solve(&r).iter().copied().collect())
+    g.cholesky().map(|c| c.solve(r))
 }
 
 impl ValidBlockParams {
