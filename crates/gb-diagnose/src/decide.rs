@@ -88,7 +88,9 @@ pub(crate) fn score(
             let (g, ci) =
                 relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
             let pays = ci[0] > 0.0 && g >= pol.min_gain;
-            (g, ci, pays && pays_from_a_fresh_start(&fitted, ctx, seed))
+            let pays = pays && pays_from_a_fresh_start(&fitted, ctx, seed);
+            let pays = pays && wins_on_most_folds(&fitted, ctx);
+            (g, ci, pays && realised_by_the_refit(&fitted, ctx))
         }
     };
     let pays = pays && ext.admits(ctx, &fitted);
@@ -132,6 +134,52 @@ fn pays_from_a_fresh_start(cand: &Evaluated, ctx: &Context, seed: u64) -> bool {
         return false;
     }
     pays_against(&before.e, &after.e, ctx.policy(), seed.wrapping_add(7919))
+}
+
+/// Under cross-validation, whether the candidate beats the current model on
+/// at least the policy's `cv_fold_wins` share of the folds (each fold's
+/// RMS over its scored samples). The pooled gain can come from one fold
+/// where the current structure's refit failed (a poor local minimum, an
+/// extrapolation) and the candidate's did not; a cause must show on most
+/// of the record.
+fn wins_on_most_folds(cand: &Evaluated, ctx: &Context) -> bool {
+    let cur = &ctx.current.folds;
+    if !ctx.plan.cv() || cur.len() != cand.folds.len() || cur.is_empty() {
+        return true;
+    }
+    let wins = cur
+        .iter()
+        .zip(&cand.folds)
+        .filter(|(a, b)| b.scores.nrmse < a.scores.nrmse)
+        .count();
+    wins as f64 >= ctx.policy().cv_fold_wins * cur.len() as f64
+}
+
+/// Under cross-validation, whether the candidate's refit on the whole
+/// training record realises what its fold fits were scored for: it must
+/// lower the record's in-sample RMSE by the policy's `cv_refit_gain`
+/// against the current model. A structure chosen inside the fit (LOLIMOT's
+/// number of leaves by AICc) can come out as the current model on the whole
+/// record although it had more on the folds; the folds' gain is then not
+/// the final model's. Without cross-validation the select block scores the
+/// final model itself.
+fn realised_by_the_refit(cand: &Evaluated, ctx: &Context) -> bool {
+    if !ctx.plan.cv() {
+        return true;
+    }
+    let rec = &ctx.plan.fit_y;
+    let all = 0..rec.len();
+    let w = ctx.plan.w;
+    let rms = |m: &gb_core::FittedModel| {
+        residuals_on(m, rec, &all, w)
+            .ok()
+            .map(|r| gb_core::metrics::rms(&r.e))
+            .filter(|v| v.is_finite())
+    };
+    match (rms(&ctx.current.model), rms(&cand.model)) {
+        (Some(before), Some(after)) => after <= (1.0 - ctx.policy().cv_refit_gain) * before,
+        _ => false,
+    }
 }
 
 /// Whether `after` pays significantly against `before` (select residuals).

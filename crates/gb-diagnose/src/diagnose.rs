@@ -370,6 +370,12 @@ pub(crate) fn search(
     let total = 1 + opts.max_steps;
     obs.progress(0, total, "fitting the baseline");
     let plan0 = Plan::new(d, &opts.policy);
+    // the engineer's equations: laws are judged beyond their folds' range too
+    let plan0 = if opts.physics.is_some() {
+        plan0.whole_folds()
+    } else {
+        plan0
+    };
     let base = match &opts.physics {
         Some(spec) => crate::physics::physics_baseline(d, &plan0, spec, obs)?,
         None => baseline(d, &plan0, opts)?,

@@ -20,6 +20,21 @@ pub(crate) struct Fold {
     pub fit_y: Record,
     /// The held-out samples (in the training record).
     pub test: Range<usize>,
+    /// Which held-out samples are scored (`keep[i]` for sample
+    /// `test.start + i`): those after the init window whose signals lie in
+    /// the range the fold's fit record covers ([`covered`]).
+    pub keep: Vec<bool>,
+}
+
+impl Fold {
+    /// The scored samples (indices of the training record).
+    pub fn scored(&self) -> impl Iterator<Item = usize> + '_ {
+        self.keep
+            .iter()
+            .enumerate()
+            .filter(|(_, &k)| k)
+            .map(move |(i, _)| self.test.start + i)
+    }
 }
 
 /// The plan of a diagnosis (see the module docs).
@@ -82,7 +97,23 @@ impl Plan {
                     fit: fit_y.clone(),
                     fit_y,
                     test,
+                    keep: vec![],
                 }
+            })
+            .collect();
+        let w = pol.init_window_for(
+            folds
+                .iter()
+                .map(|f| f.test.len())
+                .min()
+                .unwrap_or(0)
+                .min(d.report_range.len()),
+        );
+        let folds: Vec<Fold> = folds
+            .into_iter()
+            .map(|f| Fold {
+                keep: covered(&f.fit_y, &d.train, &f.test, w, pol),
+                ..f
             })
             .collect();
         let shortest = folds
@@ -118,10 +149,24 @@ impl Plan {
                     fit: target(&f.fit_y),
                     fit_y: f.fit_y.clone(),
                     test: f.test.clone(),
+                    keep: f.keep.clone(),
                 })
                 .collect(),
             shift: self.shift.clone(),
         }
+    }
+
+    /// The same plan with every held-out sample after the init window
+    /// scored (no range rule, [`covered`]): for the engineer's equations,
+    /// whose added laws are meant to hold beyond the range a fold was
+    /// fitted on (the overflow of a tank), extrapolation is part of what
+    /// the folds judge.
+    pub fn whole_folds(mut self) -> Self {
+        let w = self.w;
+        for f in &mut self.folds {
+            f.keep = (0..f.test.len()).map(|i| i >= w).collect();
+        }
+        self
     }
 
     /// Whether decisions use cross-validation.
@@ -144,10 +189,7 @@ impl Plan {
             .map(|j| {
                 self.folds
                     .iter()
-                    .flat_map(|f| {
-                        let s = (f.test.start + self.w).min(f.test.end);
-                        d.train.inputs[j][s..f.test.end].iter().copied()
-                    })
+                    .flat_map(|f| f.scored().map(|k| d.train.inputs[j][k]))
                     .collect()
             })
             .collect()
@@ -159,8 +201,22 @@ impl Plan {
             let why = self.shift.as_ref().map_or(String::new(), |s| {
                 format!(" (the select block is not representative of the training record: {s})")
             });
+            let (held, scored) = self.folds.iter().fold((0, 0), |(h, s), f| {
+                (
+                    h + f.test.len().saturating_sub(self.w),
+                    s + f.scored().count(),
+                )
+            });
+            let outside = if scored < held {
+                format!(
+                    "; {} of {held} held-out samples lie outside the signal range of their fold's fit and are not scored",
+                    held - scored
+                )
+            } else {
+                String::new()
+            };
             format!(
-                "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest), init window {}{why}",
+                "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest), init window {}{outside}{why}",
                 self.folds.len(),
                 self.fit_y.len(),
                 self.w
@@ -307,8 +363,7 @@ pub(crate) fn assess(
     for (f, fold) in folds.iter().zip(&plan.folds) {
         pooled.e.extend_from_slice(&f.select.e);
         pooled.yhat.extend_from_slice(&f.select.yhat);
-        let s = (fold.test.start + plan.w).min(fold.test.end);
-        y.extend_from_slice(&d.train.output[s..fold.test.end]);
+        y.extend(fold.scored().map(|k| d.train.output[k]));
     }
     let sd = metrics::std(&y);
     let mut e = evaluate_on(m, lineage, d, plan.w, Some((pooled, sd)))?;
@@ -325,11 +380,21 @@ fn fold_scores(
     plan: &Plan,
     k: usize,
 ) -> Result<Evaluated, DiagnoseError> {
-    let test = &plan.folds[k].test;
-    let rec = d.train.slice(test.clone());
-    let r = residuals_on(&m, &rec, &(0..rec.len()), plan.w)?;
+    let fold = &plan.folds[k];
+    let rec = d.train.slice(fold.test.clone());
+    let all = residuals_on(&m, &rec, &(0..rec.len()), plan.w)?;
     let s = plan.w.min(rec.len());
-    let sd = metrics::std(&rec.output[s..]);
+    let keep = |i: &usize| fold.keep.get(s + i).copied().unwrap_or(false);
+    let r = Residuals {
+        e: (0..all.e.len()).filter(keep).map(|i| all.e[i]).collect(),
+        yhat: (0..all.yhat.len())
+            .filter(keep)
+            .map(|i| all.yhat[i])
+            .collect(),
+        nll: vec![],
+    };
+    let y: Vec<f64> = fold.scored().map(|i| d.train.output[i]).collect();
+    let sd = metrics::std(&y);
     let nrmse = metrics::rms(&r.e) / sd;
     let nll = m.noise.mean_nll(&r.e);
     if !(nrmse.is_finite() && nll.is_finite()) {
@@ -353,9 +418,62 @@ fn fold_scores(
     })
 }
 
+/// Which samples of `test` (in `train`) a fold scores: those after the
+/// init window `w` whose output and inputs lie in the range of the fold's
+/// fit record `fit`, widened by the policy's `cv_cover_pad` of that range
+/// on either side. A fold fitted on one side of a drifting record (a slow
+/// excitation component, a changing level) otherwise extrapolates there,
+/// which the model fitted on the whole record does not have to do; the
+/// current model and a candidate are scored on the same samples. When
+/// fewer than `cv_cover_min` of the fold's samples are covered, the whole
+/// fold is scored (it cannot be judged by interpolation alone).
+fn covered(
+    fit: &Record,
+    train: &Record,
+    test: &Range<usize>,
+    w: usize,
+    pol: &DecisionPolicy,
+) -> Vec<bool> {
+    let s = w.min(test.len());
+    let signals = |r: &Record| -> Vec<Vec<f64>> {
+        r.inputs
+            .iter()
+            .cloned()
+            .chain(std::iter::once(r.output.clone()))
+            .collect()
+    };
+    let bounds: Vec<(f64, f64)> = signals(fit)
+        .iter()
+        .map(|x| {
+            let (lo, hi) = x
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+                    (a.min(v), b.max(v))
+                });
+            let pad = pol.cv_cover_pad * (hi - lo);
+            (lo - pad, hi + pad)
+        })
+        .collect();
+    let all = signals(train);
+    let inside = |k: usize| {
+        all.iter()
+            .zip(&bounds)
+            .all(|(x, &(lo, hi))| (lo..=hi).contains(&x[k]))
+    };
+    let mut keep: Vec<bool> = (0..test.len())
+        .map(|i| i >= s && inside(test.start + i))
+        .collect();
+    let n = test.len() - s;
+    let kept = keep.iter().filter(|&&k| k).count();
+    if (kept as f64) < pol.cv_cover_min * n as f64 {
+        keep = (0..test.len()).map(|i| i >= s).collect();
+    }
+    keep
+}
+
 #[cfg(test)]
 mod tests {
-    use super::block_shift;
+    use super::{block_shift, covered, Plan};
     use crate::{DecisionPolicy, DiagnoseData};
     use gb_core::Record;
     use rand::Rng;
@@ -395,5 +513,49 @@ mod tests {
             .collect();
         let why = block_shift(&data(drift), &pol).expect("a drift shifts");
         assert!(why.contains("level") || why.contains("outside"), "{why}");
+    }
+
+    #[test]
+    fn a_fold_scores_only_the_samples_inside_its_fits_range() {
+        let pol = DecisionPolicy::default();
+        // output in [0, 1] on the fit side; the held-out block has 30 samples
+        // at 0.5 and 20 at 5 (outside [-0.1, 1.1])
+        let mut y: Vec<f64> = (0..100).map(|k| (k % 10) as f64 / 9.0).collect();
+        y.extend((0..50).map(|k| if k < 30 { 0.5 } else { 5.0 }));
+        let u: Vec<f64> = y.iter().map(|v| v * 0.1).collect();
+        let train =
+            Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y.clone()).expect("record");
+        // (the input, u = y / 10, leaves its range with the output)
+        let fit = train.slice(0..100);
+        let keep = covered(&fit, &train, &(100..150), 10, &pol);
+        assert_eq!(keep.len(), 50);
+        assert!(
+            keep[..10].iter().all(|&k| !k),
+            "the init window is not scored"
+        );
+        assert!(keep[10..30].iter().all(|&k| k));
+        assert!(keep[30..].iter().all(|&k| !k));
+        // a block almost entirely outside: scored whole
+        let mut y2 = y.clone();
+        for v in &mut y2[100..] {
+            *v = 5.0;
+        }
+        let train2 = Record::new(vec!["u".into()], "y".into(), vec![u], y2).expect("record");
+        let keep = covered(&train2.slice(0..100), &train2, &(100..150), 10, &pol);
+        assert!(keep[10..].iter().all(|&k| k) && keep[..10].iter().all(|&k| !k));
+        // the plan of a drifting short record scores fewer samples than it holds
+        let n = 400;
+        let mut rng = gb_core::rng::seeded(5);
+        let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let ramp: Vec<f64> = noise
+            .iter()
+            .enumerate()
+            .map(|(k, v)| v + 6.0 * k as f64 / n as f64)
+            .collect();
+        let plan = Plan::new(&data(ramp), &pol);
+        assert!(plan.cv());
+        let held: usize = plan.folds.iter().map(|f| f.test.len() - plan.w).sum();
+        let scored: usize = plan.folds.iter().map(|f| f.scored().count()).sum();
+        assert!(scored < held, "scored {scored} of {held}");
     }
 }

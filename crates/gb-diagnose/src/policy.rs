@@ -38,6 +38,9 @@ use crate::DiagnoseError;
 /// | `block_shift_ratio` | 1.5 | decisions also use blocked cross-validation when the select block is not representative of the fit block: the level (rms about the fit block's mean) or the pace (rms increment over rms) of the output or an input differs by more than this factor either way (a sweep, a changing amplitude) … |
 /// | `block_shift_outside` | 0.05 | … or more than this share of the select block's samples of a signal lie outside the fit block's range widened by a tenth (a drifting level): a gain measured there would not speak for the record |
 /// | `cv_folds` | 4 | contiguous folds of the cross-validation; each fold is scored by the structure refitted on the longer contiguous rest of the record (no regressor spans a gap), the pooled held-out residuals take the select block's place in every decision rule |
+/// | `cv_cover_pad`, `cv_cover_min` | 0.1, 0.2 | a fold scores only the held-out samples whose output and inputs lie in the range of the fold's fit record widened by a tenth of it (a fold fitted on one side of a drifting record extrapolates where the model fitted on the whole record does not); a fold with less than a fifth of its samples covered is scored whole |
+/// | `cv_fold_wins` | 0.75 | under cross-validation a paying candidate must also beat the current model on at least this share of the folds (3 of 4): a pooled gain can come from one fold where the current structure's refit failed |
+/// | `cv_refit_gain` | 0.01 | under cross-validation a candidate that pays on the folds must also be realised by its refit on the whole training record: that model must lower the training record's in-sample RMSE by ≥ 1 % against the current model (a structure chosen inside the fit — LOLIMOT's leaves by AICc — can come out as the current model on the whole record, and then the folds' gain is not the final model's) |
 /// | `long_record` | 100 000 | training records this long are searched on a subsample … |
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
 /// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search, on every record (`greybox diagnose --budget`); on a long record the structure found so far is refitted and reported |
@@ -129,6 +132,16 @@ pub struct DecisionPolicy {
     pub block_shift_outside: f64,
     /// Folds of the blocked cross-validation.
     pub cv_folds: usize,
+    /// Smallest in-sample RMSE gain of a candidate's whole-record refit
+    /// under cross-validation.
+    pub cv_refit_gain: f64,
+    /// Share of the folds a paying candidate must win.
+    pub cv_fold_wins: f64,
+    /// Widening of a fold fit's signal range that its scored samples must
+    /// lie in (fraction of the range).
+    pub cv_cover_pad: f64,
+    /// Least covered share of a fold below which it is scored whole.
+    pub cv_cover_min: f64,
     /// Training samples from which the structure is searched on a subsample.
     pub long_record: usize,
     /// Training samples of that subsample.
@@ -197,6 +210,10 @@ impl Default for DecisionPolicy {
             block_shift_ratio: 1.5,
             block_shift_outside: 0.05,
             cv_folds: 4,
+            cv_refit_gain: 0.01,
+            cv_fold_wins: 0.75,
+            cv_cover_pad: 0.1,
+            cv_cover_min: 0.2,
             long_record: 100_000,
             search_samples: 20_000,
             search_budget_s: 300.0,
@@ -281,6 +298,15 @@ impl DecisionPolicy {
         }
         if !(2..=20).contains(&self.cv_folds) || self.structure_scan_samples < 100 {
             return bad("cv_folds in 2..=20, structure_scan_samples >= 100");
+        }
+        let cv_ok = (0.0..1.0).contains(&self.cv_refit_gain)
+            && (0.0..f64::INFINITY).contains(&self.cv_cover_pad)
+            && (0.0..=1.0).contains(&self.cv_cover_min)
+            && (0.0..=1.0).contains(&self.cv_fold_wins);
+        if !cv_ok {
+            return bad(
+                "cv_refit_gain in [0,1), cv_cover_pad >= 0, cv_cover_min and cv_fold_wins in [0,1]",
+            );
         }
         if self.search_samples < 1000
             || self.long_record < self.search_samples
@@ -369,6 +395,10 @@ mod tests {
             },
             DecisionPolicy {
                 cv_folds: 1,
+                ..p.clone()
+            },
+            DecisionPolicy {
+                cv_refit_gain: 1.0,
                 ..p.clone()
             },
             DecisionPolicy {

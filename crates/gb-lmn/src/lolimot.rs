@@ -498,13 +498,17 @@ pub(crate) fn fit_lmn_oe_obs(
                 continue;
             }
         };
+        // in the criterion's order; past the first trained network of the
+        // first source, go on to the next size while the trained network
+        // is not better than the best so far (a construction whose
+        // preferred size starts training in a poor basin)
         for c in cands {
             match refine_output_error_with_observer(&c, inputs, y, fopts, observer) {
                 Ok((m, rep)) => {
                     if best.as_ref().is_none_or(|(b, _)| rep.mse_final < *b) {
                         best = Some((rep.mse_final, m));
+                        break;
                     }
-                    break;
                 }
                 Err(e) => last_err = e,
             }

@@ -294,8 +294,15 @@ impl Extension for ProcessNoise {
             let mut all = vec![];
             for (f, fold) in c.folds.iter_mut().zip(&ctx.plan.folds) {
                 let rec = d.train.slice(fold.test.clone());
-                let scored = w.min(rec.len())..rec.len();
-                f.select.nll = predictive(&f.model, &rec, w, scored, &[], pol)?.nll;
+                let s = w.min(rec.len());
+                let nll = predictive(&f.model, &rec, w, s..rec.len(), &[], pol)?.nll;
+                // the fold's scored samples only (aligned with its residuals)
+                f.select.nll = nll
+                    .into_iter()
+                    .enumerate()
+                    .filter(|(i, _)| fold.keep.get(s + i).copied().unwrap_or(false))
+                    .map(|(_, v)| v)
+                    .collect();
                 all.extend_from_slice(&f.select.nll);
             }
             c.select.nll = all;
