@@ -39,7 +39,7 @@ use crate::DiagnoseError;
 /// | `block_shift_outside` | 0.05 | … or more than this share of the select block's samples of a signal lie outside the fit block's range widened by a tenth (a drifting level): a gain measured there would not speak for the record |
 /// | `cv_folds` | 4 | contiguous folds of the cross-validation; each fold is scored by the structure refitted on the longer contiguous rest of the record (no regressor spans a gap), the pooled held-out residuals take the select block's place in every decision rule |
 /// | `cv_cover_pad`, `cv_cover_min` | 0.1, 0.2 | a fold scores only the held-out samples whose output and inputs lie in the range of the fold's fit record widened by a tenth of it (a fold fitted on one side of a drifting record extrapolates where the model fitted on the whole record does not); a fold with less than a fifth of its samples covered is scored whole |
-/// | `cv_fold_wins` | 0.75 | under cross-validation a paying candidate must also beat the current model on at least this share of the folds (3 of 4): a pooled gain can come from one fold where the current structure's refit failed |
+/// | `cv_fold_wins` | 0.5 | under cross-validation a paying candidate must also beat the current model on at least this share of the folds (2 of 4): a pooled gain can come from one fold where the current structure's refit failed (3 of 4 is too strict for sweeps, whose folds are different frequency bands and an effect shows on some of them) |
 /// | `cv_refit_gain` | 0.01 | under cross-validation a candidate that pays on the folds must also be realised by its refit on the whole training record: that model must lower the training record's in-sample RMSE by ≥ 1 % against the current model (a structure chosen inside the fit — LOLIMOT's leaves by AICc — can come out as the current model on the whole record, and then the folds' gain is not the final model's) |
 /// | `long_record` | 100 000 | training records this long are searched on a subsample … |
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
@@ -211,7 +211,7 @@ impl Default for DecisionPolicy {
             block_shift_outside: 0.05,
             cv_folds: 4,
             cv_refit_gain: 0.01,
-            cv_fold_wins: 0.75,
+            cv_fold_wins: 0.5,
             cv_cover_pad: 0.1,
             cv_cover_min: 0.2,
             long_record: 100_000,

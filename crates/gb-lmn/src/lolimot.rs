@@ -471,6 +471,10 @@ pub fn fit_lmn_oe(
     fit_lmn_oe_obs(spec, inputs, y, yreg, lopts, fopts, &gb_core::Silent)
 }
 
+/// A trained network this many times the best simulation MSE so far starts
+/// in a poor basin: the construction's next size is trained too.
+const POOR_BASIN: f64 = 2.0;
+
 /// [`fit_lmn_oe`] reporting the solver iterations to `observer`.
 pub(crate) fn fit_lmn_oe_obs(
     spec: &NetworkSpec,
@@ -498,15 +502,18 @@ pub(crate) fn fit_lmn_oe_obs(
                 continue;
             }
         };
-        // in the criterion's order; past the first trained network of the
-        // first source, go on to the next size while the trained network
-        // is not better than the best so far (a construction whose
-        // preferred size starts training in a poor basin)
+        // in the criterion's order, the first size that trains; the next
+        // size too while the trained network is more than twice as bad as
+        // the best so far (a construction whose preferred size starts
+        // training in a poor basin)
         for c in cands {
             match refine_output_error_with_observer(&c, inputs, y, fopts, observer) {
                 Ok((m, rep)) => {
-                    if best.as_ref().is_none_or(|(b, _)| rep.mse_final < *b) {
+                    let b = best.as_ref().map_or(f64::INFINITY, |(b, _)| *b);
+                    if rep.mse_final < b {
                         best = Some((rep.mse_final, m));
+                    }
+                    if rep.mse_final <= POOR_BASIN * b {
                         break;
                     }
                 }
