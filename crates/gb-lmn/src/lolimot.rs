@@ -505,15 +505,19 @@ pub(crate) fn fit_lmn_oe_obs(
         // in the criterion's order, the first size that trains; the next
         // size too while the trained network is more than twice as bad as
         // the best so far (a construction whose preferred size starts
-        // training in a poor basin)
+        // training in a poor basin) or does not beat a best of one local
+        // model (the network would come out linear)
         for c in cands {
             match refine_output_error_with_observer(&c, inputs, y, fopts, observer) {
                 Ok((m, rep)) => {
-                    let b = best.as_ref().map_or(f64::INFINITY, |(b, _)| *b);
-                    if rep.mse_final < b {
+                    let (b, linear) = best
+                        .as_ref()
+                        .map_or((f64::INFINITY, false), |(b, n)| (*b, n.n_leaves() == 1));
+                    let better = rep.mse_final < b;
+                    if better {
                         best = Some((rep.mse_final, m));
                     }
-                    if rep.mse_final <= POOR_BASIN * b {
+                    if better || (rep.mse_final <= POOR_BASIN * b && !linear) {
                         break;
                     }
                 }
