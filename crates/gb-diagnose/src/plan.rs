@@ -116,15 +116,9 @@ impl Plan {
                 ..f
             })
             .collect();
-        let shortest = folds
-            .iter()
-            .map(|f| f.test.len())
-            .min()
-            .unwrap_or(0)
-            .min(d.report_range.len());
         let fit_y = d.train.slice(train);
         Self {
-            w: pol.init_window_for(shortest),
+            w,
             integrating: false,
             fit: fit_y.clone(),
             fit_y,
