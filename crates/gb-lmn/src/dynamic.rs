@@ -94,6 +94,11 @@ impl DynamicModel for LocalModelNetwork {
     fn class(&self) -> &'static str {
         "io-network"
     }
+    /// Version 2 appends the relays per cell side of the output relay grid
+    /// to the version-1 body.
+    fn class_version(&self) -> u32 {
+        2
+    }
     fn n_inputs(&self) -> usize {
         self.input_scaling.len()
     }
@@ -140,7 +145,7 @@ impl DynamicModel for LocalModelNetwork {
         Ok(Box::new(NetworkStepper::new(self, h)?))
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
-        encode(self)
+        encode(&(self, self.spec.relay_sub as u32))
     }
     fn views(&self, input_names: &[String], output_names: &[String]) -> Vec<ModelView> {
         crate::views::network_views(self, input_names, output_names)
@@ -369,11 +374,23 @@ impl LocalModelNetwork {
         Ok(())
     }
 
-    /// Decode a model-file body of class `io-network`.
+    /// Decode a model-file body of class `io-network` (version 1: hard
+    /// relays; version 2: the relays per cell side follow the network).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
-        decode_checked("io-network", version, body, |m: &Self| {
-            m.check_consistency().map_err(|e| e.to_string())
-        })
+        let check = |m: &Self| m.check_consistency().map_err(|e| e.to_string());
+        if version < 2 {
+            return decode_checked("io-network", version, body, check);
+        }
+        let (mut m, sub): (Self, u32) = gb_core::decode_postcard("io-network", version, 2, body)?;
+        if sub == 0 || sub > 64 {
+            return Err(CoreError::ModelFile(format!(
+                "inconsistent 'io-network' model ({sub} relays per cell side)"
+            )));
+        }
+        m.spec.relay_sub = sub as usize;
+        check(&m)
+            .map_err(|e| CoreError::ModelFile(format!("inconsistent 'io-network' model ({e})")))?;
+        Ok(m)
     }
 }
 
@@ -481,6 +498,38 @@ mod tests {
             }
         }
         assert!(hyst.stepper(Init::Window(&y[..50])).is_err());
+    }
+
+    /// The relays per cell side travel in the model file (version 2); a
+    /// version-1 body (before them) reads as hard relays, and a model of
+    /// cells simulates differently from one of hard relays.
+    #[test]
+    fn a_model_file_keeps_the_relay_cells() {
+        let (u, y) = hysteretic(1500, 4);
+        let rec = gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y).unwrap();
+        let m = IoNetworkParams {
+            hysteresis: true,
+            ..IoNetworkParams::linear(2)
+        }
+        .check()
+        .unwrap()
+        .fit(&rec, WarmStart::default())
+        .unwrap();
+        assert_eq!(m.spec.relay_sub, 4);
+        assert_eq!(m.class_version(), 2);
+        let back = LocalModelNetwork::decode(&m.encode().unwrap(), 2).unwrap();
+        assert_eq!(back.spec.relay_sub, 4);
+        let uu = [u];
+        let sim = DynamicModel::simulate(&m, &uu, Init::Rest).unwrap();
+        assert_eq!(DynamicModel::simulate(&back, &uu, Init::Rest).unwrap(), sim);
+        let v1 = LocalModelNetwork::decode(&encode(&m).unwrap(), 1).unwrap();
+        assert_eq!(v1.spec.relay_sub, 1);
+        let hard = DynamicModel::simulate(&v1, &uu, Init::Rest).unwrap();
+        assert!(hard.iter().zip(&sim).any(|(a, b)| (a - b).abs() > 1e-9));
+        // a corrupt count is a model-file error
+        let mut bad = encode(&m).unwrap();
+        bad.push(0);
+        assert!(LocalModelNetwork::decode(&bad, 2).is_err());
     }
 
     #[test]

@@ -11,6 +11,7 @@
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
 //! | `separable_hysteresis` | false | the hysteresis weights at lags 1..L as one shape times one lag filter (one hysteretic force; W + L − 1 weights instead of W·L) |
 //! | `hysteresis_on` | both | which signals carry those columns: both, the input plays only (hysteresis before the dynamics, a backlash) or the output plays only (a Prandtl–Ishlinskii force on the state, no relay grid: shift-invariant) |
+//! | `relay_sub` | 4 | relays per cell side of the output relay grid ([`gb_preisach::RelayCells`]): its columns move in 16 steps per cell, not one jump (1 = hard relays) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
@@ -60,6 +61,9 @@ pub struct IoNetworkParams {
     /// Train the hysteresis weights as one hysteretic force through one
     /// lag filter (β[l, i] = c_l wᵢ; `FitOptions::separable_hysteresis`).
     pub separable_hysteresis: bool,
+    /// Relays per cell side of the output relay grid (≥ 1; 1 = one hard
+    /// relay per cell).
+    pub relay_sub: usize,
     /// Student-t noise model with a robust (IRLS) fit.
     pub robust: bool,
     /// Capacity level of the nonlinear parts.
@@ -81,6 +85,7 @@ impl IoNetworkParams {
             hysteresis: false,
             hysteresis_on: HysteresisOn::Both,
             separable_hysteresis: false,
+            relay_sub: 4,
             robust: false,
             detail: 0,
             fit: FitOptions::default(),
@@ -125,6 +130,7 @@ impl IoNetworkParams {
                 spec.output_play = (1..=no).map(|i| 2.4 * i as f64 / no as f64).collect();
                 if self.hysteresis_on == HysteresisOn::Both {
                     spec.output_relays = 6 + 2 * self.detail as usize;
+                    spec.relay_sub = self.relay_sub;
                 }
             }
             // lags 1..n+1: the hysteretic force acts inside n-th order
@@ -167,6 +173,12 @@ impl IoNetworkParams {
             return Err(LmnError::InvalidArgument(
                 "a dead time of at most 64 samples".into(),
             ));
+        }
+        if self.relay_sub == 0 || self.relay_sub > 64 {
+            return Err(LmnError::InvalidArgument(format!(
+                "relays per cell side must be in 1..=64, got {}",
+                self.relay_sub
+            )));
         }
         self.fit.check()?;
         self.lolimot.check()?;

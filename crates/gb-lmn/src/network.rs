@@ -261,10 +261,17 @@ impl LocalModelNetwork {
         v
     }
 
-    /// Relay grid on the output, if any.
-    pub(crate) fn relay_grid(&self) -> Option<gb_preisach::RelayGrid> {
+    /// Preisach cells (a relay grid) on the output, if any.
+    pub(crate) fn relay_cells(&self) -> Option<gb_preisach::RelayCells> {
         (self.spec.output_relays > 0)
-            .then(|| gb_preisach::RelayGrid::uniform(self.spec.output_relays, 2.5).ok())
+            .then(|| {
+                gb_preisach::RelayCells::uniform(
+                    self.spec.output_relays,
+                    2.5,
+                    self.spec.relay_sub.max(1),
+                )
+                .ok()
+            })
             .flatten()
     }
 
@@ -321,9 +328,14 @@ impl LocalModelNetwork {
         let hyst = if h > 0 {
             let ni: usize = self.spec.input_play.iter().map(Vec::len).sum();
             format!(
-                " + Preisach component ({} play operators and {} relays on the output, {} play operators on the inputs, at lags 1..{})",
+                " + Preisach component ({} play operators and {} Preisach cells{} on the output, {} play operators on the inputs, at lags 1..{})",
                 self.spec.output_play.len(),
                 self.spec.n_relays(),
+                if self.spec.relay_sub > 1 && self.spec.n_relays() > 0 {
+                    format!(" of {}x{} relays", self.spec.relay_sub, self.spec.relay_sub)
+                } else {
+                    String::new()
+                },
                 ni,
                 self.spec.hysteresis_lags
             )

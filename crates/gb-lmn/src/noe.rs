@@ -250,8 +250,11 @@ pub(crate) struct Prepared {
 /// `hysteresis_lags` blocks that `fill_x` reads.
 struct OutputHysteresis {
     bank: Option<gb_preisach::PlayOperatorBank>,
-    grid: Option<gb_preisach::RelayGrid>,
+    cells: Option<gb_preisach::RelayCells>,
     play: Vec<f64>,
+    /// relay states (±1) of the cells' relays
+    relay_states: Vec<f64>,
+    /// the cell columns
     relays: Vec<f64>,
     ring: Vec<f64>,
     moving: Vec<bool>,
@@ -262,9 +265,11 @@ struct OutputHysteresis {
 impl OutputHysteresis {
     fn new(net: &LocalModelNetwork, y0: f64) -> Self {
         let (play, relays, ring) = net.output_hysteresis_init(y0);
+        let cells = net.relay_cells();
         Self {
             bank: net.output_bank().ok().flatten(),
-            grid: net.relay_grid(),
+            relay_states: cells.as_ref().map_or_else(Vec::new, |c| c.relay_states(y0)),
+            cells,
             moving: vec![false; play.len()],
             play,
             relays,
@@ -283,8 +288,9 @@ impl OutputHysteresis {
         if let Some(bk) = &self.bank {
             bk.step(&mut self.play, y_prev, &mut self.moving);
         }
-        if let Some(g) = &self.grid {
-            g.switch(&mut self.relays, y_prev);
+        if let Some(c) = &self.cells {
+            c.switch(&mut self.relay_states, y_prev);
+            c.columns(&self.relay_states, &mut self.relays);
         }
         let nop = self.play.len();
         let slot = (k % self.lags) * self.block;
@@ -594,9 +600,11 @@ impl LocalModelNetwork {
             .ok()
             .flatten()
             .map_or_else(Vec::new, |b| b.initial_state(y0));
-        let relays = self
-            .relay_grid()
-            .map_or_else(Vec::new, |g| g.relay_states(y0));
+        let relays = self.relay_cells().map_or_else(Vec::new, |c| {
+            let mut col = vec![0.0; c.n_cells()];
+            c.columns(&c.relay_states(y0), &mut col);
+            col
+        });
         let mut block = oplay.clone();
         block.extend_from_slice(&relays);
         let ring = block.repeat(self.spec.hysteresis_lags);

@@ -26,6 +26,11 @@ pub struct NetworkSpec {
     /// output over ±2.5 normalised units (0: none).
     #[serde(default)]
     pub output_relays: usize,
+    /// Relays per cell side of that grid ([`gb_preisach::RelayCells`]: 1 =
+    /// one hard relay per cell). Stored after the network in a model file
+    /// of `io-network` version 2 (version 1: always 1).
+    #[serde(skip, default = "one")]
+    pub relay_sub: usize,
     /// Play-operator thresholds (normalised units) per input.
     pub input_play: Vec<Vec<f64>>,
     /// Lags of every hysteresis column (1: only the latest; n: lags 1..n, as
@@ -46,6 +51,7 @@ impl NetworkSpec {
             nk: vec![1; nb.len()],
             output_play: vec![],
             output_relays: 0,
+            relay_sub: 1,
             input_play: vec![vec![]; nb.len()],
             hysteresis_lags: 1,
             partition: vec![],

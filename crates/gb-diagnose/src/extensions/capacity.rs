@@ -54,7 +54,7 @@ impl Extension for Capacity {
             let d = 1 + s.detail as usize;
             let cols = match s.hysteresis_on {
                 gb_lmn::HysteresisOn::Both => format!(
-                    "{} play operators and {} relays on the output, up to {} play operators per input",
+                    "{} play operators and {} Preisach cells on the output, up to {} play operators per input",
                     6 * d,
                     l * (l + 1) / 2,
                     8 * d

@@ -10,7 +10,7 @@ use gb_lmn::HysteresisOn;
 /// The hysteresis columns of a candidate, in words.
 fn columns_text(on: HysteresisOn) -> &'static str {
     match on {
-        HysteresisOn::Both => "Preisach component on the simulated output (6 play operators + a 21-relay discrete Preisach operator) and up to 8 play operators per input (thresholds within its range)",
+        HysteresisOn::Both => "Preisach component on the simulated output (6 play operators + a discrete Preisach operator of 21 cells, each a uniform density of 4x4 relays) and up to 8 play operators per input (thresholds within its range)",
         HysteresisOn::Output => "6 play operators on the simulated output alone (a Prandtl-Ishlinskii operator: a hysteretic force on the state that depends on the motion, not on the absolute position)",
         HysteresisOn::Inputs => "up to 8 play operators per input alone (thresholds within its range: hysteresis before the dynamics)",
     }
