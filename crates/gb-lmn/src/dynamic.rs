@@ -95,7 +95,7 @@ impl DynamicModel for LocalModelNetwork {
         "io-network"
     }
     /// Version 2 appends the relays per cell side of the output relay grid
-    /// to the version-1 body.
+    /// and the knots of the output map to the version-1 body.
     fn class_version(&self) -> u32 {
         2
     }
@@ -145,7 +145,7 @@ impl DynamicModel for LocalModelNetwork {
         Ok(Box::new(NetworkStepper::new(self, h)?))
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
-        encode(&(self, self.spec.relay_sub as u32))
+        encode(&(self, self.spec.relay_sub as u32, &self.spec.output_knots))
     }
     fn views(&self, input_names: &[String], output_names: &[String]) -> Vec<ModelView> {
         crate::views::network_views(self, input_names, output_names)
@@ -375,19 +375,22 @@ impl LocalModelNetwork {
     }
 
     /// Decode a model-file body of class `io-network` (version 1: hard
-    /// relays; version 2: the relays per cell side follow the network).
+    /// relays, no output map; version 2: the relays per cell side and the
+    /// output map's knots follow the network).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
         let check = |m: &Self| m.check_consistency().map_err(|e| e.to_string());
         if version < 2 {
             return decode_checked("io-network", version, body, check);
         }
-        let (mut m, sub): (Self, u32) = gb_core::decode_postcard("io-network", version, 2, body)?;
+        let (mut m, sub, knots): (Self, u32, Vec<f64>) =
+            gb_core::decode_postcard("io-network", version, 2, body)?;
         if sub == 0 || sub > 64 {
             return Err(CoreError::ModelFile(format!(
                 "inconsistent 'io-network' model ({sub} relays per cell side)"
             )));
         }
         m.spec.relay_sub = sub as usize;
+        m.spec.output_knots = knots;
         check(&m)
             .map_err(|e| CoreError::ModelFile(format!("inconsistent 'io-network' model ({e})")))?;
         Ok(m)

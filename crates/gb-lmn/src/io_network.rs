@@ -12,6 +12,7 @@
 //! | `separable_hysteresis` | false | the hysteresis weights at lags 1..L as one shape times one lag filter (one hysteretic force; W + L − 1 weights instead of W·L) |
 //! | `hysteresis_on` | both | which signals carry those columns: both, the input plays only (hysteresis before the dynamics, a backlash) or the output plays only (a Prandtl–Ishlinskii force on the state, no relay grid: shift-invariant) |
 //! | `relay_sub` | 4 | relays per cell side of the output relay grid ([`gb_preisach::RelayCells`]): its columns move in 16 steps per cell, not one jump (1 = hard relays) |
+//! | `output_map` | 0 | ramp columns of a static map g(ŷ) of the simulated output fed back at lags 1..n+1 (a nonlinear spring or friction force of the output state; knots at quantiles of the output; 0: none) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
@@ -64,6 +65,9 @@ pub struct IoNetworkParams {
     /// Relays per cell side of the output relay grid (≥ 1; 1 = one hard
     /// relay per cell).
     pub relay_sub: usize,
+    /// Intervals of a static map of the simulated output inside the loop
+    /// (0: none): g(ŷ) piecewise linear, its ramp columns at lags 1..n+1.
+    pub output_map: usize,
     /// Student-t noise model with a robust (IRLS) fit.
     pub robust: bool,
     /// Capacity level of the nonlinear parts.
@@ -86,6 +90,7 @@ impl IoNetworkParams {
             hysteresis_on: HysteresisOn::Both,
             separable_hysteresis: false,
             relay_sub: 4,
+            output_map: 0,
             robust: false,
             detail: 0,
             fit: FitOptions::default(),
@@ -103,6 +108,9 @@ impl IoNetworkParams {
         let mut s = String::from(if self.network { "lmn" } else { "linear" });
         if self.hysteresis {
             s.push_str("+preisach");
+        }
+        if self.output_map > 0 {
+            s.push_str("+feedback");
         }
         if self.robust {
             s.push_str("+student-t");
@@ -141,6 +149,13 @@ impl IoNetworkParams {
                     vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
             }
         }
+        if self.output_map > 0 {
+            // uniform over ±2.4 normalised units; `network_spec_on` puts the
+            // knots at quantiles of the record's output
+            let m = self.output_map;
+            spec.output_knots = (0..=m).map(|i| -2.4 + 4.8 * i as f64 / m as f64).collect();
+            spec.hysteresis_lags = self.order + 1;
+        }
         spec
     }
 
@@ -149,8 +164,17 @@ impl IoNetworkParams {
     /// input dropped (keeping at least one): such a play barely moves, its
     /// column is a constant set by the record's first sample, which a new
     /// record does not share. For a Gaussian input R ≈ 2.3.
+    /// The output map's knots are the 1 %, …, 99 % quantiles of the
+    /// normalised output at equal steps of probability (duplicates merged):
+    /// dense where the output dwells, as a velocity does around a sticking
+    /// friction's zero.
     pub fn network_spec_on(&self, data: &Record) -> NetworkSpec {
         let mut spec = self.network_spec(data.n_inputs());
+        if self.output_map > 0 {
+            if let Some(k) = quantile_knots(&data.output, self.output_map) {
+                spec.output_knots = k;
+            }
+        }
         for (plays, u) in spec.input_play.iter_mut().zip(&data.inputs) {
             let r = half_range(u);
             if r.is_finite() && plays.len() > 1 {
@@ -274,6 +298,33 @@ impl Identify for ValidIoNetworkParams {
     }
 }
 
+/// `m + 1` knots at the 1 %, …, 99 % quantiles of the normalised `y` (at
+/// equal steps of probability), those closer than 0.02 standard deviations
+/// to the previous one dropped; `None` when fewer than two remain or `y`
+/// is too short or constant.
+fn quantile_knots(y: &[f64], m: usize) -> Option<Vec<f64>> {
+    let n = y.len();
+    let sd = gb_core::metrics::std(y);
+    if n < 10 || m == 0 || !(sd > 0.0 && sd.is_finite()) {
+        return None;
+    }
+    let sc = crate::Scaling::of(y);
+    let mut z: Vec<f64> = y.iter().map(|&v| sc.to_norm(v)).collect();
+    if z.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    z.sort_by(f64::total_cmp);
+    let q = |p: f64| z[((n - 1) as f64 * p).round() as usize];
+    let mut knots: Vec<f64> = vec![];
+    for i in 0..=m {
+        let t = q(0.01 + 0.98 * i as f64 / m as f64);
+        if knots.last().is_none_or(|&l| t - l >= 0.02) {
+            knots.push(t);
+        }
+    }
+    (knots.len() >= 2).then_some(knots)
+}
+
 /// Half the 1 %–99 % quantile range of `u` in units of its standard
 /// deviation (NaN for a constant or too short signal).
 fn half_range(u: &[f64]) -> f64 {
@@ -290,4 +341,79 @@ fn half_range(u: &[f64]) -> f64 {
     z.sort_by(f64::total_cmp);
     let q = |p: f64| z[((n - 1) as f64 * p).round() as usize];
     (q(0.99) - q(0.01)) / 2.0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_xoshiro::Xoshiro256PlusPlus;
+
+    /// A Lur'e system: a cubic spring force on the output inside the loop,
+    /// y(k) = 1.5 y(k−1) − 0.7 y(k−2) − 0.08 y(k−1)³ + 0.2 u(k−1) + noise.
+    fn lure(n: usize, seed: u64) -> Record {
+        let mut r = Xoshiro256PlusPlus::seed_from_u64(seed);
+        let mut u = vec![0.0; n];
+        for k in 0..n {
+            // a held random level every 8 samples
+            u[k] = if k % 8 == 0 {
+                r.random_range(-2.0..2.0)
+            } else {
+                u[k - 1]
+            };
+        }
+        let mut x = vec![0.0f64; n];
+        for k in 2..n {
+            x[k] = 1.5 * x[k - 1] - 0.7 * x[k - 2] - 0.08 * x[k - 1].powi(3) + 0.2 * u[k - 1];
+        }
+        let y: Vec<f64> = x
+            .iter()
+            .map(|v| v + 0.01 * r.random_range(-1.0..1.0))
+            .collect();
+        Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap()
+    }
+
+    fn nrmse(m: &LocalModelNetwork, rec: &Record) -> f64 {
+        let sim = gb_core::DynamicModel::simulate(m, &rec.inputs, gb_core::Init::Rest).unwrap();
+        let e: f64 = sim
+            .iter()
+            .zip(&rec.output)
+            .map(|(a, b)| (a - b).powi(2))
+            .sum();
+        let v: f64 = rec.output.iter().map(|b| b * b).sum();
+        (e / v).sqrt()
+    }
+
+    /// The feedback map finds the spring the linear model cannot express:
+    /// on a new record its simulation error is a small fraction of the
+    /// linear model's, and its knots sit at the output's quantiles.
+    #[test]
+    fn a_feedback_map_models_a_nonlinear_spring_inside_the_loop() {
+        let (train, test) = (lure(3000, 1), lure(2000, 2));
+        let fit = |p: IoNetworkParams| {
+            p.check()
+                .unwrap()
+                .fit(&train, WarmStart::default())
+                .unwrap()
+        };
+        let linear = fit(IoNetworkParams::linear(2));
+        let map = fit(IoNetworkParams {
+            output_map: 8,
+            separable_hysteresis: true,
+            ..IoNetworkParams::linear(2)
+        });
+        assert_eq!(map.spec.n_ramps(), 8);
+        let k = &map.spec.output_knots;
+        assert!(
+            k[0] < -1.5 && k[8] > 1.5 && k.windows(2).all(|w| w[1] > w[0]),
+            "{k:?}"
+        );
+        let (el, em) = (nrmse(&linear, &test), nrmse(&map, &test));
+        assert!(em < 0.2 * el, "feedback map {em:.4} vs linear {el:.4}");
+        assert_eq!(map.spec.hysteresis_lags, 3);
+        // the model file keeps the knots
+        let body = gb_core::DynamicModel::encode(&map).unwrap();
+        let back = LocalModelNetwork::decode(&body, 2).unwrap();
+        assert_eq!(nrmse(&back, &test), em);
+    }
 }

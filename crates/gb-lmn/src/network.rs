@@ -324,24 +324,31 @@ impl LocalModelNetwork {
                 self.spec.na
             )
         };
-        let h = self.spec.n_hysteresis();
-        let hyst = if h > 0 {
-            let ni: usize = self.spec.input_play.iter().map(Vec::len).sum();
-            format!(
+        let sp = &self.spec;
+        let ni: usize = sp.input_play.iter().map(Vec::len).sum();
+        let mut extra = String::new();
+        if sp.n_ramps() > 0 {
+            extra.push_str(&format!(
+                " + feedback map of the output ({} intervals, at lags 1..{})",
+                sp.n_ramps(),
+                sp.hysteresis_lags
+            ));
+        }
+        if sp.output_play.len() + sp.n_relays() + ni > 0 {
+            extra.push_str(&format!(
                 " + Preisach component ({} play operators and {} Preisach cells{} on the output, {} play operators on the inputs, at lags 1..{})",
-                self.spec.output_play.len(),
-                self.spec.n_relays(),
-                if self.spec.relay_sub > 1 && self.spec.n_relays() > 0 {
-                    format!(" of {}x{} relays", self.spec.relay_sub, self.spec.relay_sub)
+                sp.output_play.len(),
+                sp.n_relays(),
+                if sp.relay_sub > 1 && sp.n_relays() > 0 {
+                    format!(" of {}x{} relays", sp.relay_sub, sp.relay_sub)
                 } else {
                     String::new()
                 },
                 ni,
-                self.spec.hysteresis_lags
-            )
-        } else {
-            String::new()
-        };
+                sp.hysteresis_lags
+            ));
+        }
+        let hyst = extra;
         format!("{core}{hyst}")
     }
 }

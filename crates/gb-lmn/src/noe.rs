@@ -245,13 +245,19 @@ pub(crate) struct Prepared {
     pub ucols: Vec<Vec<Vec<f64>>>,
 }
 
-/// Output-side hysteresis state during a simulation: play operators and
-/// relays driven by the previous output, and the ring of their last
-/// `hysteresis_lags` blocks that `fill_x` reads.
+/// Output-side state during a simulation: play operators, the ramps of the
+/// output map and the relay cells, driven by the previous output, and the
+/// ring of their last `hysteresis_lags` blocks (plays, ramps, cells) that
+/// `fill_x` reads.
 struct OutputHysteresis {
     bank: Option<gb_preisach::PlayOperatorBank>,
     cells: Option<gb_preisach::RelayCells>,
     play: Vec<f64>,
+    /// knots of the output map
+    knots: Vec<f64>,
+    /// ramp columns of the output map and their slopes ∂r_m/∂ŷ
+    ramps: Vec<f64>,
+    slopes: Vec<f64>,
     /// relay states (±1) of the cells' relays
     relay_states: Vec<f64>,
     /// the cell columns
@@ -262,16 +268,40 @@ struct OutputHysteresis {
     lags: usize,
 }
 
+/// Ramp columns r_m(y) = clamp((y − t_m)/(t_{m+1} − t_m), 0, 1) and their
+/// slopes for the knots `t`: g = Σ w_m r_m is flat beyond the outer knots,
+/// so a fed-back map stays bounded however far a simulation strays
+/// (linear extrapolation was measured too: it diverged on a Duffing record
+/// at order 2, see docs/lmn.md).
+#[inline]
+fn ramps_at(knots: &[f64], y: f64, ramps: &mut [f64], slopes: &mut [f64]) {
+    for (m, w) in knots.windows(2).enumerate() {
+        let d = w[1] - w[0];
+        let v = (y - w[0]) / d;
+        (ramps[m], slopes[m]) = if v <= 0.0 {
+            (0.0, 0.0)
+        } else if v >= 1.0 {
+            (1.0, 0.0)
+        } else {
+            (v, 1.0 / d)
+        };
+    }
+}
+
 impl OutputHysteresis {
     fn new(net: &LocalModelNetwork, y0: f64) -> Self {
         let (play, relays, ring) = net.output_hysteresis_init(y0);
         let cells = net.relay_cells();
+        let nr = net.spec.n_ramps();
         Self {
             bank: net.output_bank().ok().flatten(),
             relay_states: cells.as_ref().map_or_else(Vec::new, |c| c.relay_states(y0)),
             cells,
             moving: vec![false; play.len()],
             play,
+            knots: net.spec.output_knots.clone(),
+            ramps: vec![0.0; nr],
+            slopes: vec![0.0; nr],
             relays,
             ring,
             block: net.spec.output_block(),
@@ -288,14 +318,16 @@ impl OutputHysteresis {
         if let Some(bk) = &self.bank {
             bk.step(&mut self.play, y_prev, &mut self.moving);
         }
+        ramps_at(&self.knots, y_prev, &mut self.ramps, &mut self.slopes);
         if let Some(c) = &self.cells {
             c.switch(&mut self.relay_states, y_prev);
             c.columns(&self.relay_states, &mut self.relays);
         }
-        let nop = self.play.len();
+        let (nop, nr) = (self.play.len(), self.ramps.len());
         let slot = (k % self.lags) * self.block;
         self.ring[slot..slot + nop].copy_from_slice(&self.play);
-        self.ring[slot + nop..slot + self.block].copy_from_slice(&self.relays);
+        self.ring[slot + nop..slot + nop + nr].copy_from_slice(&self.ramps);
+        self.ring[slot + nop + nr..slot + self.block].copy_from_slice(&self.relays);
     }
 }
 
@@ -605,7 +637,11 @@ impl LocalModelNetwork {
             c.columns(&c.relay_states(y0), &mut col);
             col
         });
+        let nr = self.spec.n_ramps();
+        let (mut ramps, mut slopes) = (vec![0.0; nr], vec![0.0; nr]);
+        ramps_at(&self.spec.output_knots, y0, &mut ramps, &mut slopes);
         let mut block = oplay.clone();
+        block.extend_from_slice(&ramps);
         block.extend_from_slice(&relays);
         let ring = block.repeat(self.spec.hysteresis_lags);
         (oplay, relays, ring)
@@ -751,13 +787,15 @@ impl LocalModelNetwork {
         }
         let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
         let mut oh = OutputHysteresis::new(self, y0);
-        let nop = oh.play.len();
+        // the differentiable output columns: plays, then the output map's ramps
+        let nplay = oh.play.len();
+        let nop = nplay + oh.ramps.len();
         let b = oh.block;
         let lags = oh.lags;
         // ring buffer of the last n_a output sensitivities; slot (k mod na)
         let ring = na.max(1);
         let mut sy = vec![0.0; ring * np];
-        // ring of play-operator sensitivities, slot (k mod lags), nop × np each
+        // ring of play and ramp sensitivities, slot (k mod lags), nop × np each
         let mut sp = vec![0.0; lags * nop * np];
         let mut x = vec![0.0; nd + self.spec.n_hysteresis()];
         let mut gt = vec![0.0; np];
@@ -789,6 +827,18 @@ impl LocalModelNetwork {
                         }
                     } else if cur != prv {
                         sp.copy_within(prv + r * np..prv + (r + 1) * np, dst);
+                    }
+                }
+                // a ramp's sensitivity is its slope times ∂ŷ(k−1)/∂θ
+                for (m, &g) in oh.slopes.iter().enumerate() {
+                    let dst = cur + (nplay + m) * np;
+                    if g != 0.0 && k > k0 {
+                        for (d, &v) in sp[dst..dst + np].iter_mut().zip(&sy[sy_prev..sy_prev + np])
+                        {
+                            *d = g * v;
+                        }
+                    } else {
+                        sp[dst..dst + np].fill(0.0);
                     }
                 }
             }
@@ -1423,6 +1473,8 @@ pub fn embed_linear(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<Local
     if spec.output_play == net.spec.output_play
         && spec.input_play == net.spec.input_play
         && spec.output_relays == net.spec.output_relays
+        && spec.relay_sub == net.spec.relay_sub
+        && spec.output_knots == net.spec.output_knots
         && spec.hysteresis_lags == net.spec.hysteresis_lags
     {
         out.beta.clone_from(&net.beta);

@@ -31,6 +31,15 @@ pub struct NetworkSpec {
     /// of `io-network` version 2 (version 1: always 1).
     #[serde(skip, default = "one")]
     pub relay_sub: usize,
+    /// Knots t₀ < … < t_M (normalised units) of a static map of the
+    /// simulated output inside the loop: M ramp columns
+    /// r_m(ŷ) = clamp((ŷ − t_m)/(t_{m+1} − t_m), 0, 1), a piecewise-linear
+    /// g(ŷ) = Σ w_m r_m(ŷ), flat beyond the outer knots, fed back at the
+    /// hysteresis lags (a Preisach
+    /// density on the line α = β: no memory). Empty: none. Stored after the
+    /// network in a model file of `io-network` version 2.
+    #[serde(skip)]
+    pub output_knots: Vec<f64>,
     /// Play-operator thresholds (normalised units) per input.
     pub input_play: Vec<Vec<f64>>,
     /// Lags of every hysteresis column (1: only the latest; n: lags 1..n, as
@@ -52,6 +61,7 @@ impl NetworkSpec {
             output_play: vec![],
             output_relays: 0,
             relay_sub: 1,
+            output_knots: vec![],
             input_play: vec![vec![]; nb.len()],
             hysteresis_lags: 1,
             partition: vec![],
@@ -102,6 +112,14 @@ impl NetworkSpec {
                 )));
             }
         }
+        if self.output_knots.iter().any(|t| !t.is_finite())
+            || self.output_knots.windows(2).any(|w| w[1] <= w[0])
+            || self.output_knots.len() == 1
+        {
+            return Err(LmnError::InvalidArgument(
+                "output map knots must be finite and increasing (none, or at least two)".into(),
+            ));
+        }
         Ok(())
     }
 
@@ -113,14 +131,18 @@ impl NetworkSpec {
     /// Number of hysteresis columns.
     pub fn n_hysteresis(&self) -> usize {
         self.hysteresis_lags
-            * (self.output_play.len()
-                + self.n_relays()
-                + self.input_play.iter().map(Vec::len).sum::<usize>())
+            * (self.output_block() + self.input_play.iter().map(Vec::len).sum::<usize>())
     }
 
-    /// Columns of one lag of the output-side hysteresis block.
+    /// Columns of one lag of the output-side block: the plays, the ramps of
+    /// the output map, then the relay cells.
     pub fn output_block(&self) -> usize {
-        self.output_play.len() + self.n_relays()
+        self.output_play.len() + self.n_ramps() + self.n_relays()
+    }
+
+    /// Number of ramp columns of the output map (knots − 1).
+    pub fn n_ramps(&self) -> usize {
+        self.output_knots.len().saturating_sub(1)
     }
 
     /// Number of relay columns: levels·(levels+1)/2.

@@ -79,11 +79,12 @@ fn partition(net: &LocalModelNetwork, inputs: &[String], y: &str) -> ModelView {
 }
 
 /// Relay weights summed over lags on the (β, α) half-plane of the output,
-/// in physical units (thresholds as in `RelayGrid::new(levels, 2.5)`).
+/// in physical units (the cells of `RelayCells::uniform(levels, 2.5, sub)`).
 fn preisach_density(net: &LocalModelNetwork, y: &str) -> ModelView {
     let levels = net.spec.output_relays;
     let nrel = net.spec.n_relays();
-    let nop = net.spec.output_play.len();
+    // the cells follow the plays and the output map's ramps in each block
+    let nop = net.spec.output_play.len() + net.spec.n_ramps();
     let block = net.spec.output_block();
     let mut w = vec![0.0; nrel];
     for l in 0..net.spec.hysteresis_lags {

@@ -154,14 +154,14 @@ pub struct Recipe {
 pub static RECIPES: &[Recipe] = &[
     Recipe {
         name: "linear",
-        components: &["preisach", "student-t"],
-        summary: "linear output-error model of order n (+preisach: play-operator and discrete Preisach columns; +student-t: heavy-tailed noise, robust fit)",
+        components: &["preisach", "feedback", "student-t"],
+        summary: "linear output-error model of order n (+preisach: play-operator and discrete Preisach columns; +feedback: a static piecewise-linear map of the simulated output fed back into the dynamics, a nonlinear spring or friction; +student-t: heavy-tailed noise, robust fit)",
         options: &["order=2: n = n_a = n_b", "delay=1: input dead time, one or one per input (a/b)"],
         fit: fit_io_network,
     },
     Recipe {
         name: "lmn",
-        components: &["preisach", "student-t"],
+        components: &["preisach", "feedback", "student-t"],
         summary: "LOLIMOT local model network on the order-n regressors; any tree option selects the full tree network (HILOMOT/oblique, several records allowed)",
         options: &[
             "order=2", "delay=1", "weights=tree: gauss|tree", "splits=axis: axis|oblique",
@@ -326,6 +326,7 @@ fn fit_io_network(
         delay,
         network: spec.name == "lmn",
         hysteresis: spec.has("preisach"),
+        output_map: if spec.has("feedback") { 8 } else { 0 },
         robust: spec.has("student-t"),
         ..gb_lmn::IoNetworkParams::linear(order)
     };

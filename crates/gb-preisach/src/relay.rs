@@ -242,8 +242,12 @@ impl RelayCells {
                 "relay cells need half_range > 0, levels >= 1 and sub >= 1, got {half_range}, {levels}, {sub}"
             )));
         }
-        let d = 2.0 * half_range / levels as f64;
-        let at = |i: usize, p: usize| -half_range + d * (i as f64 + (p as f64 + 0.5) / sub as f64);
+        // the expression of `RelayGrid::uniform` at sub = 1, so that the
+        // thresholds (and the demagnetised start's ties α + β = 2x₀) agree
+        // to the last bit
+        let at = |i: usize, p: usize| {
+            -half_range + 2.0 * half_range * ((i * sub + p) as f64 + 0.5) / (levels * sub) as f64
+        };
         let (mut alpha, mut beta, mut cell, mut inv_size) = (vec![], vec![], vec![], vec![]);
         for i in 0..levels {
             for j in 0..=i {
@@ -308,9 +312,12 @@ mod cell_tests {
 
     #[test]
     fn one_relay_per_cell_is_the_uniform_grid() {
-        let g = RelayGrid::uniform(5, 2.5).unwrap();
-        let c = RelayCells::uniform(5, 2.5, 1).unwrap();
+        let g = RelayGrid::uniform(6, 2.5).unwrap();
+        let c = RelayCells::uniform(6, 2.5, 1).unwrap();
         let x = [0.3, -1.7, 2.2, 0.9, -0.4, 1.1, -2.6, 0.0];
+        for x0 in [0.0, 0.1] {
+            assert_eq!(g.relay_states(x0), c.relay_states(x0), "start at {x0}");
+        }
         let (mut sg, mut sc) = (g.relay_states(0.1), c.relay_states(0.1));
         let mut col = vec![0.0; c.n_cells()];
         for &v in &x {
