@@ -446,6 +446,21 @@ mod tests {
             .collect()
     }
 
+    /// The linear model of order 2 with the default Preisach component,
+    /// fitted on (u, y).
+    fn preisach_network(u: &[f64], y: &[f64]) -> LocalModelNetwork {
+        let rec = gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.to_vec()], y.to_vec())
+            .unwrap();
+        IoNetworkParams {
+            hysteresis: true,
+            ..IoNetworkParams::linear(2)
+        }
+        .check()
+        .unwrap()
+        .fit(&rec, WarmStart::default())
+        .unwrap()
+    }
+
     fn hysteretic(n: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
         let mut r = Xoshiro256PlusPlus::seed_from_u64(seed);
         let u: Vec<f64> = (0..n)
@@ -466,17 +481,8 @@ mod tests {
     #[test]
     fn stepping_an_io_network_is_bit_identical_to_simulate() {
         let (u, y) = hysteretic(2500, 1);
-        let rec =
-            gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y.clone()).unwrap();
-        // play operators and relays on the output and the input, lags 1..3
-        let hyst = IoNetworkParams {
-            hysteresis: true,
-            ..IoNetworkParams::linear(2)
-        }
-        .check()
-        .unwrap()
-        .fit(&rec, WarmStart::default())
-        .unwrap();
+        // play operators and relay cells on the output and the input, lags 1..3
+        let hyst = preisach_network(&u, &y);
         // a LOLIMOT network (several leaves)
         let spec = NetworkSpec::order(2, 1);
         let lopts = LolimotOptions {
@@ -509,15 +515,7 @@ mod tests {
     #[test]
     fn a_model_file_keeps_the_relay_cells() {
         let (u, y) = hysteretic(1500, 4);
-        let rec = gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y).unwrap();
-        let m = IoNetworkParams {
-            hysteresis: true,
-            ..IoNetworkParams::linear(2)
-        }
-        .check()
-        .unwrap()
-        .fit(&rec, WarmStart::default())
-        .unwrap();
+        let m = preisach_network(&u, &y);
         assert_eq!(m.spec.relay_sub, 4);
         assert_eq!(m.class_version(), 2);
         let back = LocalModelNetwork::decode(&m.encode().unwrap(), 2).unwrap();
