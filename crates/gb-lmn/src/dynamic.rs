@@ -384,12 +384,8 @@ impl LocalModelNetwork {
         }
         let (mut m, sub, knots): (Self, u32, Vec<f64>) =
             gb_core::decode_postcard("io-network", version, 2, body)?;
-        if sub == 0 || sub > 64 {
-            return Err(CoreError::ModelFile(format!(
-                "inconsistent 'io-network' model ({sub} relays per cell side)"
-            )));
-        }
-        m.spec.relay_sub = sub as usize;
+        // a count out of range fails the consistency check below
+        m.spec.relay_sub = usize::try_from(sub).unwrap_or(usize::MAX);
         m.spec.output_knots = knots;
         check(&m)
             .map_err(|e| CoreError::ModelFile(format!("inconsistent 'io-network' model ({e})")))?;
@@ -527,10 +523,13 @@ mod tests {
         assert_eq!(v1.spec.relay_sub, 1);
         let hard = DynamicModel::simulate(&v1, &uu, Init::Rest).unwrap();
         assert!(hard.iter().zip(&sim).any(|(a, b)| (a - b).abs() > 1e-9));
-        // a corrupt count is a model-file error
-        let mut bad = encode(&m).unwrap();
-        bad.push(0);
-        assert!(LocalModelNetwork::decode(&bad, 2).is_err());
+        // a count out of range and a truncated body are model-file errors
+        let zero = encode(&(&m, 0u32, &m.spec.output_knots)).unwrap();
+        let e = LocalModelNetwork::decode(&zero, 2).unwrap_err().to_string();
+        assert!(e.contains("relays per cell side"), "{e}");
+        let mut cut = encode(&m).unwrap();
+        cut.push(4);
+        assert!(LocalModelNetwork::decode(&cut, 2).is_err());
     }
 
     #[test]

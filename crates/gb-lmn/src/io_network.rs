@@ -298,26 +298,37 @@ impl Identify for ValidIoNetworkParams {
     }
 }
 
+/// `u` normalised by its [`Scaling`](crate::Scaling) (the network's own
+/// normalisation) and sorted; `None` for fewer than 10 samples, a constant
+/// or a non-finite signal.
+fn normalised_sorted(u: &[f64]) -> Option<Vec<f64>> {
+    let sd = gb_core::metrics::std(u);
+    if u.len() < 10 || !(sd > 0.0 && sd.is_finite()) {
+        return None;
+    }
+    let sc = crate::Scaling::of(u);
+    let mut z: Vec<f64> = u.iter().map(|&v| sc.to_norm(v)).collect();
+    if z.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    z.sort_by(f64::total_cmp);
+    Some(z)
+}
+
+/// The p-quantile of sorted values (nearest rank).
+fn quantile(z: &[f64], p: f64) -> f64 {
+    z[((z.len() - 1) as f64 * p).round() as usize]
+}
+
 /// `m + 1` knots at the 1 %, …, 99 % quantiles of the normalised `y` (at
 /// equal steps of probability), those closer than 0.02 standard deviations
 /// to the previous one dropped; `None` when fewer than two remain or `y`
 /// is too short or constant.
 fn quantile_knots(y: &[f64], m: usize) -> Option<Vec<f64>> {
-    let n = y.len();
-    let sd = gb_core::metrics::std(y);
-    if n < 10 || m == 0 || !(sd > 0.0 && sd.is_finite()) {
-        return None;
-    }
-    let sc = crate::Scaling::of(y);
-    let mut z: Vec<f64> = y.iter().map(|&v| sc.to_norm(v)).collect();
-    if z.iter().any(|v| !v.is_finite()) {
-        return None;
-    }
-    z.sort_by(f64::total_cmp);
-    let q = |p: f64| z[((n - 1) as f64 * p).round() as usize];
+    let z = normalised_sorted(y).filter(|_| m > 0)?;
     let mut knots: Vec<f64> = vec![];
     for i in 0..=m {
-        let t = q(0.01 + 0.98 * i as f64 / m as f64);
+        let t = quantile(&z, 0.01 + 0.98 * i as f64 / m as f64);
         if knots.last().is_none_or(|&l| t - l >= 0.02) {
             knots.push(t);
         }
@@ -328,19 +339,9 @@ fn quantile_knots(y: &[f64], m: usize) -> Option<Vec<f64>> {
 /// Half the 1 %–99 % quantile range of `u` in units of its standard
 /// deviation (NaN for a constant or too short signal).
 fn half_range(u: &[f64]) -> f64 {
-    let n = u.len();
-    if n < 10 {
-        return f64::NAN;
-    }
-    let m = u.iter().sum::<f64>() / n as f64;
-    let sd = (u.iter().map(|v| (v - m).powi(2)).sum::<f64>() / n as f64).sqrt();
-    if !(sd > 0.0 && sd.is_finite()) {
-        return f64::NAN;
-    }
-    let mut z: Vec<f64> = u.iter().map(|v| (v - m) / sd).collect();
-    z.sort_by(f64::total_cmp);
-    let q = |p: f64| z[((n - 1) as f64 * p).round() as usize];
-    (q(0.99) - q(0.01)) / 2.0
+    normalised_sorted(u).map_or(f64::NAN, |z| {
+        (quantile(&z, 0.99) - quantile(&z, 0.01)) / 2.0
+    })
 }
 
 #[cfg(test)]

@@ -265,12 +265,8 @@ impl LocalModelNetwork {
     pub(crate) fn relay_cells(&self) -> Option<gb_preisach::RelayCells> {
         (self.spec.output_relays > 0)
             .then(|| {
-                gb_preisach::RelayCells::uniform(
-                    self.spec.output_relays,
-                    2.5,
-                    self.spec.relay_sub.max(1),
-                )
-                .ok()
+                gb_preisach::RelayCells::uniform(self.spec.output_relays, 2.5, self.spec.relay_sub)
+                    .ok()
             })
             .flatten()
     }
@@ -326,16 +322,16 @@ impl LocalModelNetwork {
         };
         let sp = &self.spec;
         let ni: usize = sp.input_play.iter().map(Vec::len).sum();
-        let mut extra = String::new();
+        let mut hyst = String::new();
         if sp.n_ramps() > 0 {
-            extra.push_str(&format!(
+            hyst.push_str(&format!(
                 " + feedback map of the output ({} intervals, at lags 1..{})",
                 sp.n_ramps(),
                 sp.hysteresis_lags
             ));
         }
         if sp.output_play.len() + sp.n_relays() + ni > 0 {
-            extra.push_str(&format!(
+            hyst.push_str(&format!(
                 " + Preisach component ({} play operators and {} Preisach cells{} on the output, {} play operators on the inputs, at lags 1..{})",
                 sp.output_play.len(),
                 sp.n_relays(),
@@ -348,7 +344,6 @@ impl LocalModelNetwork {
                 sp.hysteresis_lags
             ));
         }
-        let hyst = extra;
         format!("{core}{hyst}")
     }
 }

@@ -320,8 +320,7 @@ impl OutputHysteresis {
         }
         ramps_at(&self.knots, y_prev, &mut self.ramps, &mut self.slopes);
         if let Some(c) = &self.cells {
-            c.switch(&mut self.relay_states, y_prev);
-            c.columns(&self.relay_states, &mut self.relays);
+            c.step(&mut self.relay_states, y_prev, &mut self.relays);
         }
         let (nop, nr) = (self.play.len(), self.ramps.len());
         let slot = (k % self.lags) * self.block;

@@ -112,6 +112,12 @@ impl NetworkSpec {
                 )));
             }
         }
+        if self.relay_sub == 0 || self.relay_sub > 64 {
+            return Err(LmnError::InvalidArgument(format!(
+                "relays per cell side must be in 1..=64, got {}",
+                self.relay_sub
+            )));
+        }
         if self.output_knots.iter().any(|t| !t.is_finite())
             || self.output_knots.windows(2).any(|w| w[1] <= w[0])
             || self.output_knots.len() == 1

@@ -222,8 +222,7 @@ impl RelayGrid {
 /// let mut col = [0.0];
 /// c.columns(&s, &mut col);
 /// assert_eq!(col, [-1.0]);
-/// c.switch(&mut s, 0.0); // x passes the α < 0 half: 3 of 10 relays up
-/// c.columns(&s, &mut col);
+/// c.step(&mut s, 0.0, &mut col); // x passes the α < 0 half: 3 of 10 relays up
 /// assert!((col[0] - (-1.0 + 2.0 * 3.0 / 10.0)).abs() < 1e-12);
 /// ```
 #[derive(Debug, Clone, PartialEq)]
@@ -286,12 +285,6 @@ impl RelayCells {
         self.relays.relay_states(x0)
     }
 
-    /// Switch the relay states with the input `x`.
-    #[inline]
-    pub fn switch(&self, state: &mut [f64], x: f64) {
-        self.relays.switch(state, x);
-    }
-
     /// The cell columns (mean relay state per cell) into `out`
     /// (length [`n_cells`](Self::n_cells)).
     #[inline]
@@ -299,6 +292,26 @@ impl RelayCells {
         out.fill(0.0);
         for (&s, &c) in state.iter().zip(&self.cell) {
             out[c] += s;
+        }
+        for (o, w) in out.iter_mut().zip(&self.inv_size) {
+            *o *= w;
+        }
+    }
+
+    /// Switch the relay states with the input `x` (up when x ≥ α, down when
+    /// x ≤ β) and write the [`columns`](Self::columns) into `out`, in one
+    /// pass over the relays.
+    #[inline]
+    pub fn step(&self, state: &mut [f64], x: f64, out: &mut [f64]) {
+        out.fill(0.0);
+        let r = &self.relays;
+        for (((s, &a), &b), &c) in state.iter_mut().zip(&r.alpha).zip(&r.beta).zip(&self.cell) {
+            if x >= a {
+                *s = 1.0;
+            } else if x <= b {
+                *s = -1.0;
+            }
+            out[c] += *s;
         }
         for (o, w) in out.iter_mut().zip(&self.inv_size) {
             *o *= w;
@@ -322,8 +335,7 @@ mod cell_tests {
         let mut col = vec![0.0; c.n_cells()];
         for &v in &x {
             g.switch(&mut sg, v);
-            c.switch(&mut sc, v);
-            c.columns(&sc, &mut col);
+            c.step(&mut sc, v, &mut col);
             assert_eq!(col, sg);
         }
     }
@@ -336,8 +348,7 @@ mod cell_tests {
         let c = RelayCells::uniform(2, 1.0, 8).unwrap(); // cells of width 1
         let mut s = c.relay_states(-5.0);
         let mut col = vec![0.0; 3];
-        c.switch(&mut s, 0.5); // the cell α ∈ [0, 1], β ∈ [−1, 0] is index 1
-        c.columns(&s, &mut col);
+        c.step(&mut s, 0.5, &mut col); // the cell α ∈ [0, 1], β ∈ [−1, 0] is index 1
         assert!((col[1] - 0.0).abs() < 1e-12, "{col:?}");
         // the lower diagonal cell (α, β ∈ [−1, 0]) is fully up; of the
         // upper one (36 relays, α ≥ β) those with α ≤ 0.5 are: 1+2+3+4 = 10
@@ -347,8 +358,7 @@ mod cell_tests {
             "{col:?}"
         );
         // coming back down to −0.25 switches the relays with β ≥ −0.25 down
-        c.switch(&mut s, -0.25);
-        c.columns(&s, &mut col);
+        c.step(&mut s, -0.25, &mut col);
         // relays of the cell up: α ≤ 0.5 (4 of 8 columns) and β < −0.25
         // (6 of 8 rows): 24 of 64 → column 2·24/64 − 1
         assert!(
