@@ -6,8 +6,8 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot, PhysicsTerms,
-    PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
+    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot, PhysicsInputDelay,
+    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -188,6 +188,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &StudentTNoise,
     &ProcessNoise,
     &PhysicsTerms,
+    &PhysicsInputDelay,
     &HiddenState,
     &HiddenStateDetail,
 ];

@@ -7,6 +7,7 @@
 //! inputs = ["F"]             # data columns, in order
 //! substeps = 4               # RK4 steps per sample (input held: zero-order hold)
 //! sample_time = 0.05         # s; optional when the data have a uniform t column
+//! # input_delay = "td"       # optional: the parameter that is the input delay [s]
 //!
 //! [states]                   # in order; initial value fixed, or free = estimated
 //! x = { initial = 0.0 }
@@ -120,6 +121,7 @@ struct Doc {
     inputs: Option<Vec<String>>,
     substeps: Option<Spanned<i64>>,
     sample_time: Option<Spanned<f64>>,
+    input_delay: Option<Spanned<String>>,
     states: Option<Table<StateDoc>>,
     parameters: Option<Table<ParamDoc>>,
     equations: Option<Table<Terms>>,
@@ -262,6 +264,16 @@ impl ModelFile {
                 name: n,
                 terms: o.into_inner().0,
             });
+        }
+        if let Some(d) = doc.input_delay {
+            let name_ = d.get_ref().clone();
+            if !spec.parameters.iter().any(|p| p.name == name_) {
+                return Err(PhysicsError::Dimension {
+                    at: at(d.span().start, Item::Model, "input_delay".into()),
+                    message: format!("input_delay names '{name_}', which is not in [parameters]"),
+                });
+            }
+            spec.input_delay = Some(name_);
         }
         let f = Self {
             name: name.into(),

@@ -12,8 +12,9 @@ use std::any::Any;
 
 /// The class tag of physics models in model files.
 pub const CLASS: &str = "physics";
-/// The encoding version of the class (2: the state noise of the SMC path).
-const CLASS_VERSION: u32 = 2;
+/// The encoding version of the class (2: the state noise of the SMC path;
+/// 3: the input delay).
+const CLASS_VERSION: u32 = 3;
 
 /// The noise of the stochastic model `x_t = Φ_θ(x_{t−1}, u_{t−1}) + v_t`,
 /// `y_t = g(x_t, u_t, θ) + w_t` that the SMC path identifies
@@ -44,6 +45,18 @@ pub struct PhysicsModel {
 /// What a model file stores (postcard).
 #[derive(Serialize, Deserialize)]
 struct Stored {
+    spec: PhysicsSpec,
+    theta: Vec<f64>,
+    x0: Vec<f64>,
+    fit: Option<FitReport>,
+    source: Option<String>,
+    noise: Option<StateNoise>,
+    input_delay: Option<String>,
+}
+
+/// What a version-2 model file stores (no input delay).
+#[derive(Deserialize)]
+struct StoredV2 {
     spec: PhysicsSpec,
     theta: Vec<f64>,
     x0: Vec<f64>,
@@ -285,12 +298,26 @@ impl PhysicsModel {
                 fit: v.fit,
                 source: v.source,
                 noise: None,
+                input_delay: None,
+            }
+        } else if version < 3 {
+            let v: StoredV2 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
+            Stored {
+                spec: v.spec,
+                theta: v.theta,
+                x0: v.x0,
+                fit: v.fit,
+                source: v.source,
+                noise: v.noise,
+                input_delay: None,
             }
         } else {
             gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?
         };
         let bad = |m: String| CoreError::ModelFile(format!("inconsistent '{CLASS}' model ({m})"));
-        let mut m = Self::new(s.spec).map_err(|e| bad(e.to_string()))?;
+        let mut spec = s.spec;
+        spec.input_delay = s.input_delay;
+        let mut m = Self::new(spec).map_err(|e| bad(e.to_string()))?;
         m = m
             .with_values(s.theta, s.x0)
             .map_err(|e| bad(e.to_string()))?;
@@ -386,8 +413,15 @@ impl DynamicModel for PhysicsModel {
         self.spec.states.len()
     }
     fn describe(&self) -> String {
+        let delay = match self.spec.input_delay_index() {
+            Some(p) => format!(
+                ", input delay {} = {:.4e} s",
+                self.spec.parameters[p].name, self.theta[p]
+            ),
+            None => String::new(),
+        };
         format!(
-            "physics model '{}': {} states ({}), {} free parameters, RK4 with {} sub-step{} per sample",
+            "physics model '{}': {} states ({}), {} free parameters, RK4 with {} sub-step{} per sample{delay}",
             self.spec.name,
             self.spec.states.len(),
             self.spec
@@ -398,7 +432,7 @@ impl DynamicModel for PhysicsModel {
                 .join(", "),
             self.spec.parameters.iter().filter(|p| !p.fixed).count(),
             self.spec.substeps,
-            if self.spec.substeps == 1 { "" } else { "s" }
+            if self.spec.substeps == 1 { "" } else { "s" },
         )
     }
     fn n_parameters(&self) -> usize {
@@ -442,6 +476,9 @@ impl DynamicModel for PhysicsModel {
             it,
             nu: self.n_inputs(),
             ny: self.n_outputs(),
+            delayed: std::collections::VecDeque::new(),
+            first: vec![],
+            k: 0,
         }))
     }
 
@@ -453,6 +490,7 @@ impl DynamicModel for PhysicsModel {
             fit: self.fit.clone(),
             source: self.source.clone(),
             noise: self.noise.clone(),
+            input_delay: self.spec.input_delay.clone(),
         };
         postcard::to_allocvec(&s)
             .map_err(|e| CoreError::ModelFile(format!("cannot encode the physics model: {e}")))
@@ -482,11 +520,17 @@ impl DynamicModel for PhysicsModel {
     }
 }
 
-/// One sample at a time (the same RK4 steps as the simulation).
+/// One sample at a time (the same RK4 steps as the simulation; under an
+/// input delay of `D` samples the outputs `ỹ_{k−D..k}` wait in a queue).
 struct PhysicsStepper<'m> {
     it: Integrator<'m>,
     nu: usize,
     ny: usize,
+    delayed: std::collections::VecDeque<Vec<f64>>,
+    /// `g(x₀, u₀)`, the output of the first `D` samples.
+    first: Vec<f64>,
+    /// Samples stepped.
+    k: usize,
 }
 
 impl Stepper for PhysicsStepper<'_> {
@@ -501,12 +545,28 @@ impl Stepper for PhysicsStepper<'_> {
             )));
         }
         self.it.set_input(u.iter().copied());
+        let shift = self.it.shift();
+        if self.k == 0 && shift > 0 {
+            self.first = vec![0.0; y.len()];
+            self.it.output_now(&mut self.first);
+        }
         self.it.output(y);
         if !self.it.step() || !y.iter().all(|v| v.is_finite()) {
             return Err(CoreError::Unstable(
                 "the physics model's state left the finite numbers".into(),
             ));
         }
+        if shift > 0 {
+            self.delayed.push_back(y.to_vec());
+            if self.k >= shift {
+                if let Some(old) = self.delayed.pop_front() {
+                    y.copy_from_slice(&old);
+                }
+            } else {
+                y.copy_from_slice(&self.first);
+            }
+        }
+        self.k += 1;
         Ok(())
     }
 }

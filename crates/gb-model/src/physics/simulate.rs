@@ -6,6 +6,16 @@
 //! along the stage's sensitivity rows, so `S` is the exact derivative of
 //! the discrete RK4 map (explicit RK commutes with differentiation) and
 //! `∂y_k/∂θ = g_x S_k + g_θ`.
+//!
+//! An input delay `d` (a parameter) splits into a shift of
+//! `D = max(0, ⌈d/Ts⌉)` samples and an offset `τ = D·Ts − d ≥ 0`:
+//! `y_k = ỹ_{k−D}` (the first `D` outputs are `g(x₀, u₀)`: the input has
+//! not acted yet), where `ỹ_j = g(x(t_j + τ), u_j)` is the output after
+//! the held input `u_j` has acted for `τ` (`substeps` RK4 steps of `τ /
+//! substeps` from `x_j`, per started sample of `τ`). The state recursion
+//! does not depend on `d`; the offset step carries `∂τ/∂d = −1` in the
+//! delay's lane (the stage points' `a = c·τ/m` differentiate to `−c/m`),
+//! so `∂y/∂d` is again the exact derivative of the discrete map.
 use super::spec::Compiled;
 use super::tape::Slots;
 
@@ -33,6 +43,15 @@ pub(crate) struct Integrator<'c> {
     bounded: bool,
     x: Vec<f64>,
     xt: Vec<f64>,
+    /// The sample state kept while the offset step runs.
+    xo: Vec<f64>,
+    so: Vec<f64>,
+    /// Input delay: shift `D` (samples), offset `τ` (s), its RK4 steps and
+    /// the delay's derivative lane.
+    shift: usize,
+    tau: f64,
+    tau_steps: usize,
+    delay_lane: Option<usize>,
     k: [Vec<f64>; 4],
     /// Sensitivities `S` (n × lanes, row-major) and their stage copies.
     s: Vec<f64>,
@@ -69,12 +88,22 @@ impl<'c> Integrator<'c> {
             c.g.run_pre_dual(&mut gs);
         }
         let z = |m: usize| vec![0.0; m];
+        let (shift, tau) = c.delay.map_or((0, 0.0), |p| split_delay(theta[p], ts));
+        // capped: a delay far below −Ts is a modelling error, not a workload
+        let tau_steps = substeps * ((tau / ts).ceil().clamp(1.0, 64.0) as usize);
+        let delay_lane = c.delay.and_then(|p| lanes.param.get(p).copied().flatten());
         Self {
             c,
             fs,
             gs,
             h: ts / substeps as f64,
             substeps,
+            xo: z(n),
+            so: z(n * l),
+            shift,
+            tau,
+            tau_steps,
+            delay_lane,
             bounded: c
                 .range
                 .iter()
@@ -115,9 +144,46 @@ impl<'c> Integrator<'c> {
         }
     }
 
-    /// Outputs `y = g(x, u)` into `y` (one per output).
+    /// The input delay's shift `D` in samples: `y_k = ỹ_{k−D}`.
+    pub(crate) fn shift(&self) -> usize {
+        self.shift
+    }
+
+    /// The output `ỹ` of this sample: `g` after the held input has acted
+    /// for the delay's offset `τ` (without a delay: `g(x, u)`).
     #[inline]
     pub(crate) fn output(&mut self, y: &mut [f64]) {
+        if self.tau > 0.0 {
+            self.xo.copy_from_slice(&self.x);
+            let m = self.tau_steps;
+            self.advance(self.tau / m as f64, m);
+            self.output_now(y);
+            self.x.copy_from_slice(&self.xo);
+        } else {
+            self.output_now(y);
+        }
+    }
+
+    /// [`output`](Self::output) with derivatives (`dy[o * lanes + l]`).
+    pub(crate) fn output_dual(&mut self, y: &mut [f64], dy: &mut [f64]) {
+        if self.tau > 0.0 || self.delay_lane.is_some() {
+            self.xo.copy_from_slice(&self.x);
+            self.so.copy_from_slice(&self.s);
+            let m = self.tau_steps as f64;
+            let lane = self.delay_lane.map(|l| (l, -1.0 / m));
+            self.advance_dual(self.tau / m, self.tau_steps, lane);
+            self.output_dual_now(y, dy);
+            self.x.copy_from_slice(&self.xo);
+            self.s.copy_from_slice(&self.so);
+        } else {
+            self.output_dual_now(y, dy);
+        }
+    }
+
+    /// Outputs `y = g(x, u)` into `y` (one per output): under a delay of
+    /// `D` samples, the first `D` outputs (the input has not acted yet).
+    #[inline]
+    pub(crate) fn output_now(&mut self, y: &mut [f64]) {
         let n = self.c.n;
         self.gs.v[..n].copy_from_slice(&self.x);
         self.c.g.run(&mut self.gs);
@@ -127,7 +193,7 @@ impl<'c> Integrator<'c> {
     }
 
     /// Outputs and their derivatives (`dy[o * lanes + l]`).
-    pub(crate) fn output_dual(&mut self, y: &mut [f64], dy: &mut [f64]) {
+    pub(crate) fn output_dual_now(&mut self, y: &mut [f64], dy: &mut [f64]) {
         let (n, l) = (self.c.n, self.gs.lanes);
         self.gs.v[..n].copy_from_slice(&self.x);
         self.gs.d[..n * l].copy_from_slice(&self.s);
@@ -170,9 +236,15 @@ impl<'c> Integrator<'c> {
     /// when the state left the finite numbers.
     #[inline]
     pub(crate) fn step(&mut self) -> bool {
-        let (h, n) = (self.h, self.c.n);
+        self.advance(self.h, self.substeps)
+    }
+
+    /// `steps` RK4 steps of `h` with the held input.
+    #[inline]
+    fn advance(&mut self, h: f64, steps: usize) -> bool {
+        let n = self.c.n;
         self.fs.v[..n].copy_from_slice(&self.x);
-        for _ in 0..self.substeps {
+        for _ in 0..steps {
             self.rhs(0);
             self.stage_slots(0, 0.5 * h);
             self.rhs(1);
@@ -212,11 +284,18 @@ impl<'c> Integrator<'c> {
         }
     }
 
-    fn stage_point(&mut self, stage: usize, a: f64) {
+    /// The stage point `x + a·k`, `S + a·k_S`; with `lane = (l, a')`,
+    /// `a' = ∂a/∂d` adds `a'·k` to the delay's lane.
+    fn stage_point(&mut self, stage: usize, a: f64, lane: Option<(usize, f64)>) {
         for (j, st) in self.st.iter_mut().enumerate() {
             *st = self.s[j] + a * self.ks[stage][j];
         }
         let l = self.st.len() / self.xt.len().max(1);
+        if let Some((lane, da)) = lane {
+            for (i, k) in self.k[stage].iter().enumerate() {
+                self.st[i * l + lane] += da * k;
+            }
+        }
         for (i, xt) in self.xt.iter_mut().enumerate() {
             *xt = self.x[i] + a * self.k[stage][i];
             if clamp_to(xt, self.c.range[i]) {
@@ -227,14 +306,20 @@ impl<'c> Integrator<'c> {
 
     /// One sample with sensitivities.
     pub(crate) fn step_dual(&mut self) -> bool {
-        let h = self.h;
-        for _ in 0..self.substeps {
+        self.advance_dual(self.h, self.substeps, None)
+    }
+
+    /// `steps` RK4 steps of `h` on `(x, S)`; with `lane = (l, h')`,
+    /// `h' = ∂h/∂d` carries the step's dependence on the delay in lane `l`.
+    fn advance_dual(&mut self, h: f64, steps: usize, lane: Option<(usize, f64)>) -> bool {
+        let half = lane.map(|(l, dh)| (l, 0.5 * dh));
+        for _ in 0..steps {
             self.rhs_dual(0, false);
-            self.stage_point(0, 0.5 * h);
+            self.stage_point(0, 0.5 * h, half);
             self.rhs_dual(1, true);
-            self.stage_point(1, 0.5 * h);
+            self.stage_point(1, 0.5 * h, half);
             self.rhs_dual(2, true);
-            self.stage_point(2, h);
+            self.stage_point(2, h, lane);
             self.rhs_dual(3, true);
             let [k1, k2, k3, k4] = &self.k;
             for (i, x) in self.x.iter_mut().enumerate() {
@@ -245,6 +330,12 @@ impl<'c> Integrator<'c> {
                 *s += h / 6.0 * (k1[j] + 2.0 * (k2[j] + k3[j]) + k4[j]);
             }
             let l = self.s.len() / self.x.len().max(1);
+            if let Some((lane, dh)) = lane {
+                let [k1, k2, k3, k4] = &self.k;
+                for i in 0..self.x.len() {
+                    self.s[i * l + lane] += dh / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i]);
+                }
+            }
             for (i, x) in self.x.iter_mut().enumerate() {
                 if clamp_to(x, self.c.range[i]) {
                     self.s[i * l..(i + 1) * l].fill(0.0);
@@ -270,6 +361,26 @@ fn clamp_to(x: &mut f64, (lo, hi): (f64, f64)) -> bool {
     }
 }
 
+/// The shift `D = max(0, ⌈d/Ts⌉)` and offset `τ = D·Ts − d` of an input
+/// delay `d` (a non-finite delay: none).
+fn split_delay(d: f64, ts: f64) -> (usize, f64) {
+    if !d.is_finite() || d <= 0.0 {
+        return (0, if d.is_finite() { -d } else { 0.0 });
+    }
+    let shift = (d / ts).ceil().max(1.0);
+    (shift as usize, (shift * ts - d).max(0.0))
+}
+
+/// The samples to simulate for `len` outputs under a shift `D`.
+#[inline]
+fn samples_needed(len: usize, shift: usize) -> usize {
+    if len == 0 {
+        0
+    } else {
+        len.saturating_sub(shift).max(1)
+    }
+}
+
 /// Free-run simulation from `x0` into `y` (output-major, `ny · N`).
 /// `Err(k)`: the state became non-finite at sample `k`.
 pub(crate) fn simulate(
@@ -287,11 +398,23 @@ pub(crate) fn simulate(
     let mut it = Integrator::new(c, theta, ts, substeps, &lanes);
     it.reset(x0, &lanes);
     let mut yk = vec![0.0; ny];
-    for t in 0..len {
+    let shift = it.shift();
+    for t in 0..samples_needed(len, shift) {
         it.set_input(u.iter().map(|s| s[t]));
+        if t == 0 && shift > 0 {
+            // before the delayed input acts: the initial state's output
+            it.output_now(&mut yk);
+            for k in 0..shift.min(len) {
+                for (o, v) in yk.iter().enumerate() {
+                    y[o * len + k] = *v;
+                }
+            }
+        }
         it.output(&mut yk);
-        for (o, v) in yk.iter().enumerate() {
-            y[o * len + t] = *v;
+        if t + shift < len {
+            for (o, v) in yk.iter().enumerate() {
+                y[o * len + t + shift] = *v;
+            }
         }
         if !yk.iter().all(|v| v.is_finite()) || !it.step() {
             return Err(t);
@@ -319,13 +442,22 @@ pub(crate) fn simulate_dual(
     it.reset(x0, lanes);
     let mut yk = vec![0.0; ny];
     let mut dyk = vec![0.0; ny * lanes.n];
-    for t in 0..len {
+    let shift = it.shift();
+    for t in 0..samples_needed(len, shift) {
         it.set_input(u.iter().map(|s| s[t]));
+        if t == 0 && shift > 0 {
+            it.output_dual_now(&mut yk, &mut dyk);
+            for k in 0..shift.min(len) {
+                sink(k, &yk, &dyk);
+            }
+        }
         it.output_dual(&mut yk, &mut dyk);
         if !yk.iter().all(|v| v.is_finite()) {
             return Err(t);
         }
-        sink(t, &yk, &dyk);
+        if t + shift < len {
+            sink(t + shift, &yk, &dyk);
+        }
         if !it.step_dual() {
             return Err(t);
         }

@@ -286,6 +286,12 @@ impl Smc {
         let p = self.params();
         let spec = oe.spec();
         let bad = |m: String| Err(PhysicsError::Data(m));
+        if let Some(d) = &spec.input_delay {
+            return bad(format!(
+                "the SMC path does not handle an input delay yet ('{}' has input_delay = \"{d}\"); fit it output-error",
+                spec.name
+            ));
+        }
         if spec.outputs.len() != 1 || spec.states.len() > SMC_MAX_STATES {
             return bad(format!(
                 "the SMC path handles models of one output and at most {SMC_MAX_STATES} states; '{}' has {} and {}",
@@ -485,6 +491,12 @@ impl Smc {
             ))
         })?;
         let n = spec.states.len();
+        if spec.input_delay.is_some() {
+            return Err(PhysicsError::Data(format!(
+                "the filter does not handle an input delay yet ('{}')",
+                spec.name
+            )));
+        }
         if spec.outputs.len() != 1 || n > SMC_MAX_STATES {
             return Err(PhysicsError::Data(format!(
                 "the filter handles models of one output and at most {SMC_MAX_STATES} states; '{}' has {} and {n}",

@@ -140,6 +140,15 @@ pub struct PhysicsSpec {
     pub substeps: usize,
     /// Sample time in seconds (else the data's).
     pub sample_time: Option<f64>,
+    /// The parameter that is the input delay `d` in seconds, when the
+    /// model has one: the input held from sample `j` acts on
+    /// `[t_j + d, t_{j+1} + d)`, and `y_k` is the output at `t_k`. A dead
+    /// time is `d > 0`; `−T_s < d < 0` says the output is sampled after the
+    /// held input has acted for `−d` (`d = −T_s/2`: a zero-order hold
+    /// centred on the sample instant). Stored after the spec in model
+    /// files (class version 3).
+    #[serde(skip)]
+    pub input_delay: Option<String>,
 }
 
 impl PhysicsSpec {
@@ -154,6 +163,7 @@ impl PhysicsSpec {
             outputs: vec![],
             substeps: 1,
             sample_time: None,
+            input_delay: None,
         }
     }
 
@@ -195,6 +205,19 @@ impl PhysicsSpec {
     pub fn sample_time(mut self, ts: f64) -> Self {
         self.sample_time = Some(ts);
         self
+    }
+
+    /// The parameter `name` is the input delay in seconds (see
+    /// [`input_delay`](Self::input_delay)).
+    pub fn with_input_delay(mut self, name: &str) -> Self {
+        self.input_delay = Some(name.into());
+        self
+    }
+
+    /// The index of the input-delay parameter (after [`check`](Self::check)).
+    pub(crate) fn input_delay_index(&self) -> Option<usize> {
+        let name = self.input_delay.as_deref()?;
+        self.parameters.iter().position(|p| p.name == name)
     }
 
     /// Add a term to a state equation or an output (the hook a diagnosis
@@ -332,6 +355,17 @@ impl PhysicsSpec {
                 return Err(PhysicsError::Dimension {
                     at: self.at(Item::Output(i)),
                     message: format!("output '{}' is given twice", o.name),
+                });
+            }
+        }
+        if let Some(d) = &self.input_delay {
+            if self.input_delay_index().is_none() {
+                return Err(PhysicsError::Dimension {
+                    at: self.at(Item::Model),
+                    message: format!(
+                        "input_delay names '{d}', which is not a parameter (parameters: {})",
+                        list(self.parameters.iter().map(|p| p.name.as_str()))
+                    ),
                 });
             }
         }
@@ -473,6 +507,7 @@ impl PhysicsSpec {
             f_used,
             g_used,
             range: self.states.iter().map(|s| (s.lower, s.upper)).collect(),
+            delay: self.input_delay_index(),
         })
     }
 
@@ -522,6 +557,8 @@ pub(crate) struct Compiled {
     /// The physical range `[min, max]` of each state: the simulation
     /// keeps the state inside it.
     pub(crate) range: Vec<(f64, f64)>,
+    /// The index of the input-delay parameter, when there is one.
+    pub(crate) delay: Option<usize>,
 }
 
 impl Compiled {
