@@ -1,14 +1,21 @@
-//! `--model-file` on the cascaded-tanks benchmark (`$GREYBOX_DATA`, default
+//! `--model-file` on real benchmarks (`$GREYBOX_DATA`, default
 //! `../shared/data`; skipped with a notice when the folder is absent unless
 //! `GREYBOX_REQUIRE_DATA` is set): the plain Torricelli model of
 //! `examples/models/cascaded_tanks.toml`, then its diagnosis on the
-//! training record only; the test set is scored once, init window 50.
+//! training record only, the test set scored once, init window 50; the
+//! Bouc–Wen benchmark's own ODE with an estimated input delay
+//! (`examples/models/bouc_wen.toml`), scored on the multisine test period
+//! in periodic steady state.
 use std::path::PathBuf;
 use std::process::Command;
 
 fn data_dir() -> Option<PathBuf> {
+    data_dir_of("cascaded_tanks")
+}
+
+fn data_dir_of(benchmark: &str) -> Option<PathBuf> {
     let default = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    gb_core::benchmark_data_dir(&default, "cascaded_tanks")
+    gb_core::benchmark_data_dir(&default, benchmark)
 }
 
 fn greybox(args: &[&str]) -> String {
@@ -86,4 +93,64 @@ fn tanks_physics_file_and_its_diagnosis_on_the_test_set() {
         "diagnosed {diagnosed} vs plain {plain}"
     );
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// The benchmark's ODE with a free input delay started at 0: the delay
+/// comes out at half a sample early (the data's output is read mid-way
+/// through each held input) and the multisine test period, simulated
+/// twice from the stored state and the second period scored, is below
+/// 5e-6 m (issue 17's goal; without the delay 7.1e-5 m).
+#[test]
+fn bouc_wen_physics_file_with_an_input_delay_on_the_test_set() {
+    let Some(dir) = data_dir_of("bouc_wen") else {
+        return;
+    };
+    let bw = dir.join("bouc_wen");
+    let train = bw.join("train_multisine_forgione.csv");
+    let file =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../examples/models/bouc_wen.toml");
+    let out = std::env::temp_dir().join(format!("greybox-bw-physics-{}", std::process::id()));
+    std::fs::create_dir_all(&out).unwrap();
+    let (fit, sim, test2) = (
+        out.join("fit.gbm"),
+        out.join("sim.csv"),
+        out.join("test2.csv"),
+    );
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let test = std::fs::read_to_string(bw.join("test_multisine.csv")).unwrap();
+    let body = test.split_once('\n').unwrap().1;
+    let period = body.lines().count();
+    std::fs::write(&test2, format!("{test}{body}")).unwrap();
+    let fo = greybox(&["fit", &s(&train), "--model-file", &s(&file), "-o", &s(&fit)]);
+    let td: f64 = fo
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some("td"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no td in\n{fo}"));
+    let ts = 1.0 / 750.0;
+    assert!(
+        (td / ts + 0.5).abs() < 0.1,
+        "td = {td} ({} samples)",
+        td / ts
+    );
+    greybox(&["simulate", &s(&fit), &s(&test2), "-o", &s(&sim)]);
+    let csv = std::fs::read_to_string(&sim).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |n: &str| header.iter().position(|h| *h == n).unwrap();
+    let (iy, is) = (col("y"), col("y_sim"));
+    let err: Vec<f64> = lines
+        .skip(period)
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            v[iy] - v[is]
+        })
+        .collect();
+    assert_eq!(err.len(), period);
+    let rmse = (err.iter().map(|e| e * e).sum::<f64>() / period as f64).sqrt();
+    println!(
+        "Bouc-Wen physics with input delay: td = {td:.4e} s, multisine test RMSE {rmse:.3e} m"
+    );
+    assert!(rmse < 5e-6, "test RMSE {rmse:e}");
 }
