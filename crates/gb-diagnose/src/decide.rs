@@ -2,6 +2,7 @@
 //! the select block, and the choice among the candidates of an iteration.
 use crate::evaluate::{residuals_on, Evaluated, Lineage};
 use crate::extension::{io_model, Context, Extension, GainMetric, Proposal, Role};
+use crate::physics::{fit_physics, merged_spec, physics_of};
 use crate::plan::{assess, core};
 use crate::{stats, Cause, DecisionPolicy, DiagnoseError};
 use gb_core::{metrics, FittedModel};
@@ -294,9 +295,15 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
         Cause::Hysteresis => Cause::Nonlinearity,
         _ => return None,
     };
-    let o = cands
-        .iter()
-        .position(|c| c.pays && c.structural_new() && c.cause() == other)?;
+    let physics = physics_of(&cands[ci].fitted.model).is_some();
+    let o = if physics {
+        // the engineer's model: the best overlapping rival
+        best_overlapping(cands, cands[ci].ci, other)?
+    } else {
+        cands
+            .iter()
+            .position(|c| c.pays && c.structural_new() && c.cause() == other)?
+    };
     let (best, oc) = (cands[ci].ci, cands[o].ci);
     if !(oc[1] >= best[0] && best[1] >= oc[0]) {
         return None;
@@ -306,7 +313,13 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     } else {
         (o, ci)
     };
-    let Ok(comb) = combined(&cands[ni].fitted, &cands[hi].fitted, ctx) else {
+    let comb = combined(&cands[ni].fitted, &cands[hi].fitted, ctx);
+    if physics {
+        if let Some(pick) = physics_tie(cands, (ni, hi), comb.as_ref().ok(), ctx) {
+            return Some(pick);
+        }
+    }
+    let Ok(comb) = comb else {
         return without_loop(cands, ci, ctx);
     };
     let pol = ctx.policy();
@@ -336,6 +349,57 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     ))
 }
 
+/// A tie of the engineer's model's extensions: the unique contributions of
+/// the combined model when its fit is sound (a contribution that is not
+/// finite, or both ≤ 0, means the combined fit failed); else the candidate
+/// with fewer parameters (an extra hysteretic state against a static term:
+/// parsimony, since the data cannot tell them apart).
+fn physics_tie(
+    cands: &[Candidate],
+    (ni, hi): (usize, usize),
+    comb: Option<&Evaluated>,
+    ctx: &Context,
+) -> Option<(usize, String)> {
+    let pol = ctx.policy();
+    let unique = comb.map(|comb| {
+        let block = pol.block(comb.select.e.len());
+        let g = |i: usize| {
+            relative_gain_ci(
+                &cands[i].fitted.select.e,
+                &comb.select.e,
+                block,
+                pol.tie_bootstrap,
+                pol.tie_seed,
+            )
+            .0
+        };
+        (g(ni), g(hi))
+    });
+    if let Some((g_h, g_n)) =
+        unique.filter(|(a, b)| a.is_finite() && b.is_finite() && a.max(*b) > 0.0)
+    {
+        let pick = if g_h > g_n { hi } else { ni };
+        return Some((
+            pick,
+            format!(
+                "; tie resolved by unique contributions: the hysteretic state adds {:+.1}% to the static term, the static term adds {:+.1}% to the hysteretic state",
+                100.0 * g_h,
+                100.0 * g_n
+            ),
+        ));
+    }
+    let np =
+        |i: usize| gb_core::DynamicModel::n_parameters(cands[i].fitted.model.dynamics.as_ref());
+    let pick = if np(hi) < np(ni) { hi } else { ni };
+    Some((
+        pick,
+        format!(
+            "; tie of a hysteretic state ({:+.3}) and a static term ({:+.3}) that their combined fit cannot resolve: the one with fewer parameters",
+            cands[hi].gain, cands[ni].gain
+        ),
+    ))
+}
+
 /// A tie the unique contributions cannot resolve (the nonlinear candidate
 /// is not an input–output network), hysteresis chosen, and the memory test
 /// does not reject at the policy's `memory_priority_p`: the static
@@ -358,8 +422,12 @@ fn without_loop(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize,
 }
 
 /// The model with both a network and hysteresis, fitted like any candidate
-/// (on the plan's record and, under cross-validation, on every fold).
+/// (on the plan's record and, under cross-validation, on every fold); for
+/// the engineer's model, both extensions' additions in one model.
 fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluated, DiagnoseError> {
+    if physics_of(&lmn.model).is_some() && physics_of(&hyst.model).is_some() {
+        return combined_physics(lmn, hyst, ctx);
+    }
     let (Some(pl), Some(ph)) = (lmn.lineage.io(), hyst.lineage.io()) else {
         return Err(DiagnoseError::InvalidArgument(
             "not input-output networks".into(),
@@ -383,6 +451,46 @@ fn combined(lmn: &Evaluated, hyst: &Evaluated, ctx: &Context) -> Result<Evaluate
         };
     assess(ctx.plan, ctx.data, Lineage::Io(both.clone()), &|t| {
         combined_fit(&fold(lmn, t)?, &fold(hyst, t)?, &both, &ctx.at(t))
+    })
+}
+
+/// The hysteresis candidate's model with the nonlinearity candidate's
+/// terms added (each fold from the folds' estimates), refitted.
+fn combined_physics(
+    nl: &Evaluated,
+    hyst: &Evaluated,
+    ctx: &Context,
+) -> Result<Evaluated, DiagnoseError> {
+    let lineage = match (&hyst.lineage, &nl.lineage) {
+        (Lineage::Other { spec: h, order }, Lineage::Other { spec: n, .. }) => Lineage::Other {
+            spec: format!("{h} & {n}"),
+            order: *order,
+        },
+        _ => {
+            return Err(DiagnoseError::InvalidArgument(
+                "not physics lineages".into(),
+            ))
+        }
+    };
+    let model_of =
+        |e: &Evaluated, t: Option<usize>| -> Result<FittedModel, DiagnoseError> {
+            match t {
+                None => Ok(e.model.clone()),
+                Some(k) => e.folds.get(k).map(|f| f.model.clone()).ok_or_else(|| {
+                    DiagnoseError::InvalidArgument("a fold without its model".into())
+                }),
+            }
+        };
+    assess(ctx.plan, ctx.data, lineage, &|t| {
+        let c = ctx.at(t);
+        let (h, n) = (model_of(hyst, t)?, model_of(nl, t)?);
+        let not = || DiagnoseError::InvalidArgument("not a physics model".into());
+        let spec = merged_spec(
+            physics_of(&c.current.model).ok_or_else(not)?,
+            physics_of(&h).ok_or_else(not)?,
+            physics_of(&n).ok_or_else(not)?,
+        )?;
+        fit_physics(&spec, c.fit, c.observer)
     })
 }
 

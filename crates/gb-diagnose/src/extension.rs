@@ -6,8 +6,9 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot, PhysicsInputDelay,
-    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
+    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot, PhysicsHysteresis,
+    PhysicsInputDelay, PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener,
+    WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -189,6 +190,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &ProcessNoise,
     &PhysicsTerms,
     &PhysicsInputDelay,
+    &PhysicsHysteresis,
     &HiddenState,
     &HiddenStateDetail,
 ];

@@ -101,3 +101,56 @@ pub(crate) fn physics_baseline(
         choice,
     })
 }
+
+/// The engineer's model with what two extensions of `cur` added: `a`'s
+/// model (at its estimates) plus the parameters (at `b`'s estimates) and
+/// terms that `b` appended to `cur`'s equations and outputs. Both must be
+/// physics models grown from `cur` by appending (parameters, terms, new
+/// states at the end); the merged spec starts at both estimates.
+pub(crate) fn merged_spec(
+    cur: &PhysicsModel,
+    a: &PhysicsModel,
+    b: &PhysicsModel,
+) -> Result<PhysicsSpec, DiagnoseError> {
+    let bad = |m: &str| DiagnoseError::InvalidArgument(format!("merge of two extensions: {m}"));
+    let (c, bs) = (cur.spec(), b.spec());
+    if bs.states.len() != c.states.len()
+        || bs.parameters.len() < c.parameters.len()
+        || bs.outputs.len() != c.outputs.len()
+    {
+        return Err(bad(
+            "the second extension adds states or removes parameters",
+        ));
+    }
+    let mut s = a
+        .with_start_at_values()
+        .map_err(CoreError::from)?
+        .spec()
+        .clone();
+    for (p, v) in bs.parameters[c.parameters.len()..]
+        .iter()
+        .zip(&b.parameters()[c.parameters.len()..])
+    {
+        if s.parameters.iter().any(|q| q.name == p.name) {
+            return Err(bad("both add the same parameter"));
+        }
+        let mut p = p.clone();
+        p.value = v.clamp(p.lower, p.upper);
+        s.parameters.push(p);
+    }
+    for (i, eq) in bs.equations.iter().enumerate() {
+        let old = c.equations[i].len();
+        for t in eq.get(old..).unwrap_or_default() {
+            s.add_term(gb_model::physics::TermTarget::State(i), t)
+                .map_err(CoreError::from)?;
+        }
+    }
+    for (o, out) in bs.outputs.iter().enumerate() {
+        let old = c.outputs[o].terms.len();
+        for t in out.terms.get(old..).unwrap_or_default() {
+            s.add_term(gb_model::physics::TermTarget::Output(o), t)
+                .map_err(CoreError::from)?;
+        }
+    }
+    Ok(s)
+}

@@ -64,6 +64,19 @@ fn msd_csv(path: &Path, n: usize, seed: u64, sd: f64, cubic: f64) -> Vec<f64> {
 /// [`msd_csv`] with the force acting `delay` seconds after its sample
 /// instant (none when 0).
 fn msd_delayed_csv(path: &Path, n: usize, seed: u64, sd: f64, cubic: f64, delay: f64) -> Vec<f64> {
+    msd_truth_csv(path, n, seed, sd, (cubic, delay, false))
+}
+
+/// The msd truth with a cubic spring, an input delay and (when
+/// `hysteretic`) a Bouc–Wen spring force `z` in the force balance:
+/// `ż = 2·ẋ − 8·|ẋ|·z − 2·ẋ·|z|` (saturating at |z| = 0.2 N).
+fn msd_truth_csv(
+    path: &Path,
+    n: usize,
+    seed: u64,
+    sd: f64,
+    (cubic, delay, hysteretic): (f64, f64, bool),
+) -> Vec<f64> {
     let mut rng = gb_core::rng::seeded(seed);
     let u = steps(n, &mut rng);
     let mut spec = ModelFile::read(&example("msd.toml")).unwrap().spec;
@@ -83,9 +96,18 @@ fn msd_delayed_csv(path: &Path, n: usize, seed: u64, sd: f64, cubic: f64, delay:
         spec.input_delay = Some("td".into());
         theta.push(delay);
     }
+    let mut x0 = vec![0.0, 0.0];
+    if hysteretic {
+        spec.states.push(gb_model::physics::State::new("z", 0.0));
+        spec.equations
+            .push(vec!["2*v - 8*abs(v)*z - 2*v*abs(z)".into()]);
+        spec.add_term(gb_model::physics::TermTarget::State(1), "-z/m")
+            .unwrap();
+        x0.push(0.0);
+    }
     let truth = PhysicsModel::new(spec)
         .unwrap()
-        .with_values(theta, vec![0.0, 0.0])
+        .with_values(theta, x0)
         .unwrap();
     let clean = truth
         .simulate(std::slice::from_ref(&u), Init::Stored)
@@ -687,6 +709,47 @@ fn diagnose_model_file_finds_an_input_delay() {
     assert!(
         (td - delay).abs() < 0.05 * delay,
         "t_delay = {td}, truth {delay}"
+    );
+}
+
+/// The msd file on data whose spring has a Bouc–Wen hysteretic part: the
+/// diagnosis names `hysteresis`, adds a hysteretic state to the force
+/// balance and reaches the noise floor on held-out data.
+#[test]
+fn diagnose_model_file_finds_a_hysteretic_spring() {
+    let d = tmp("diagnose-hysteresis");
+    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    let clean = msd_truth_csv(&train, 3000, 41, 0.005, (0.0, 0.0, true));
+    msd_truth_csv(&val, 2000, 42, 0.005, (0.0, 0.0, true));
+    let sd_y = {
+        let m = clean.iter().sum::<f64>() / clean.len() as f64;
+        (clean.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / clean.len() as f64).sqrt()
+    };
+    let floor = 0.005 / sd_y;
+    let o = run(&[
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--model-file",
+        example("msd.toml").to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    println!("{so}\nnoise floor {floor:.4}");
+    assert!(so.contains("causes: hysteresis"), "{so}");
+    let accepted = so
+        .lines()
+        .find(|l| l.contains(" yes "))
+        .unwrap_or_else(|| panic!("no accepted step\n{so}"));
+    assert!(
+        accepted.contains("a hysteretic state driven by x"),
+        "{accepted}"
+    );
+    let fin = nrmse_of(&so, "final:");
+    assert!(
+        fin < 1.5 * floor,
+        "held-out NRMSE {fin:.4}, floor {floor:.4}"
     );
 }
 

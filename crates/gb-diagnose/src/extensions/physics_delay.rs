@@ -16,7 +16,10 @@ use gb_model::physics::{Parameter, PhysicsModel};
 /// the peak) that maximises the cross-correlation of the measured output
 /// with the current model's simulation on the fit record: `y_k ≈ ŷ_{k−L}`.
 /// The fit holds `d` at that start while the other parameters adapt, then
-/// frees it (gb-model's `identify_growing`).
+/// frees it (gb-model's `identify_growing`). Proposed at every step until
+/// the model has a delay: a timing error can hide behind a larger misfit
+/// (the Bouc–Wen benchmark from a linear model: the delay pays only once
+/// the hysteresis is in).
 pub struct PhysicsInputDelay;
 
 /// The marker of the extension in a lineage spec.
@@ -79,9 +82,6 @@ impl Extension for PhysicsInputDelay {
     }
     fn cause(&self) -> Cause {
         Cause::Dynamics
-    }
-    fn once(&self) -> bool {
-        true
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         let Some(m) = physics_of(&ctx.current.model) else {

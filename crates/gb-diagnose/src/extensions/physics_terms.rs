@@ -151,7 +151,7 @@ fn target(p: &Proposal) -> Option<(Kind, Place, String)> {
 }
 
 /// The symbols of a list of terms.
-fn symbols(terms: &[String]) -> Vec<&str> {
+pub(super) fn symbols(terms: &[String]) -> Vec<&str> {
     terms
         .iter()
         .flat_map(|t| t.split(|c: char| !(c.is_alphanumeric() || c == '_')))
@@ -161,7 +161,7 @@ fn symbols(terms: &[String]) -> Vec<&str> {
 /// Whether equation `i` of `spec` has a free parameter (an equation
 /// without one, such as `ẋ = v`, is a definition, not a law the data could
 /// correct).
-fn is_law(spec: &PhysicsSpec, i: usize) -> bool {
+pub(super) fn is_law(spec: &PhysicsSpec, i: usize) -> bool {
     let syms = symbols(&spec.equations[i]);
     spec.parameters
         .iter()
@@ -184,7 +184,9 @@ fn applies(spec: &PhysicsSpec, kind: Kind, at: &Place, var: &str) -> bool {
         }
         Place::State(eq) => {
             let Some(i) = state(eq) else { return false };
-            if !is_law(spec, i) {
+            // an added hysteretic state is neither extended nor a variable
+            let added = super::physics_hysteresis::is_added_state;
+            if !is_law(spec, i) || added(eq) || added(var) {
                 return false;
             }
             match kind {
@@ -199,7 +201,7 @@ fn applies(spec: &PhysicsSpec, kind: Kind, at: &Place, var: &str) -> bool {
 }
 
 /// The value at quantile `q` of `v` (sorted copy, nearest rank).
-fn quantile(v: &[f64], q: f64) -> f64 {
+pub(super) fn quantile(v: &[f64], q: f64) -> f64 {
     let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
     s.sort_by(f64::total_cmp);
     if s.is_empty() {
@@ -209,7 +211,7 @@ fn quantile(v: &[f64], q: f64) -> f64 {
 }
 
 /// `(a)+(b)+…`: a list of terms as one expression.
-fn sum_text(terms: &[String]) -> String {
+pub(super) fn sum_text(terms: &[String]) -> String {
     if terms.is_empty() {
         return "0".into();
     }

@@ -96,6 +96,12 @@ impl State {
         self.free = true;
         self
     }
+    /// With a physical range `[lower, upper]`.
+    pub fn bounded(mut self, lower: f64, upper: f64) -> Self {
+        self.lower = lower;
+        self.upper = upper;
+        self
+    }
 }
 
 /// An output `y = g(x, u, θ)`, a sum of terms.
