@@ -151,7 +151,7 @@ fn target(p: &Proposal) -> Option<(Kind, Place, String)> {
 }
 
 /// The symbols of a list of terms.
-pub(super) fn symbols(terms: &[String]) -> Vec<&str> {
+fn symbols(terms: &[String]) -> Vec<&str> {
     terms
         .iter()
         .flat_map(|t| t.split(|c: char| !(c.is_alphanumeric() || c == '_')))
