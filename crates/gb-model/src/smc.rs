@@ -16,7 +16,7 @@ use crate::error::{ModelError, Result};
 use crate::identify::{get_params, layout, set_params, IdentificationPath, Param};
 use crate::model::{NoiseModel, SimScratch, SparseStateSpace};
 use gb_core::{Observer, SubTask};
-use gb_smc::estimation::{ParametricModel, ParticleChoice, ParticleTuning, Pmmh, PmmhConfig};
+use gb_smc::estimation::{run_chains, ParametricModel, ParticleChoice, ParticleTuning, PmmhConfig};
 use gb_smc::noise::Noise;
 use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel, TransitionDensity};
 use serde::{Deserialize, Serialize};
@@ -268,6 +268,37 @@ pub struct SmcParams {
     /// the second half of burn-in only, then frozen ([`tuned_schedule`]).
     #[serde(default)]
     pub max_particles: Option<usize>,
+    /// Independent PMMH chains run in parallel (`iterations` and
+    /// `burn_in` are shared among them; chain `c` has seed `seed + c`),
+    /// pooled after each chain's burn-in. 1: one chain.
+    #[serde(default = "one_chain")]
+    pub chains: usize,
+}
+
+fn one_chain() -> usize {
+    1
+}
+
+/// The PMMH configurations of the chains of `p`: chain `c` has
+/// `⌈iterations/chains⌉` iterations, `⌊burn_in/chains⌋` burn-in, its own
+/// schedule ([`tuned_schedule`]) and seed `seed + c`.
+pub(crate) fn chain_configs(p: &SmcParams, step: &[f64]) -> Vec<PmmhConfig> {
+    let k = p.chains.max(1);
+    let (iters, burn) = (p.iterations.div_ceil(k), p.burn_in / k);
+    (0..k)
+        .map(|c| {
+            let pc = SmcParams {
+                iterations: iters,
+                burn_in: burn,
+                ..p.clone()
+            };
+            let mut cfg = PmmhConfig::new(p.particles, iters, step.to_vec());
+            cfg.burn_in = burn;
+            cfg.seed = p.seed.wrapping_add(c as u64);
+            tuned_schedule(&mut cfg, &pc);
+            cfg
+        })
+        .collect()
 }
 
 /// The PMMH schedule of the tuned sampler, with burn-in `B`:
@@ -323,6 +354,7 @@ impl Default for SmcParams {
             seed: 1,
             sample_linear: false,
             max_particles: None,
+            chains: 1,
         }
     }
 }
@@ -391,8 +423,21 @@ impl SmcParams {
         self.max_particles = Some(max_particles);
         self
     }
+    /// Independent chains run in parallel (see [`SmcParams::chains`]).
+    pub fn chains(mut self, k: usize) -> Self {
+        self.chains = k;
+        self
+    }
     /// Validates the options once.
     pub fn check(self) -> Result<Smc> {
+        if !(1..=64).contains(&self.chains)
+            || self.iterations / self.chains <= self.burn_in / self.chains
+        {
+            return Err(ModelError::InvalidArgument(format!(
+                "chains must be 1..=64 with more iterations than burn-in per chain, got {} chains of {} iterations, burn-in {}",
+                self.chains, self.iterations, self.burn_in
+            )));
+        }
         if self.particles == 0 || self.iterations == 0 || self.burn_in >= self.iterations {
             return Err(ModelError::InvalidArgument(
                 "particles >= 1, iterations >= 1 and burn_in < iterations are needed".into(),
@@ -710,10 +755,7 @@ impl Smc {
                     false => 0.005 * c.abs().max(0.1),
                 }),
         );
-        let mut cfg = PmmhConfig::new(p.particles, p.iterations, step);
-        cfg.burn_in = p.burn_in;
-        cfg.seed = p.seed;
-        tuned_schedule(&mut cfg, p);
+        let configs = chain_configs(p, &step);
         let observations = Observations::new(y);
         let total = p.iterations;
         // PMMH reports its iterations into 0..total of total + 1 steps
@@ -723,7 +765,7 @@ impl Smc {
             span: total,
             total: total + 1,
         };
-        let res = Pmmh::new(cfg)?.run(&problem, &observations, &theta0, &chain)?;
+        let res = run_chains(&configs, &problem, &observations, &theta0, &chain)?;
         let mean: Vec<f64> = res.summary.iter().map(|s| s.mean).collect();
         let sd: Vec<f64> = res.summary.iter().map(|s| s.sd).collect();
         let start = problem
@@ -732,7 +774,8 @@ impl Smc {
         let post = problem
             .model_at(&mean)
             .ok_or_else(|| ModelError::Numerical("posterior mean model".into()))?;
-        let parameters = problem.posterior_parameters(&res.chain, p.burn_in);
+        // the pooled draws are after burn-in
+        let parameters = problem.posterior_parameters(&res.chain, 0);
         let ll_oe = self.log_likelihood(&start, inputs, y)?;
         let ll_smc = self
             .log_likelihood(&post, inputs, y)

@@ -58,25 +58,36 @@ pub(crate) struct SmcArgs {
     /// `--method smc`: the tuned sampler — the particle number chosen in burn-in so that the sd of the log-likelihood estimate is about 1.2 (between --particles and this bound), the proposal adapted in burn-in only, then frozen [default: off, fixed particles].
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..=1_000_000))]
     pub(crate) max_particles: Option<u64>,
+    /// `--method smc`: independent chains, run in parallel and pooled; the --iterations and burn-in are shared among them, and split-R̂ compares the chains [default: 2].
+    #[arg(long, value_name = "K", value_parser = clap::value_parser!(u64).range(1..=64))]
+    pub(crate) chains: Option<u64>,
 }
 
 impl SmcArgs {
     /// The validated PMMH settings (defaults 200 particles, 2000
-    /// iterations, a quarter burn-in, seed 1), the particles and iterations.
+    /// iterations, a quarter burn-in, 2 chains, seed 1), the particles and
+    /// iterations.
     fn sampler(&self) -> Result<(gb_model::Smc, usize, usize)> {
         let iterations =
             usize::try_from(self.iterations.unwrap_or(2000)).map_err(|e| e.to_string())?;
         let particles =
             usize::try_from(self.particles.unwrap_or(200)).map_err(|e| e.to_string())?;
+        let chains = self.chain_count();
         let mut smc = SmcParams::new()
             .particles(particles)
             .iterations(iterations, iterations / 4)
+            .chains(chains)
             .seed(self.seed.unwrap_or(1));
         if let Some(max) = self.max_particles {
             smc = smc.tuned(usize::try_from(max).map_err(|e| e.to_string())?);
         }
         let smc = smc.check().map_err(|e| e.to_string())?;
         Ok((smc, particles, iterations))
+    }
+
+    /// The number of chains (default 2).
+    fn chain_count(&self) -> usize {
+        usize::try_from(self.chains.unwrap_or(2)).unwrap_or(2)
     }
 
     /// `--method smc` (an unknown method is an error).
@@ -90,6 +101,7 @@ impl SmcArgs {
                     ("--iterations", self.iterations.is_some()),
                     ("--seed", self.seed.is_some()),
                     ("--max-particles", self.max_particles.is_some()),
+                    ("--chains", self.chains.is_some()),
                 ];
                 match given.iter().find(|(_, g)| *g) {
                     Some((flag, _)) => Err(format!(
@@ -301,7 +313,7 @@ pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
     fitted.dynamics = Box::new(model);
     fitted.save(&a.out).map_err(|e| e.to_string())?;
     println!("model: {}", fitted.describe());
-    print_posterior(&rep, particles, iterations);
+    print_posterior(&rep, particles, iterations, a.smc.chain_count());
     println!("kept: {:?}", rep.path);
     println!("saved to {}", a.out.display());
     Ok(())
@@ -309,10 +321,18 @@ pub fn fit(a: &FitArgs, quiet: bool) -> Result<()> {
 
 /// The printed posterior: every sampled quantity with its 95 % interval,
 /// ESS and split-R̂, and a warning when the chain has not mixed.
-fn print_posterior(rep: &gb_model::SmcReport, particles: usize, iterations: usize) {
+fn print_posterior(rep: &gb_model::SmcReport, particles: usize, iterations: usize, chains: usize) {
+    let chains_text = if chains > 1 {
+        format!(
+            " in {chains} parallel chains of {} (burn-in {} each)",
+            iterations.div_ceil(chains),
+            iterations / 4 / chains
+        )
+    } else {
+        format!(" (burn-in {})", iterations / 4)
+    };
     println!(
-        "SMC: {particles} particles, {iterations} PMMH iterations (burn-in {}), acceptance rate {:.3}",
-        iterations / 4,
+        "SMC: {particles} particles, {iterations} PMMH iterations{chains_text}, acceptance rate {:.3}",
         rep.acceptance_rate
     );
     if let Some(c) = rep.particle_choice {
@@ -382,7 +402,7 @@ fn fit_model_file(a: &FitArgs, path: &Path, quiet: bool) -> Result<()> {
         .fit_physics_model(&oe, &part, &bar)
         .map_err(|e| format!("{}: {e}", a.train.display()))?;
     bar.finish();
-    print_posterior(&rep, particles, iterations);
+    print_posterior(&rep, particles, iterations, a.smc.chain_count());
     let levels = model.state_noise().map_or(String::new(), |n| {
         let mut v: Vec<String> = n
             .process_sd

@@ -25,10 +25,10 @@
 use super::error::{PhysicsError, PhysicsResult};
 use super::model::PhysicsModel;
 use super::simulate::{Integrator, Lanes};
-use crate::smc::{posterior_parameter, tuned_schedule, Smc, SmcReport, SMC_MAX_STATES};
+use crate::smc::{posterior_parameter, Smc, SmcReport, SMC_MAX_STATES};
 use crate::IdentificationPath;
 use gb_core::{Init, Observer, Record, SubTask};
-use gb_smc::estimation::{ParametricModel, Pmmh, PmmhConfig};
+use gb_smc::estimation::{run_chains, ParametricModel};
 use gb_smc::noise::Noise;
 use gb_smc::{FilterConfig, Observations, SmcRng, StateSpaceModel};
 use std::sync::Mutex;
@@ -356,10 +356,7 @@ impl Smc {
             0.5 * 2.38 / d.sqrt(),
             problem.free.len(),
         ));
-        let mut cfg = PmmhConfig::new(p.particles, p.iterations, step);
-        cfg.burn_in = p.burn_in;
-        cfg.seed = p.seed;
-        tuned_schedule(&mut cfg, p);
+        let configs = crate::smc::chain_configs(p, &step);
         let observations = Observations::new(&data.output);
         let total = p.iterations;
         let chain = SubTask {
@@ -368,13 +365,12 @@ impl Smc {
             span: total,
             total: total + 1,
         };
-        let res = Pmmh::new(cfg)
-            .map_err(|e| PhysicsError::Numerical(e.to_string()))?
-            .run(&problem, &observations, &theta0, &chain)
+        let res = run_chains(&configs, &problem, &observations, &theta0, &chain)
             .map_err(|e| PhysicsError::Numerical(e.to_string()))?;
         let mean: Vec<f64> = res.summary.iter().map(|s| s.mean).collect();
         let sd: Vec<f64> = res.summary.iter().map(|s| s.sd).collect();
-        let parameters = problem.posterior(&res.chain, p.burn_in);
+        // the pooled draws are after burn-in
+        let parameters = problem.posterior(&res.chain, 0);
         let ll = |theta: &[f64]| -> f64 {
             let Some(m) = problem.build(theta) else {
                 return f64::NEG_INFINITY;
