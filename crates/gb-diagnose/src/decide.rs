@@ -2,7 +2,7 @@
 //! the select block, and the choice among the candidates of an iteration.
 use crate::evaluate::{residuals_on, Evaluated, Lineage};
 use crate::extension::{io_model, Context, Extension, GainMetric, Proposal, Role};
-use crate::physics::{fit_physics, merged_spec, physics_of};
+use crate::physics::{fit_physics, merged_spec, physics_fit_record, physics_of};
 use crate::plan::{assess, core};
 use crate::{stats, Cause, DecisionPolicy, DiagnoseError};
 use gb_core::{metrics, FittedModel};
@@ -485,12 +485,13 @@ fn combined_physics(
         let c = ctx.at(t);
         let (h, n) = (model_of(hyst, t)?, model_of(nl, t)?);
         let not = || DiagnoseError::InvalidArgument("not a physics model".into());
+        let cur = physics_of(&c.current.model).ok_or_else(not)?;
         let spec = merged_spec(
-            physics_of(&c.current.model).ok_or_else(not)?,
+            cur,
             physics_of(&h).ok_or_else(not)?,
             physics_of(&n).ok_or_else(not)?,
         )?;
-        fit_physics(&spec, c.fit, c.observer)
+        fit_physics(&spec, &physics_fit_record(&c, cur), c.observer)
     })
 }
 

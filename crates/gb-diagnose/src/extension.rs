@@ -6,9 +6,9 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot, PhysicsHysteresis,
-    PhysicsInputDelay, PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener,
-    WienerHammerstein,
+    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
+    MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
+    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -185,6 +185,8 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &Wiener,
     &WienerHammerstein,
     &PreisachColumns,
+    &MechanicalHysteresis,
+    &MechanicalNonlinearity,
     &LinearOrder,
     &StudentTNoise,
     &ProcessNoise,

@@ -154,3 +154,24 @@ pub(crate) fn merged_spec(
     }
     Ok(s)
 }
+
+/// The name of the mechanical template the blind diagnosis builds
+/// ([`crate::extensions::MechanicalHysteresis`]).
+pub(crate) const TEMPLATE_NAME: &str = "mechanical-template";
+
+/// The record a physics extension of `cur` is fitted on: the whole fit
+/// block for the engineer's model (its parameters are the point), the
+/// first `hidden_state_fit_samples` of it for the blind mechanical template
+/// (its fits, with RK4 sensitivities and several starts, are the costliest;
+/// the select block judges as usual).
+pub(crate) fn physics_fit_record(
+    ctx: &crate::extension::Context<'_>,
+    cur: &PhysicsModel,
+) -> Record {
+    if cur.spec().name == TEMPLATE_NAME {
+        let n = ctx.fit.len().min(ctx.policy().hidden_state_fit_samples);
+        ctx.fit.slice(0..n)
+    } else {
+        ctx.fit.clone()
+    }
+}

@@ -2,7 +2,7 @@
 //! estimated with every physical parameter.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_of};
+use crate::physics::{fit_physics, parameters_text, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel};
@@ -100,8 +100,9 @@ impl Extension for PhysicsInputDelay {
                 order: m.spec().states.len(),
             },
             text: format!(
-                "an input delay {} (estimated, started at the lag of the peak cross-correlation of measured and simulated output) in the user's model, every parameter refitted",
-                delay_name(m)
+                "an input delay {} (estimated, started at the lag of the peak cross-correlation of measured and simulated output) in the model '{}', every parameter refitted",
+                delay_name(m),
+                m.spec().name
             ),
         }]
     }
@@ -111,18 +112,19 @@ impl Extension for PhysicsInputDelay {
             |e: gb_model::physics::PhysicsError| DiagnoseError::from(gb_core::CoreError::from(e));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let ts = cur.sample_time().map_err(core)?;
+        let rec = physics_fit_record(ctx, cur);
         let sim = match ctx.simulated_fit {
-            Some(s) => s.to_vec(),
-            None => cur.simulate(&ctx.fit.inputs, Init::Stored)?,
+            Some(s) if s.len() == rec.len() => s.to_vec(),
+            _ => cur.simulate(&rec.inputs, Init::Stored)?,
         };
-        let lag = xcorr_lag(&ctx.fit.output, &sim, -1, 10).unwrap_or(0.0);
+        let lag = xcorr_lag(&rec.output, &sim, -1, 10).unwrap_or(0.0);
         let (lo, hi) = (-ts, (lag + 2.0).max(10.0) * ts);
         let name = delay_name(cur);
         let mut spec = cur.with_start_at_values().map_err(core)?.spec().clone();
         spec.parameters
             .push(Parameter::new(&name, (lag * ts).clamp(lo, hi)).bounds(lo, hi));
         spec.input_delay = Some(name);
-        fit_physics(&spec, ctx.fit, ctx.observer)
+        fit_physics(&spec, &rec, ctx.observer)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.dynamics_text()

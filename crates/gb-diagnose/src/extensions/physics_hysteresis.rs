@@ -3,7 +3,7 @@
 use super::physics_terms::{is_law, quantile, sum_text};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_of};
+use crate::physics::{fit_physics, parameters_text, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, State, TermTarget};
@@ -33,7 +33,7 @@ pub struct PhysicsHysteresis;
 const KIND: &str = "hysteresis";
 
 /// Starts of `b` (saturations over the half range, with `c = 0`).
-const B_STARTS: [f64; 2] = [2.0, 8.0];
+pub(super) const B_STARTS: [f64; 2] = [2.0, 8.0];
 
 /// Names of the new state and parameters for law `eq` and driver `var`.
 fn names(eq: &str, var: &str) -> [String; 4] {
@@ -98,7 +98,7 @@ fn target(p: &Proposal) -> Option<(String, String)> {
 
 /// `cur`'s spec at its estimates with the hysteretic state of law `eq`
 /// driven by `var`, `b` started at `b0`.
-fn extended(
+pub(super) fn extended(
     cur: &PhysicsModel,
     fit: &gb_core::Record,
     (eq, var): (&str, &str),
@@ -168,7 +168,8 @@ impl Extension for PhysicsHysteresis {
                         order: spec.states.len() + 1,
                     },
                     text: format!(
-                        "d{eq}/dt += {w}·{z}, a hysteretic state driven by {var}: d{z}/dt = ẋ − {b}/h·|ẋ|·{z} − {c}/h·ẋ·|{z}|, ẋ = d{var}/dt, h its half range (Bouc–Wen) in the user's model, every parameter refitted"
+                        "d{eq}/dt += {w}·{z}, a hysteretic state driven by {var}: d{z}/dt = ẋ − {b}/h·|ẋ|·{z} − {c}/h·ẋ·|{z}|, ẋ = d{var}/dt, h its half range (Bouc–Wen) in the model '{}', every parameter refitted",
+                        spec.name
                     ),
                 }
             })
@@ -180,11 +181,12 @@ impl Extension for PhysicsHysteresis {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-hysteresis: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
+        let rec = physics_fit_record(ctx, cur);
         let mut best: Option<(f64, FittedModel)> = None;
         let mut last_err = None;
         for b0 in B_STARTS {
-            match extended(cur, ctx.fit, (&eq, &var), b0)
-                .and_then(|s| fit_physics(&s, ctx.fit, ctx.observer))
+            match extended(cur, &rec, (&eq, &var), b0)
+                .and_then(|s| fit_physics(&s, &rec, ctx.observer))
             {
                 Ok(m) => {
                     let rmse = physics_of(&m)

@@ -3,7 +3,7 @@
 //! parameters re-estimated with it.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_of};
+use crate::physics::{fit_physics, parameters_text, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
@@ -370,6 +370,22 @@ fn extended(
     Ok(s)
 }
 
+/// `cur`'s spec with the centred law `c2·w² + c3·w³` of state `var` added
+/// to the equation of `eq` (for the blind mechanical template).
+pub(super) fn with_centred_law(
+    cur: &PhysicsModel,
+    fit: &gb_core::Record,
+    eq: &str,
+    var: &str,
+) -> Result<PhysicsSpec, DiagnoseError> {
+    extended(
+        cur,
+        fit,
+        (Kind::Centred, &Place::State(eq.into()), var),
+        1.0,
+    )
+}
+
 /// The quantiles of the simulation a limit starts from (each start is
 /// fitted and the lowest training RMSE wins: the least-squares fit of a
 /// limit has local optima where it stops binding).
@@ -457,7 +473,10 @@ impl Extension for PhysicsTerms {
                         spec: format!("{base}{}", marker(kind, &at, &var)),
                         order: spec.states.len(),
                     },
-                    text: format!("{text} in the user's model, every parameter refitted"),
+                    text: format!(
+                        "{text} in the model '{}', every parameter refitted",
+                        spec.name
+                    ),
                 });
             }
         }
@@ -474,11 +493,12 @@ impl Extension for PhysicsTerms {
             Kind::Ceiling | Kind::Floor | Kind::Clip => &LIMIT_STARTS,
             _ => &[1.0],
         };
+        let rec = physics_fit_record(ctx, cur);
         let mut best: Option<(f64, FittedModel)> = None;
         let mut last_err = None;
         for &q in starts {
-            match extended(cur, ctx.fit, (kind, &at, &var), q)
-                .and_then(|s| fit_physics(&s, ctx.fit, ctx.observer))
+            match extended(cur, &rec, (kind, &at, &var), q)
+                .and_then(|s| fit_physics(&s, &rec, ctx.observer))
             {
                 Ok(m) => {
                     let rmse = physics_of(&m)

@@ -1,0 +1,211 @@
+//! `hysteresis` inside the dynamics of a blind diagnosis: the order-2
+//! linear model rewritten as a continuous-time mass–spring–damper (a
+//! physics model built from the data), with a hysteretic state in its force
+//! balance.
+use super::physics_hysteresis::extended as with_hysteresis;
+use crate::evaluate::Lineage;
+use crate::extension::{Context, Extension, Proposal};
+use crate::physics::{fit_physics, parameters_text, physics_of, TEMPLATE_NAME};
+use crate::{Cause, DiagnoseError};
+use gb_core::FittedModel;
+use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, State};
+
+/// The thesis' hysteresis inside the dynamics (chapter 4) for a model that
+/// has no equations yet. When the current model is the plain order-2
+/// linear model of one input, it oscillates (complex poles) and the
+/// direction-of-motion memory test rejects at the policy's
+/// `memory_priority_p`:
+///
+/// ```text
+/// q̇ = v,   v̇ = g·u − k·q − c·v + w·ζ,   ζ̇ = v − (b/h)|v|ζ − (c_h/h) v|ζ|,   y = q + y₀
+/// ```
+///
+/// `k = ω²`, `c = 2ζω` and `g = ω²·G(1)` start from the order-2
+/// output-error model's poles and static gain on the fit record
+/// (`gb_model::second_order_parameters`), `y₀` from the means; the linear
+/// template is fitted first (RK4, 4 sub-steps; a dead time of the baseline
+/// other than one sample becomes a free input delay), then the hysteretic
+/// state of `physics-hysteresis` is added (`b` started at 2 and 8).
+/// Once chosen, the diagnosis goes on with the physics extensions (static
+/// laws, limits, input delay), all fitted on the first
+/// `hidden_state_fit_samples` of the fit block. Sample time: the record's,
+/// else 1.
+pub struct MechanicalHysteresis;
+
+/// The template's parameter names (chosen not to collide with common
+/// column names).
+const NAMES: [&str; 4] = ["k_spring", "c_damper", "g_input", "y_zero"];
+
+/// The mechanical template of the fit record `rec` with the baseline's
+/// input delay `nk` (samples).
+fn template(rec: &gb_core::Record, nk: usize) -> Result<PhysicsSpec, DiagnoseError> {
+    let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
+    let (u, y) = (&rec.inputs, &rec.output);
+    if u.len() != 1 {
+        return Err(bad("one input is needed"));
+    }
+    let ts = rec.sample_time.unwrap_or(1.0);
+    let lin = gb_model::linear_from_oe(u, y, 2).map_err(gb_core::CoreError::from)?;
+    let (w2, cc, g) =
+        gb_model::second_order_parameters(&lin, ts).map_err(gb_core::CoreError::from)?;
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let y0 = mean(y) - g / w2 * mean(&u[0]);
+    let (input, output) = (&rec.input_names[0], &rec.output_name);
+    let [k, c, gi, yz] = NAMES;
+    let mut s = PhysicsSpec::new(TEMPLATE_NAME)
+        .input(input)
+        .parameter(Parameter::new(k, w2).bounds(0.0, f64::INFINITY))
+        .parameter(Parameter::new(c, cc))
+        .parameter(Parameter::new(gi, g))
+        .parameter(Parameter::new(yz, y0))
+        .state(State::new("q", 0.0).free(), "v")
+        .state(
+            State::new("v", 0.0).free(),
+            &format!("{gi}*{input}-{k}*q-{c}*v"),
+        )
+        .output(output, &format!("q+{yz}"))
+        .substeps(4)
+        .sample_time(ts);
+    if nk != 1 {
+        let d = (nk as f64 - 1.0) * ts;
+        s = s
+            .parameter(Parameter::new("t_delay", d).bounds(-ts, (nk as f64 + 2.0).max(10.0) * ts))
+            .with_input_delay("t_delay");
+    }
+    s.check().map_err(gb_core::CoreError::from)?;
+    Ok(s)
+}
+
+/// The fit record (the first `hidden_state_fit_samples` of the fit block)
+/// and the linear mechanical template fitted on it.
+fn fitted_template(ctx: &Context) -> Result<(gb_core::Record, FittedModel), DiagnoseError> {
+    let nk = ctx
+        .current
+        .lineage
+        .io()
+        .and_then(|p| p.delay.first().copied())
+        .unwrap_or(1);
+    let n = ctx.fit.len().min(ctx.policy().hidden_state_fit_samples);
+    let rec = ctx.fit.slice(0..n);
+    let spec = template(&rec, nk)?;
+    let lin = fit_physics(&spec, &rec, ctx.observer)?;
+    Ok((rec, lin))
+}
+
+/// Whether the current model is the plain order-2 linear model of one
+/// input (the template's start).
+fn plain_order_two(ctx: &Context) -> bool {
+    ctx.current
+        .lineage
+        .io()
+        .is_some_and(|p| !p.network && !p.hysteresis && p.order == 2)
+        && ctx.fit.inputs.len() == 1
+}
+
+/// The static counterpart of [`MechanicalHysteresis`] (cause
+/// `nonlinearity`): the same template with the centred law
+/// `c2·w² + c3·w³` of the position in its force balance (a nonlinear
+/// spring), so that a nonlinear spring is not explained by a hysteretic
+/// state for want of a static rival of the same class (a tie between the
+/// two is resolved by the unique contributions of the model with both,
+/// else by fewer parameters). Proposed for the same current model, without
+/// the memory condition.
+pub struct MechanicalNonlinearity;
+
+impl Extension for MechanicalNonlinearity {
+    fn name(&self) -> &'static str {
+        "mechanical-nonlinearity"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Nonlinearity
+    }
+    fn once(&self) -> bool {
+        true
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        if !plain_order_two(ctx) {
+            return vec![];
+        }
+        vec![Proposal {
+            cause: Cause::Nonlinearity,
+            lineage: Lineage::Other {
+                spec: "mechanical (q, v) + centred(q) in dv/dt".into(),
+                order: 2,
+            },
+            text: "a mechanical grey-box model from the order-2 linear model: q̇ = v, v̇ = g·u − k·q − c·v + c2·w² + c3·w³, w = (q − mid)/half-range, y = q + y₀ (a nonlinear spring) in continuous time".into(),
+        }]
+    }
+    fn fit(&self, _p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-nonlinearity: {m}"));
+        let (rec, lin) = fitted_template(ctx)?;
+        let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
+        let spec = super::physics_terms::with_centred_law(cur, &rec, "v", "q")?;
+        fit_physics(&spec, &rec, ctx.observer)
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.nonlinearity_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        let params = physics_of(fitted).map_or(String::new(), parameters_text);
+        format!("{} -> {params}", p.text)
+    }
+}
+
+impl Extension for MechanicalHysteresis {
+    fn name(&self) -> &'static str {
+        "mechanical-hysteresis"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Hysteresis
+    }
+    fn once(&self) -> bool {
+        true
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        if !plain_order_two(ctx) || ctx.evidence.memory.1 >= ctx.policy().memory_priority_p {
+            return vec![];
+        }
+        vec![Proposal {
+            cause: Cause::Hysteresis,
+            lineage: Lineage::Other {
+                spec: "mechanical (q, v) + hysteresis(q) in dv/dt".into(),
+                order: 3,
+            },
+            text: "a mechanical grey-box model from the order-2 linear model: q̇ = v, v̇ = g·u − k·q − c·v + w·ζ, y = q + y₀, with a hysteretic state ζ̇ = v − (b/h)|v|ζ − (c_h/h)v|ζ| (Bouc–Wen) in continuous time".into(),
+        }]
+    }
+    fn fit(&self, _p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
+        let (rec, lin) = fitted_template(ctx)?;
+        let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
+        let mut best: Option<(f64, FittedModel)> = None;
+        let mut last_err = None;
+        for b0 in super::physics_hysteresis::B_STARTS {
+            match with_hysteresis(cur, &rec, ("v", "q"), b0)
+                .and_then(|s| fit_physics(&s, &rec, ctx.observer))
+            {
+                Ok(m) => {
+                    let rmse = physics_of(&m)
+                        .and_then(PhysicsModel::fit_report)
+                        .map_or(f64::INFINITY, |r| r.rmse);
+                    if best.as_ref().is_none_or(|(b, _)| rmse < *b) {
+                        best = Some((rmse, m));
+                    }
+                }
+                Err(e) => last_err = Some(e),
+            }
+        }
+        match (best, last_err) {
+            (Some((_, m)), _) => Ok(m),
+            (None, Some(e)) => Err(e),
+            (None, None) => Err(bad("no start")),
+        }
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.hysteresis_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        let params = physics_of(fitted).map_or(String::new(), parameters_text);
+        format!("{} -> {params}", p.text)
+    }
+}
