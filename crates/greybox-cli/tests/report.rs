@@ -177,9 +177,10 @@ fn html_report_is_self_contained_and_renders_every_plot() {
         "plot-ccf-0",
         "plot-hoc-0",
         "plot-evidence-1-hysteresis",
-        "plot-preisach",
-        // the shock absorber's hysteretic force ends in the hidden-state model
-        "plot-state-space",
+        // the shock absorber's hysteretic force ends in the mechanical
+        // grey-box model (a physics model): its 95 % prediction band
+        "plot-physics-bands",
+        "plot-physics-bands-zoom",
     ];
     for id in expected {
         assert!(

@@ -5,10 +5,10 @@
 use super::physics_hysteresis::extended as with_hysteresis;
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_of, TEMPLATE_NAME};
+use crate::physics::{best_of_starts, fit_physics, parameters_text, physics_of, TEMPLATE_NAME};
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
-use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, State};
+use gb_model::physics::{Parameter, PhysicsSpec, State};
 
 /// The thesis' hysteresis inside the dynamics (chapter 4) for a model that
 /// has no equations yet. When the current model is the plain order-2
@@ -178,28 +178,13 @@ impl Extension for MechanicalHysteresis {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
         let (rec, lin) = fitted_template(ctx)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
-        let mut best: Option<(f64, FittedModel)> = None;
-        let mut last_err = None;
-        for b0 in super::physics_hysteresis::B_STARTS {
-            match with_hysteresis(cur, &rec, ("v", "q"), b0)
-                .and_then(|s| fit_physics(&s, &rec, ctx.observer))
-            {
-                Ok(m) => {
-                    let rmse = physics_of(&m)
-                        .and_then(PhysicsModel::fit_report)
-                        .map_or(f64::INFINITY, |r| r.rmse);
-                    if best.as_ref().is_none_or(|(b, _)| rmse < *b) {
-                        best = Some((rmse, m));
-                    }
-                }
-                Err(e) => last_err = Some(e),
-            }
-        }
-        match (best, last_err) {
-            (Some((_, m)), _) => Ok(m),
-            (None, Some(e)) => Err(e),
-            (None, None) => Err(bad("no start")),
-        }
+        best_of_starts(
+            super::physics_hysteresis::B_STARTS
+                .into_iter()
+                .map(|b0| with_hysteresis(cur, &rec, ("v", "q"), b0)),
+            &rec,
+            ctx.observer,
+        )
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()

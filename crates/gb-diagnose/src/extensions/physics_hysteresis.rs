@@ -3,7 +3,7 @@
 use super::physics_terms::{is_law, quantile, sum_text};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_fit_record, physics_of};
+use crate::physics::{best_of_starts, parameters_text, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, State, TermTarget};
@@ -182,28 +182,13 @@ impl Extension for PhysicsHysteresis {
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
         let rec = physics_fit_record(ctx, cur);
-        let mut best: Option<(f64, FittedModel)> = None;
-        let mut last_err = None;
-        for b0 in B_STARTS {
-            match extended(cur, &rec, (&eq, &var), b0)
-                .and_then(|s| fit_physics(&s, &rec, ctx.observer))
-            {
-                Ok(m) => {
-                    let rmse = physics_of(&m)
-                        .and_then(PhysicsModel::fit_report)
-                        .map_or(f64::INFINITY, |r| r.rmse);
-                    if best.as_ref().is_none_or(|(b, _)| rmse < *b) {
-                        best = Some((rmse, m));
-                    }
-                }
-                Err(e) => last_err = Some(e),
-            }
-        }
-        match (best, last_err) {
-            (Some((_, m)), _) => Ok(m),
-            (None, Some(e)) => Err(e),
-            (None, None) => Err(bad("no start")),
-        }
+        best_of_starts(
+            B_STARTS
+                .into_iter()
+                .map(|b0| extended(cur, &rec, (&eq, &var), b0)),
+            &rec,
+            ctx.observer,
+        )
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()

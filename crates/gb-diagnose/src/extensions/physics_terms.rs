@@ -3,7 +3,7 @@
 //! parameters re-estimated with it.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_fit_record, physics_of};
+use crate::physics::{best_of_starts, parameters_text, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
@@ -494,28 +494,13 @@ impl Extension for PhysicsTerms {
             _ => &[1.0],
         };
         let rec = physics_fit_record(ctx, cur);
-        let mut best: Option<(f64, FittedModel)> = None;
-        let mut last_err = None;
-        for &q in starts {
-            match extended(cur, &rec, (kind, &at, &var), q)
-                .and_then(|s| fit_physics(&s, &rec, ctx.observer))
-            {
-                Ok(m) => {
-                    let rmse = physics_of(&m)
-                        .and_then(PhysicsModel::fit_report)
-                        .map_or(f64::INFINITY, |r| r.rmse);
-                    if best.as_ref().is_none_or(|(b, _)| rmse < *b) {
-                        best = Some((rmse, m));
-                    }
-                }
-                Err(e) => last_err = Some(e),
-            }
-        }
-        match (best, last_err) {
-            (Some((_, m)), _) => Ok(m),
-            (None, Some(e)) => Err(e),
-            (None, None) => Err(bad("no start")),
-        }
+        best_of_starts(
+            starts
+                .iter()
+                .map(|&q| extended(cur, &rec, (kind, &at, &var), q)),
+            &rec,
+            ctx.observer,
+        )
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()
