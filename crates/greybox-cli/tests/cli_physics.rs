@@ -122,6 +122,22 @@ fn msd_truth_csv(
     clean
 }
 
+/// `greybox fit DATA --model-file MODEL -o OUT`, which must succeed: its
+/// standard output.
+fn fit_ok(data: &Path, model: &Path, out: &Path) -> String {
+    let o = run(&[
+        "fit",
+        data.to_str().unwrap(),
+        "--model-file",
+        model.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    so
+}
+
 /// The estimate and 95 % interval of parameter `name` in `fit`'s output.
 fn interval_of(out: &str, name: &str) -> (f64, f64, f64) {
     let line = out
@@ -143,16 +159,7 @@ fn fit_model_file_prints_intervals_that_cover_the_truth() {
     let data = d.join("train.csv");
     msd_csv(&data, 2000, 3, 0.02, 0.0);
     let out = d.join("msd.gbm");
-    let o = run(&[
-        "fit",
-        data.to_str().unwrap(),
-        "--model-file",
-        example("msd.toml").to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = fit_ok(&data, &example("msd.toml"), &out);
     assert!(
         so.contains("sample time: 5.000000e-2 s (from the t column"),
         "{so}"
@@ -200,16 +207,7 @@ fn fit_model_file_estimates_an_input_delay() {
     let file = d.join("msd_delay.toml");
     std::fs::write(&file, text_).unwrap();
     let out = d.join("msd.gbm");
-    let o = run(&[
-        "fit",
-        data.to_str().unwrap(),
-        "--model-file",
-        file.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = fit_ok(&data, &file, &out);
     assert!(so.contains("input delay td = "), "{so}");
     for (name, truth) in ["m", "c", "k", "td"]
         .iter()
@@ -304,16 +302,7 @@ fn fit_model_file_with_two_outputs() {
     two_sensor_csv(&data, 2000, 8);
     let out = d.join("msd2.gbm");
     let model = example("msd_two_outputs.toml");
-    let o = run(&[
-        "fit",
-        data.to_str().unwrap(),
-        "--model-file",
-        model.to_str().unwrap(),
-        "-o",
-        out.to_str().unwrap(),
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = fit_ok(&data, &model, &out);
     assert!(so.contains("-> outputs y,tach"), "{so}");
     for (name, truth) in [("m", 1.0), ("c", 0.4), ("k", 4.0), ("g", 2.5)] {
         let (_, lo, hi) = interval_of(&so, name);
