@@ -205,3 +205,15 @@ pub(crate) fn best_of_starts(
         (None, None) => Err(DiagnoseError::InvalidArgument("no start to fit".into())),
     }
 }
+
+/// The current model of `ctx` when it is a physics model, with its lineage
+/// spec (the base the physics extensions append their markers to).
+pub(crate) fn current_physics<'a>(
+    ctx: &crate::extension::Context<'a>,
+) -> Option<(&'a PhysicsModel, &'a str)> {
+    let m = physics_of(&ctx.current.model)?;
+    match &ctx.current.lineage {
+        Lineage::Other { spec, .. } => Some((m, spec.as_str())),
+        _ => None,
+    }
+}

@@ -585,6 +585,25 @@ fn bands_cover_about_95_percent_of_held_out_noisy_samples() {
     );
 }
 
+/// `greybox diagnose TRAIN --validate VAL --model-file examples/models/FILE
+/// EXTRA…`, which must succeed: its standard output.
+fn diagnose_ok(train: &Path, val: &Path, file: &str, extra: &[&str]) -> String {
+    let model = example(file);
+    let mut args = vec![
+        "diagnose",
+        train.to_str().unwrap(),
+        "--validate",
+        val.to_str().unwrap(),
+        "--model-file",
+        model.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    let (so, se) = text(&o);
+    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    so
+}
+
 /// The NRMSE of a `baseline:` or `final:` line of the diagnosis.
 fn nrmse_of(out: &str, prefix: &str) -> f64 {
     let line = out
@@ -604,18 +623,12 @@ fn diagnose_model_file_names_a_missing_cubic_spring_and_gains_on_held_out_data()
     msd_csv(&train, 3000, 21, 0.01, 6.0);
     msd_csv(&val, 2000, 22, 0.01, 6.0);
     let json = d.join("report.json");
-    let o = run(&[
-        "diagnose",
-        train.to_str().unwrap(),
-        "--validate",
-        val.to_str().unwrap(),
-        "--model-file",
-        example("msd.toml").to_str().unwrap(),
-        "--json",
-        json.to_str().unwrap(),
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = diagnose_ok(
+        &train,
+        &val,
+        "msd.toml",
+        &["--json", json.to_str().unwrap()],
+    );
     println!("{so}");
     assert!(
         so.contains("the user's model file 'mass-spring-damper'"),
@@ -665,18 +678,12 @@ fn diagnose_model_file_finds_an_input_delay() {
     msd_delayed_csv(&train, 3000, 31, 0.01, 0.0, delay);
     msd_delayed_csv(&val, 2000, 32, 0.01, 0.0, delay);
     let json = d.join("report.json");
-    let o = run(&[
-        "diagnose",
-        train.to_str().unwrap(),
-        "--validate",
-        val.to_str().unwrap(),
-        "--model-file",
-        example("msd.toml").to_str().unwrap(),
-        "--json",
-        json.to_str().unwrap(),
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = diagnose_ok(
+        &train,
+        &val,
+        "msd.toml",
+        &["--json", json.to_str().unwrap()],
+    );
     println!("{so}");
     assert!(so.contains("causes: dynamics"), "{so}");
     let accepted = so
@@ -715,16 +722,7 @@ fn diagnose_model_file_finds_a_hysteretic_spring() {
         (clean.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / clean.len() as f64).sqrt()
     };
     let floor = 0.005 / sd_y;
-    let o = run(&[
-        "diagnose",
-        train.to_str().unwrap(),
-        "--validate",
-        val.to_str().unwrap(),
-        "--model-file",
-        example("msd.toml").to_str().unwrap(),
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = diagnose_ok(&train, &val, "msd.toml", &[]);
     println!("{so}\nnoise floor {floor:.4}");
     assert!(so.contains("causes: hysteresis"), "{so}");
     let accepted = so
@@ -800,18 +798,7 @@ fn diagnose_model_file_finds_the_overflow_of_a_tank() {
         100.0 * at
     );
     assert!((0.1..0.6).contains(&at), "the ceiling binds {at}");
-    let o = run(&[
-        "diagnose",
-        train.to_str().unwrap(),
-        "--validate",
-        val.to_str().unwrap(),
-        "--model-file",
-        example("cascaded_tanks.toml").to_str().unwrap(),
-        "--max-steps",
-        "1",
-    ]);
-    let (so, se) = text(&o);
-    assert_eq!(o.status.code(), Some(0), "{so}\n{se}");
+    let so = diagnose_ok(&train, &val, "cascaded_tanks.toml", &["--max-steps", "1"]);
     println!("{so}");
     let accepted: Vec<&str> = so.lines().filter(|l| l.contains(" yes ")).collect();
     assert!(

@@ -2,7 +2,9 @@
 //! estimated with every physical parameter.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{fit_physics, parameters_text, physics_fit_record, physics_of};
+use crate::physics::{
+    current_physics, fit_physics, parameters_text, physics_fit_record, physics_of,
+};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel};
@@ -84,10 +86,7 @@ impl Extension for PhysicsInputDelay {
         Cause::Dynamics
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        let Some(m) = physics_of(&ctx.current.model) else {
-            return vec![];
-        };
-        let Lineage::Other { spec: base, .. } = &ctx.current.lineage else {
+        let Some((m, base)) = current_physics(ctx) else {
             return vec![];
         };
         if m.spec().input_delay.is_some() || base.contains(MARKER) || m.spec().inputs.is_empty() {

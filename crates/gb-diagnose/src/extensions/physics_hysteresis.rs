@@ -3,7 +3,9 @@
 use super::physics_terms::{is_law, quantile, sum_text};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{best_of_starts, parameters_text, physics_fit_record, physics_of};
+use crate::physics::{
+    best_of_starts, current_physics, parameters_text, physics_fit_record, physics_of,
+};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, State, TermTarget};
@@ -142,10 +144,7 @@ impl Extension for PhysicsHysteresis {
         Cause::Hysteresis
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        let Some(m) = physics_of(&ctx.current.model) else {
-            return vec![];
-        };
-        let Lineage::Other { spec: base, .. } = &ctx.current.lineage else {
+        let Some((m, base)) = current_physics(ctx) else {
             return vec![];
         };
         // no loop in the residual, no hysteresis: an extra state with three

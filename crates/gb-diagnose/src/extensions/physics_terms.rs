@@ -3,7 +3,9 @@
 //! parameters re-estimated with it.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{best_of_starts, parameters_text, physics_fit_record, physics_of};
+use crate::physics::{
+    best_of_starts, current_physics, parameters_text, physics_fit_record, physics_of,
+};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
@@ -453,10 +455,7 @@ impl Extension for PhysicsTerms {
         Cause::Nonlinearity
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        let Some(m) = physics_of(&ctx.current.model) else {
-            return vec![];
-        };
-        let Lineage::Other { spec: base, .. } = &ctx.current.lineage else {
+        let Some((m, base)) = current_physics(ctx) else {
             return vec![];
         };
         let spec = m.spec();
