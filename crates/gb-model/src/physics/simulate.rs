@@ -17,7 +17,7 @@
 //! delay's lane (the stage points' `a = c·τ/m` differentiate to `−c/m`),
 //! so `∂y/∂d` is again the exact derivative of the discrete map.
 use super::spec::Compiled;
-use super::tape::Slots;
+use super::tape::{Slots, Tape};
 
 /// Which derivative lane each free parameter and each free initial state
 /// has (`None`: fixed).
@@ -129,19 +129,21 @@ impl<'c> Integrator<'c> {
         }
     }
 
-    /// Set the held input of this sample.
-    #[inline]
     /// The current state.
     pub(crate) fn state(&self) -> &[f64] {
         &self.x
     }
 
+    /// Set the held input of this sample (and the tapes' input-only nodes).
+    #[inline]
     pub(crate) fn set_input(&mut self, u: impl Iterator<Item = f64>) {
         let n = self.c.n;
         for (j, v) in u.enumerate() {
             self.fs.v[n + j] = v;
             self.gs.v[n + j] = v;
         }
+        self.c.f.run_input(&mut self.fs);
+        self.c.g.run_input(&mut self.gs);
     }
 
     /// The input delay's shift `D` in samples: `y_k = ỹ_{k−D}`.
@@ -239,9 +241,63 @@ impl<'c> Integrator<'c> {
         self.advance(self.h, self.substeps)
     }
 
-    /// `steps` RK4 steps of `h` with the held input.
+    /// `steps` RK4 steps of `h` with the held input: [`advance_n`] for up
+    /// to 4 states, else [`advance_any`] (the same arithmetic).
+    ///
+    /// [`advance_n`]: Self::advance_n
+    /// [`advance_any`]: Self::advance_any
     #[inline]
     fn advance(&mut self, h: f64, steps: usize) -> bool {
+        match self.c.n {
+            1 => self.advance_n::<1>(h, steps),
+            2 => self.advance_n::<2>(h, steps),
+            3 => self.advance_n::<3>(h, steps),
+            4 => self.advance_n::<4>(h, steps),
+            _ => self.advance_any(h, steps),
+        }
+    }
+
+    /// [`advance`](Self::advance) for `N` states: the state and the stages
+    /// `k₁…k₄` in registers, `x + a·k` written into the state slots,
+    /// `x ← x + h/6·(k₁ + 2(k₂ + k₃) + k₄)` (clamped into the ranges).
+    #[inline(always)]
+    fn advance_n<const N: usize>(&mut self, h: f64, steps: usize) -> bool {
+        let c = self.c;
+        let v = &mut self.fs.v[..];
+        let tape = &c.f;
+        let outs: [usize; N] = std::array::from_fn(|i| tape.output_slot(i));
+        // the unchecked reads below rely on this (the tape's outputs lie
+        // below its slot count: `Tape::check_slots`)
+        assert!(N <= v.len() && outs.iter().all(|&o| o < v.len()));
+        let last: [bool; N] = std::array::from_fn(|i| tape.last_slot() == Some(outs[i]));
+        let outs = (&outs, &last);
+        let range: [(f64, f64); N] = std::array::from_fn(|i| c.range[i]);
+        let clamp = |p: [f64; N]| -> [f64; N] {
+            if self.bounded {
+                std::array::from_fn(|i| p[i].max(range[i].0).min(range[i].1))
+            } else {
+                p
+            }
+        };
+        let stage = |x: &[f64; N], a: f64, k: &[f64; N]| -> [f64; N] {
+            clamp(std::array::from_fn(|i| x[i] + a * k[i]))
+        };
+        let mut x: [f64; N] = std::array::from_fn(|i| self.x[i]);
+        for _ in 0..steps {
+            let k1 = rhs_at(tape, v, outs, &x);
+            let k2 = rhs_at(tape, v, outs, &stage(&x, 0.5 * h, &k1));
+            let k3 = rhs_at(tape, v, outs, &stage(&x, 0.5 * h, &k2));
+            let k4 = rhs_at(tape, v, outs, &stage(&x, h, &k3));
+            x = clamp(std::array::from_fn(|i| {
+                x[i] + h / 6.0 * (k1[i] + 2.0 * (k2[i] + k3[i]) + k4[i])
+            }));
+        }
+        self.x[..N].copy_from_slice(&x);
+        x.iter().all(|v| v.is_finite())
+    }
+
+    /// [`advance`](Self::advance) for any number of states.
+    fn advance_any(&mut self, h: f64, steps: usize) -> bool {
         let n = self.c.n;
         self.fs.v[..n].copy_from_slice(&self.x);
         for _ in 0..steps {
@@ -344,6 +400,29 @@ impl<'c> Integrator<'c> {
         }
         self.x.iter().all(|v| v.is_finite()) && self.s.iter().all(|v| v.is_finite())
     }
+}
+
+/// `f(p)`: the tape run with the state slots set to `p`, its outputs read
+/// from the slots `outs` (each below `v.len()`, which the caller asserts)
+/// or, where `last[i]`, taken from the last node's result (kept in a
+/// register: no wait for its store to reach a load).
+#[inline(always)]
+fn rhs_at<const N: usize>(
+    tape: &Tape,
+    v: &mut [f64],
+    (outs, last): (&[usize; N], &[bool; N]),
+    p: &[f64; N],
+) -> [f64; N] {
+    v[..N].copy_from_slice(p);
+    let r = tape.run_values(v);
+    std::array::from_fn(|i| {
+        if last[i] {
+            r
+        } else {
+            // SAFETY: every `outs[i] < v.len()` (the caller's assertion).
+            unsafe { *v.get_unchecked(outs[i]) }
+        }
+    })
 }
 
 /// Clamp `x` into `[lo, hi]`; `true` when it was outside (its

@@ -455,7 +455,7 @@ impl PhysicsSpec {
             list(self.parameters.iter().map(|p| p.name.as_str()))
         );
         let build = |lists: Vec<(Item, &Vec<String>)>| -> PhysicsResult<(Tape, Vec<Vec<usize>>)> {
-            let mut b = TapeBuilder::new(&names, n + nu);
+            let mut b = TapeBuilder::new(&names, n, n + nu);
             let mut outs = Vec::with_capacity(lists.len());
             let mut used = Vec::with_capacity(lists.len());
             for (item, terms) in lists {
@@ -588,6 +588,7 @@ impl Compiled {
             let mut s = tape.slots(0);
             s.v[..vals.len()].copy_from_slice(&vals);
             tape.run_pre(&mut s);
+            tape.run_input(&mut s);
             tape.run(&mut s);
             for i in 0..tape.n_outputs() {
                 let v = tape.out(&s, i);

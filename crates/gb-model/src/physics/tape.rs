@@ -15,7 +15,10 @@
 //! a simulation below 1 M samples/s. The tape evaluates the same expression
 //! in a few ns, shares common sub-expressions between the equations
 //! (hash-consing), evaluates parameter-only sub-expressions (`c/m`, `k/m`)
-//! once per simulation instead of once per stage, and gives exact
+//! once per simulation and input-only ones (`F/m`) once per sample instead
+//! of once per stage, fuses a product into the sum that reads it
+//! (`p + a·b`: one dispatch, the sum reading the previous result from a
+//! register; bit-identical, no FMA), and gives exact
 //! derivatives by forward mode: each node's partial derivatives
 //! `(∂out/∂a, ∂out/∂b)` are closed-form (chain rule), so one pass gives
 //! the directional derivatives `f_x·s + f_θ·e` of all outputs along any
@@ -75,6 +78,18 @@ pub(crate) enum Op {
     Ln,
     Log2,
     Log10,
+    /// `a·b + c` (fused from a product read once by a sum; value program only).
+    MulAdd,
+    /// `a·b − c` (fused, value program only).
+    MulSub,
+    /// `c − a·b` (fused, value program only).
+    SubMul,
+    /// `MulAdd` with `c` the previous node's result (kept in a register).
+    MulAddPrev,
+    /// `MulSub` with `c` the previous node's result.
+    MulSubPrev,
+    /// `SubMul` with `c` the previous node's result.
+    SubMulPrev,
 }
 
 /// The value of `op` (exmex's float semantics).
@@ -116,6 +131,9 @@ fn apply(op: Op, a: f64, b: f64) -> f64 {
         Op::Ln => a.ln(),
         Op::Log2 => a.log2(),
         Op::Log10 => a.log10(),
+        Op::MulAdd | Op::MulSub | Op::SubMul | Op::MulAddPrev | Op::MulSubPrev | Op::SubMulPrev => {
+            unreachable!("fused operations have three operands")
+        }
     }
 }
 
@@ -189,6 +207,9 @@ fn partials(op: Op, a: f64, b: f64, out: f64) -> (f64, f64) {
         Op::Ln => (1.0 / a, 0.0),
         Op::Log2 => (1.0 / (a * std::f64::consts::LN_2), 0.0),
         Op::Log10 => (1.0 / (a * std::f64::consts::LN_10), 0.0),
+        Op::MulAdd | Op::MulSub | Op::SubMul | Op::MulAddPrev | Op::MulSubPrev | Op::SubMulPrev => {
+            unreachable!("fused operations have no lanes")
+        }
     }
 }
 
@@ -408,6 +429,8 @@ pub(crate) enum ExprError {
 pub(crate) struct TapeBuilder {
     names: HashMap<String, u32>,
     n_vars: usize,
+    /// Variables from this index on are inputs (held over a sample).
+    input_start: usize,
     /// Variables from this index on are parameters (hoisted sub-expressions).
     param_start: usize,
     tracer: Tracer,
@@ -415,8 +438,9 @@ pub(crate) struct TapeBuilder {
 
 impl TapeBuilder {
     /// A builder over `names` (the variable slots, in order); variables
-    /// `param_start..` are parameters.
-    pub(crate) fn new(names: &[String], param_start: usize) -> Self {
+    /// `..input_start` are states, `input_start..param_start` inputs and
+    /// `param_start..` parameters.
+    pub(crate) fn new(names: &[String], input_start: usize, param_start: usize) -> Self {
         let mut b = Self {
             names: names
                 .iter()
@@ -424,6 +448,7 @@ impl TapeBuilder {
                 .map(|(i, n)| (n.clone(), i as u32))
                 .collect(),
             n_vars: names.len(),
+            input_start,
             param_start,
             tracer: Tracer::default(),
         };
@@ -468,8 +493,9 @@ impl TapeBuilder {
         })
     }
 
-    /// The tape computing `outputs` (dead nodes dropped, parameter-only
-    /// nodes hoisted into the prologue).
+    /// The tape computing `outputs` (dead nodes dropped; parameter-only
+    /// nodes hoisted into the prologue, input-only ones into the per-sample
+    /// part; the state-dependent rest also fused, see [`fuse`]).
     pub(crate) fn finish(mut self, outputs: &[Rec]) -> Tape {
         let out_ids: Vec<u32> = with_tracer(&mut self.tracer, || {
             outputs.iter().map(|r| id(*r)).collect()
@@ -486,13 +512,15 @@ impl TapeBuilder {
                 live[b as usize] = true;
             }
         }
-        // parameter-only values: parameters, constants and nodes of them
-        let mut param_only = vec![false; defs.len()];
+        // the level of each value: 0 parameters, constants and nodes of
+        // them; 1 also inputs; 2 also states
+        let mut level = vec![0u8; defs.len()];
         for (i, d) in defs.iter().enumerate() {
-            param_only[i] = match *d {
-                Def::Var(v) => v as usize >= self.param_start,
-                Def::Const(_) => true,
-                Def::Node(_, a, b) => param_only[a as usize] && param_only[b as usize],
+            level[i] = match *d {
+                Def::Var(v) if (v as usize) < self.input_start => 2,
+                Def::Var(v) if (v as usize) < self.param_start => 1,
+                Def::Var(_) | Def::Const(_) => 0,
+                Def::Node(_, a, b) => level[a as usize].max(level[b as usize]),
             };
         }
         let mut slot = vec![u32::MAX; defs.len()];
@@ -509,59 +537,134 @@ impl TapeBuilder {
                 _ => {}
             }
         }
-        let mut pre = Vec::new();
-        let mut main = Vec::new();
-        for hoisted in [true, false] {
+        let mut parts: [Vec<Node>; 3] = Default::default();
+        for (lv, part) in parts.iter_mut().enumerate() {
             for (i, d) in defs.iter().enumerate() {
                 if let Def::Node(op, a, b) = *d {
-                    if live[i] && param_only[i] == hoisted {
+                    if live[i] && level[i] as usize == lv {
                         slot[i] = next;
-                        let node = Node {
-                            op,
-                            a: slot[a as usize],
-                            b: slot[b as usize],
-                            out: next,
-                        };
+                        part.push(Node::new(op, slot[a as usize], slot[b as usize], next));
                         next += 1;
-                        if hoisted {
-                            pre.push(node);
-                        } else {
-                            main.push(node);
-                        }
                     }
                 }
             }
         }
+        let outputs: Vec<u32> = out_ids.iter().map(|&o| slot[o as usize]).collect();
+        let [pre, input, main] = parts;
         let tape = Tape {
             n_slots: next as usize,
             consts,
             pre,
+            input,
+            fused: fuse(&main, &outputs, next as usize),
             main,
-            outputs: out_ids.iter().map(|&o| slot[o as usize]).collect(),
+            outputs,
         };
         tape.check_slots();
         tape
     }
 }
 
-/// One tape operation: `slot[out] = op(slot[a], slot[b])`.
+/// The state-dependent nodes with every product that only one sum reads
+/// folded into it: `p + a·b`, `a·b + p` → `MulAdd`, `a·b − p` → `MulSub`,
+/// `p − a·b` → `SubMul`, written to the sum's slot. `a·b` is rounded before
+/// the sum as before (no FMA), so the values are bit-identical.
+fn fuse(main: &[Node], outputs: &[u32], n_slots: usize) -> Vec<Node> {
+    let mut reads = vec![0u32; n_slots];
+    for n in main {
+        reads[n.a as usize] += 1;
+        if is_binary(n.op) {
+            reads[n.b as usize] += 1;
+        }
+    }
+    for &o in outputs {
+        reads[o as usize] += 1;
+    }
+    // the index in `main` of the product writing each slot, read once
+    let mut product = vec![usize::MAX; n_slots];
+    for (i, n) in main.iter().enumerate() {
+        if n.op == Op::Mul && reads[n.out as usize] == 1 {
+            product[n.out as usize] = i;
+        }
+    }
+    let mut absorbed = vec![false; main.len()];
+    let mut fused: Vec<Node> = main.to_vec();
+    for (i, n) in main.iter().enumerate() {
+        let (pa, pb) = (product[n.a as usize], product[n.b as usize]);
+        let (op, m, other) = match n.op {
+            Op::Add if pb != usize::MAX => (Op::MulAdd, pb, n.a),
+            Op::Add if pa != usize::MAX => (Op::MulAdd, pa, n.b),
+            Op::Sub if pb != usize::MAX => (Op::SubMul, pb, n.a),
+            Op::Sub if pa != usize::MAX => (Op::MulSub, pa, n.b),
+            _ => continue,
+        };
+        absorbed[m] = true;
+        fused[i] = Node {
+            op,
+            a: main[m].a,
+            b: main[m].b,
+            c: other,
+            out: n.out,
+        };
+    }
+    fused
+        .into_iter()
+        .zip(absorbed)
+        .filter_map(|(n, gone)| (!gone).then_some(n))
+        .fold(
+            Vec::with_capacity(main.len()),
+            |mut prog: Vec<Node>, mut n| {
+                // a sum of the result just computed reads it from a register
+                if prog.last().is_some_and(|p| p.out == n.c) {
+                    n.op = match n.op {
+                        Op::MulAdd => Op::MulAddPrev,
+                        Op::MulSub => Op::MulSubPrev,
+                        Op::SubMul => Op::SubMulPrev,
+                        op => op,
+                    };
+                }
+                prog.push(n);
+                prog
+            },
+        )
+}
+
+/// One tape operation: `slot[out] = op(slot[a], slot[b])`; the fused
+/// operations also read `slot[c]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct Node {
     op: Op,
     a: u32,
     b: u32,
+    c: u32,
     out: u32,
 }
 
+impl Node {
+    fn new(op: Op, a: u32, b: u32, out: u32) -> Self {
+        Self {
+            op,
+            a,
+            b,
+            c: a,
+            out,
+        }
+    }
+}
+
 /// A compiled set of expressions over variable slots `0..n_vars`
-/// (the caller's layout), constants, a prologue of parameter-only nodes and
-/// the main nodes. Slots of a node's operands always precede its own.
+/// (the caller's layout), constants, a prologue of parameter-only nodes,
+/// the input-only nodes (once per sample) and the main nodes (once per
+/// evaluation; `fused` is the same for values only). Every node writes a
+/// slot of its own, after the slots of its operands.
 #[derive(Clone, Debug, PartialEq)]
 pub(crate) struct Tape {
     n_slots: usize,
     consts: Vec<(u32, f64)>,
     pre: Vec<Node>,
+    input: Vec<Node>,
     main: Vec<Node>,
+    fused: Vec<Node>,
     outputs: Vec<u32>,
 }
 
@@ -598,17 +701,20 @@ impl Tape {
         let nodes_ok = self
             .pre
             .iter()
+            .chain(&self.input)
             .chain(&self.main)
-            .all(|d| d.a < n && d.b < n && d.out < n);
+            .chain(&self.fused)
+            .all(|d| d.a < n && d.b < n && d.c < n && d.out < n);
         let rest_ok =
             self.outputs.iter().all(|&o| o < n) && self.consts.iter().all(|&(c, _)| c < n);
         assert!(nodes_ok && rest_ok, "tape slot out of range");
     }
 
-    /// Operations per evaluation (prologue, main).
+    /// Operations (prologue, per input, main, main fused).
     #[cfg(test)]
-    pub(crate) fn len(&self) -> (usize, usize) {
-        (self.pre.len(), self.main.len())
+    pub(crate) fn len(&self) -> (usize, usize, usize, usize) {
+        let (p, i, m, f) = (&self.pre, &self.input, &self.main, &self.fused);
+        (p.len(), i.len(), m.len(), f.len())
     }
 
     /// Evaluate the prologue (after the parameter slots were set).
@@ -616,10 +722,29 @@ impl Tape {
         run(&self.pre, self.n_slots, &mut s.v);
     }
 
-    /// Evaluate the main nodes (after the variable slots were set).
+    /// Evaluate the input-only nodes (after the input slots were set).
+    #[inline]
+    pub(crate) fn run_input(&self, s: &mut Slots) {
+        run(&self.input, self.n_slots, &mut s.v);
+    }
+
+    /// Evaluate the main nodes, fused (after the state slots were set,
+    /// and [`run_input`](Self::run_input) since the inputs changed).
     #[inline(always)]
     pub(crate) fn run(&self, s: &mut Slots) {
-        run(&self.main, self.n_slots, &mut s.v);
+        self.run_values(&mut s.v);
+    }
+
+    /// [`run`](Self::run) on the values of [`Slots`]; the last node's
+    /// result (also in its slot, [`last_slot`](Self::last_slot)).
+    #[inline(always)]
+    pub(crate) fn run_values(&self, v: &mut [f64]) -> f64 {
+        run(&self.fused, self.n_slots, v)
+    }
+
+    /// The slot the last main node writes (`None`: no main nodes).
+    pub(crate) fn last_slot(&self) -> Option<usize> {
+        self.fused.last().map(|n| n.out as usize)
     }
 
     /// The prologue with derivative lanes.
@@ -627,10 +752,17 @@ impl Tape {
         run_dual(&self.pre, s);
     }
 
-    /// The main nodes with derivative lanes.
+    /// The input-only and main nodes with derivative lanes.
     #[inline]
     pub(crate) fn run_dual(&self, s: &mut Slots) {
+        run_dual(&self.input, s);
         run_dual(&self.main, s);
+    }
+
+    /// The slot of output `i` (below the length of the tape's slots).
+    #[inline(always)]
+    pub(crate) fn output_slot(&self, i: usize) -> usize {
+        self.outputs[i] as usize
     }
 
     /// Value of output `i` after a run.
@@ -652,25 +784,37 @@ impl Tape {
     }
 }
 
-/// `v[out] = op(v[a], v[b])` for every node, in order. The hot loop of
-/// every simulation: the slot indices are checked once, when the tape is
-/// built ([`Tape::check_slots`]), and the length of `v` once per call.
+/// `v[out] = op(v[a], v[b])` for every node, in order (the `…Prev`
+/// operations take `c` from `r`, the previous result, instead of from its
+/// slot: no store-to-load wait). The hot loop of every simulation: the
+/// slot indices are checked once, when the tape is built
+/// ([`Tape::check_slots`]), and the length of `v` once per call.
 #[inline(always)]
-fn run(nodes: &[Node], n_slots: usize, v: &mut [f64]) {
+fn run(nodes: &[Node], n_slots: usize, v: &mut [f64]) -> f64 {
     assert!(v.len() >= n_slots, "slots of another tape");
+    let mut r = 0.0;
     for n in nodes {
         // SAFETY: `Tape::finish` checks that every node's operands and
         // output are below `n_slots` (`check_slots`), and `v` holds at
         // least `n_slots` values (asserted above).
         unsafe {
-            let r = apply(
-                n.op,
+            let (a, b) = (
                 *v.get_unchecked(n.a as usize),
                 *v.get_unchecked(n.b as usize),
             );
+            r = match n.op {
+                Op::MulAdd => a * b + *v.get_unchecked(n.c as usize),
+                Op::MulSub => a * b - *v.get_unchecked(n.c as usize),
+                Op::SubMul => *v.get_unchecked(n.c as usize) - a * b,
+                Op::MulAddPrev => a * b + r,
+                Op::MulSubPrev => a * b - r,
+                Op::SubMulPrev => r - a * b,
+                op => apply(op, a, b),
+            };
             *v.get_unchecked_mut(n.out as usize) = r;
         }
     }
+    r
 }
 
 fn run_dual(nodes: &[Node], s: &mut Slots) {
@@ -737,7 +881,7 @@ mod tests {
 
     fn compile(text: &str) -> (Tape, Vec<String>) {
         let n = names();
-        let mut b = TapeBuilder::new(&n, 3);
+        let mut b = TapeBuilder::new(&n, 2, 3);
         let (r, used) = b.expr(text).unwrap();
         (b.finish(&[r]), used)
     }
@@ -746,6 +890,7 @@ mod tests {
         let mut s = t.slots(0);
         s.v[..p.len()].copy_from_slice(p);
         t.run_pre(&mut s);
+        t.run_input(&mut s);
         t.run(&mut s);
         t.out(&s, 0)
     }
@@ -827,20 +972,54 @@ mod tests {
     #[test]
     fn common_subexpressions_are_shared_and_parameters_hoisted() {
         let n = names();
-        let mut b = TapeBuilder::new(&n, 3);
+        let mut b = TapeBuilder::new(&n, 2, 3);
         let (f1, _) = b.expr("-k1*sqrt(x) + c/m*F").unwrap();
         let (f2, _) = b.expr("k*sqrt(x) - c/m").unwrap();
         let t = b.finish(&[f1, f2]);
-        let (pre, main) = t.len();
-        // -k1 and c/m are parameter-only; sqrt(x) is computed once
-        assert_eq!(pre, 2, "{t:?}");
-        assert_eq!(main, 6, "{t:?}");
+        // -k1 and c/m are parameter-only, c/m*F input-only; sqrt(x) is
+        // computed once; both products are fused into their sums
+        assert_eq!(t.len(), (2, 1, 5, 3), "{t:?}");
+    }
+
+    /// The fused value program gives the same bits as the plain nodes
+    /// (which the dual path runs), at random points.
+    #[test]
+    fn fused_nodes_are_bit_identical_to_the_plain_ones() {
+        let mut cases = CASES.to_vec();
+        cases.push("x*v - c*x + k*v*x - (m - x*F) - F*(c*v + k1) + (k2 - alpha*x)*beta");
+        cases.push("c*x + x*k - F*(x*x) + v*v*v");
+        let mut rng = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut uniform = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut fused_any = false;
+        for text in cases {
+            let (t, _) = compile(text);
+            let (_, _, main, fused) = t.len();
+            fused_any |= fused < main;
+            for _ in 0..50 {
+                let p: Vec<f64> = (0..12).map(|_| 0.05 + 1.9 * uniform()).collect();
+                let mut s = t.slots(0);
+                s.v[..p.len()].copy_from_slice(&p);
+                t.run_pre(&mut s);
+                t.run_input(&mut s);
+                t.run(&mut s);
+                let fast = t.out(&s, 0);
+                t.run_dual(&mut s);
+                let plain = t.out(&s, 0);
+                assert_eq!(fast.to_bits(), plain.to_bits(), "{text} at {p:?}");
+            }
+        }
+        assert!(fused_any, "no case was fused");
     }
 
     #[test]
     fn unknown_symbols_and_syntax_errors() {
         let n = names();
-        let mut b = TapeBuilder::new(&n, 3);
+        let mut b = TapeBuilder::new(&n, 2, 3);
         assert_eq!(
             b.expr("x + kk*v").unwrap_err(),
             ExprError::Unknown("kk".into())
