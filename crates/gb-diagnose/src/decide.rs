@@ -77,7 +77,7 @@ pub(crate) fn score(
 ) -> Candidate {
     let pol = ctx.policy();
     let cur = ctx.current;
-    let block = pol.block(cur.select.e.len());
+    let block = pol.block_for(&cur.select.e);
     let (gain, ci, pays) = match ext.metric() {
         GainMetric::Nll => {
             let nb = cur.select.nll_per_sample(&cur.model.noise);
@@ -185,7 +185,7 @@ fn realised_by_the_refit(cand: &Evaluated, ctx: &Context) -> bool {
 
 /// Whether `after` pays significantly against `before` (select residuals).
 pub(crate) fn pays_against(before: &[f64], after: &[f64], pol: &DecisionPolicy, seed: u64) -> bool {
-    let (g, ci) = relative_gain_ci(before, after, pol.block(before.len()), pol.bootstrap, seed);
+    let (g, ci) = relative_gain_ci(before, after, pol.block_for(before), pol.bootstrap, seed);
     ci[0] > 0.0 && g >= pol.min_gain
 }
 

@@ -164,7 +164,7 @@ fn escalate(
         let (g2, ci2) = relative_gain_ci(
             &simple.select.e,
             &c.fitted.select.e,
-            pol.block(simple.select.e.len()),
+            pol.block_for(&simple.select.e),
             pol.bootstrap,
             seed + 1,
         );

@@ -11,7 +11,8 @@ use crate::DiagnoseError;
 /// | `min_nll_gain` | 0.02 | a noise model must lower the select-block negative log-likelihood by ≥ 0.02 nats/sample |
 /// | `bootstrap` | 400 | moving-block bootstrap replicates of every gain interval (95 %) |
 /// | `seed` | 1 | seed of the bootstrap streams (a diagnosis is reproducible) |
-/// | `block_divisor`, `block_min`, `block_max` | 40, 25, 200 | bootstrap block length `clamp(n/40, 25, 200)`: long enough to keep the residuals' correlation |
+/// | `block_divisor`, `block_min`, `block_max` | 40, 25, 200 | bootstrap block length `clamp(n/40, 25, 200)`, raised to the dependence range of the current model's residuals on the decision data (`stats::dependence_range`, Politis & White's `m̂`) when that is longer, but to no more than `n / block_count_min`: blocks must keep the residuals' correlation, else a coloured residual (process noise, a lightly damped misfit) gives intervals that are too narrow |
+/// | `block_count_min` | 8 | fewest blocks of the select data a bootstrap resamples |
 /// | `auto_orders` | 1..=6 | orders tried by `--order auto` |
 /// | `auto_order_tolerance` | 1.02 | `--order auto` takes the lowest order within 2 % of the best select-block NRMSE (parsimony) |
 /// | `heavy_tail_p` | 1e-3 | noise is heavy-tailed when the Jarque–Bera p-value is below this … |
@@ -64,6 +65,9 @@ pub struct DecisionPolicy {
     pub seed: u64,
     /// Bootstrap block length divisor: `n / block_divisor`.
     pub block_divisor: usize,
+    /// Fewest blocks a bootstrap resamples (caps the block length raised
+    /// to the residuals' dependence range).
+    pub block_count_min: usize,
     /// Shortest bootstrap block.
     pub block_min: usize,
     /// Longest bootstrap block.
@@ -178,6 +182,7 @@ impl Default for DecisionPolicy {
             bootstrap: 400,
             seed: 1,
             block_divisor: 40,
+            block_count_min: 8,
             block_min: 25,
             block_max: 200,
             auto_orders: 1..=6,
@@ -244,8 +249,12 @@ impl DecisionPolicy {
         if !(self.min_nll_gain >= 0.0 && self.min_nll_gain.is_finite()) {
             return bad("min_nll_gain >= 0");
         }
-        if self.block_divisor == 0 || self.block_min == 0 || self.block_min > self.block_max {
-            return bad("block_divisor >= 1, 1 <= block_min <= block_max");
+        if self.block_divisor == 0
+            || self.block_min == 0
+            || self.block_min > self.block_max
+            || self.block_count_min == 0
+        {
+            return bad("block_divisor >= 1, 1 <= block_min <= block_max, block_count_min >= 1");
         }
         if self.auto_orders.is_empty() || *self.auto_orders.start() == 0 {
             return bad("auto_orders must be a non-empty range of orders >= 1");
@@ -345,6 +354,16 @@ impl DecisionPolicy {
     /// Bootstrap block length for `n` samples.
     pub fn block(&self, n: usize) -> usize {
         (n / self.block_divisor).clamp(self.block_min, self.block_max)
+    }
+
+    /// Bootstrap block length for decisions on residuals `e` (the current
+    /// model's): `max(block(n), m̂(e))`, capped at `n / block_count_min`
+    /// (and never below `block(n)`).
+    pub fn block_for(&self, e: &[f64]) -> usize {
+        let n = e.len();
+        let base = self.block(n);
+        let cap = (n / self.block_count_min.max(1)).max(base);
+        crate::stats::dependence_range(e).clamp(base, cap)
     }
 }
 

@@ -169,6 +169,42 @@ pub fn f_sf(f: f64, d1: f64, d2: f64) -> f64 {
     beta_inc(0.5 * d2, 0.5 * d1, d2 / (d2 + d1 * f)).clamp(0.0, 1.0)
 }
 
+/// The dependence range of a series: the smallest lag `m` after which the
+/// next `K = max(5, ⌈√log₁₀ n⌉)` autocorrelations all lie within
+/// `±2·√(log₁₀ n / n)` (Politis & White 2004, the `m̂` of their automatic
+/// block length). A moving-block bootstrap needs blocks at least this
+/// long to keep the series' correlation. Lags are searched up to `n/2`.
+///
+/// ```
+/// # use gb_diagnose::stats::dependence_range;
+/// // a period-4 pattern stays correlated at every lag
+/// let x: Vec<f64> = (0..400).map(|k| [1.0, 0.0, -1.0, 0.0][k % 4]).collect();
+/// assert_eq!(dependence_range(&x), 200);
+/// ```
+pub fn dependence_range(x: &[f64]) -> usize {
+    let n = x.len();
+    if n < 8 {
+        return 1;
+    }
+    let max_lag = n / 2;
+    let r = autocorrelation(x, max_lag);
+    let lg = (n as f64).log10();
+    let band = 2.0 * (lg / n as f64).sqrt();
+    let k = (lg.sqrt().ceil() as usize).max(5);
+    let mut quiet = 0;
+    for (lag, v) in r.iter().enumerate().skip(1) {
+        if v.abs() < band {
+            quiet += 1;
+            if quiet == k {
+                return lag - k;
+            }
+        } else {
+            quiet = 0;
+        }
+    }
+    max_lag
+}
+
 /// Moving-block bootstrap percentile interval of a statistic of paired
 /// per-sample series: `stat` maps resampled index lists to a value.
 /// Returns (2.5 %, 97.5 %) quantiles over `reps` replicates.
@@ -224,6 +260,29 @@ mod tests {
         let r = cross_correlation(&a, &b, 6);
         let best = (0..r.len()).max_by(|&i, &j| r[i].total_cmp(&r[j])).unwrap();
         assert_eq!(best, 3);
+    }
+
+    #[test]
+    fn the_dependence_range_follows_the_correlation_time() {
+        use rand_distr::{Distribution, StandardNormal};
+        let mut r = gb_core::rng::seeded(5);
+        let white: Vec<f64> = (0..4000).map(|_| StandardNormal.sample(&mut r)).collect();
+        // white noise: a few lags at most
+        assert!(
+            dependence_range(&white) <= 3,
+            "{}",
+            dependence_range(&white)
+        );
+        // AR(1): ρ(m) = a^m falls below the band 2√(log₁₀n/n) ≈ 0.058 at
+        // m = ln 0.058 / ln a: 27 for a = 0.9, 284 for a = 0.99
+        for (a, lo, hi) in [(0.9, 15, 45), (0.99, 120, 600)] {
+            let mut x = vec![0.0; 4000];
+            for k in 1..4000 {
+                x[k] = a * x[k - 1] + white[k];
+            }
+            let m = dependence_range(&x);
+            assert!(m >= lo && m <= hi, "a = {a}: {m}");
+        }
     }
 
     #[test]

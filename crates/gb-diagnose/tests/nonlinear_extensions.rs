@@ -56,3 +56,16 @@ fn a_hammerstein_with_the_true_structure_reaches_the_floor() {
         assert_right_within(family, seed, 1.3, false);
     }
 }
+
+/// `friction` seeds 4 (a free mass, velocity output, 575 samples) and 5
+/// (a mass on a spring, position output): Coulomb friction `F_c·tanh(v/ε)`.
+/// Before the blind templates had a dry-friction law, seed 4 was named
+/// `noise` at 6.9× the floor and seed 5 ended at 1.7× after a polynomial
+/// model; the first- and second-order templates with `−f·tanh(x/ε)` reach
+/// the floor in one step.
+#[test]
+fn dry_friction_on_a_velocity_reaches_the_floor() {
+    for seed in [4, 5] {
+        assert_right_within("friction", seed, 1.3, true);
+    }
+}

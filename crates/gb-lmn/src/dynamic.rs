@@ -241,17 +241,23 @@ impl DynamicModel for WienerHammersteinNetwork {
     fn n_parameters(&self) -> usize {
         WienerHammersteinNetwork::n_parameters(self)
     }
-    /// The filters start from the zero state whatever `init` says (an init
-    /// window is the transient a caller does not score).
+    /// The filters start from the zero state ([`Init::Rest`],
+    /// [`Init::Stored`], [`Init::State`]), or, given measured outputs
+    /// ([`Init::Window`], [`Init::History`]), from the steady state of the
+    /// first input held before the start (the record began in motion: the
+    /// zero state would add a step from zero to `u(0)`).
     fn simulate_into(
         &self,
         u: &[Vec<f64>],
-        _init: Init<'_>,
+        init: Init<'_>,
         y: &mut [f64],
         _ws: &mut Workspace,
     ) -> Result<(), CoreError> {
         check_inputs(1, u)?;
-        copy_out(&self.simulate(&u[0]), y)
+        match init {
+            Init::Window(_) | Init::History(_) => copy_out(&self.simulate_from_steady(&u[0]), y),
+            _ => copy_out(&self.simulate(&u[0]), y),
+        }
     }
     /// From the zero state ([`Init::Rest`], [`Init::Stored`] or an all-zero
     /// [`Init::State`]).

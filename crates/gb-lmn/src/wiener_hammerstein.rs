@@ -57,6 +57,30 @@ fn filtered(b: &[f64], a: &[f64], x: &[f64]) -> Vec<f64> {
     y
 }
 
+/// `y = (b/a) x` started in the steady state of the constant input `x₀`:
+/// `x(k) = x₀` and `y(k) = G(1)·x₀` for `k < 0`, `G(1) = Σb / Σa`, so that
+/// only the changes of `x` after the start excite the filter. Without a
+/// finite static gain (a pole at 1) the zero state is used.
+fn filtered_from_steady(b: &[f64], a: &[f64], x: &[f64]) -> Vec<f64> {
+    let x0 = x.first().copied().unwrap_or(0.0);
+    let sa: f64 = a.iter().sum();
+    let gain = b.iter().sum::<f64>() / sa;
+    if !(gain.is_finite() && sa.abs() > 1e-9) {
+        return filtered(b, a, x);
+    }
+    let y0 = gain * x0;
+    let mut y = vec![0.0; x.len()];
+    for k in 0..x.len() {
+        let past_x = |j: usize| if j <= k { x[k - j] } else { x0 };
+        let mut acc: f64 = b.iter().enumerate().map(|(j, bj)| bj * past_x(j)).sum();
+        for (i, ai) in a.iter().enumerate().skip(1) {
+            acc -= ai * if i <= k { y[k - i] } else { y0 };
+        }
+        y[k] = acc;
+    }
+    y
+}
+
 /// Roots in z of `c₀ zⁿ + c₁ zⁿ⁻¹ + … + cₙ` (the polynomial in q⁻¹ with
 /// coefficients `c`), as eigenvalues of the companion matrix.
 pub fn roots(c: &[f64]) -> Vec<Complex<f64>> {
@@ -218,6 +242,16 @@ impl WienerHammersteinNetwork {
         let v = filtered(&self.b1, &self.a1, u);
         let w: Vec<f64> = v.iter().map(|&x| self.nonlinearity.eval(x)).collect();
         filtered(&self.b2, &self.a2, &w)
+    }
+
+    /// Free-run simulation from the steady state of the first input
+    /// `u(0)` held before the start (both filters at rest at their static
+    /// response): a record that starts away from zero does not begin with
+    /// the step from zero, which the zero state would add.
+    pub fn simulate_from_steady(&self, u: &[f64]) -> Vec<f64> {
+        let v = filtered_from_steady(&self.b1, &self.a1, u);
+        let w: Vec<f64> = v.iter().map(|&x| self.nonlinearity.eval(x)).collect();
+        filtered_from_steady(&self.b2, &self.a2, &w)
     }
 
     /// The internal signal v = G₁ u.
@@ -1252,6 +1286,31 @@ fn lm_fd(
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_steady_start_is_the_zero_start_after_a_long_constant_prefix() {
+        // a stable G(z) with a zero: the steady start equals the zero-state
+        // response to the record preceded by 400 samples of x(0)
+        let (b, a) = (vec![0.3, -0.25, 0.1], vec![1.0, -1.2, 0.5]);
+        let x: Vec<f64> = (0..60)
+            .map(|k| 3.0 + ((k * 37) % 11) as f64 * 0.1)
+            .collect();
+        let mut long = vec![x[0]; 400];
+        long.extend_from_slice(&x);
+        let reference = filtered(&b, &a, &long);
+        let steady = filtered_from_steady(&b, &a, &x);
+        for (k, v) in steady.iter().enumerate() {
+            assert!((v - reference[400 + k]).abs() < 1e-9, "{k}: {v}");
+        }
+        // a constant record stays at its static response G(1)·x0 = 0.15/0.3·3
+        let c = filtered_from_steady(&b, &a, &[3.0; 5]);
+        assert!(c.iter().all(|v| (v - 1.5).abs() < 1e-12), "{c:?}");
+        // a pole at 1 (no static gain): the zero start
+        assert_eq!(
+            filtered_from_steady(&[1.0], &[1.0, -1.0], &[1.0, 1.0]),
+            filtered(&[1.0], &[1.0, -1.0], &[1.0, 1.0])
+        );
+    }
 
     #[test]
     fn filter_matches_the_difference_equation_and_roots_round_trip() {

@@ -36,36 +36,63 @@ pub struct MechanicalHysteresis;
 /// column names).
 const NAMES: [&str; 4] = ["k_spring", "c_damper", "g_input", "y_zero"];
 
-/// The mechanical template of the fit record `rec` with the baseline's
-/// input delay `nk` (samples).
-fn template(rec: &gb_core::Record, nk: usize) -> Result<PhysicsSpec, DiagnoseError> {
-    let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
+/// The continuous-time pole `c` and gain `g` of the first-order linear
+/// output-error model `lin` (`x⁺ = p·x + b·u`, `y = c₁·x + d·u`), as
+/// `ẋ = g·u − c·x`: `c = −ln(p)/Ts`, `g = c·G(1)`; `0 < p < 1` is needed
+/// (a stable, non-oscillating pole).
+fn first_order_parameters(
+    lin: &gb_model::SparseStateSpace,
+    ts: f64,
+) -> Result<(f64, f64), DiagnoseError> {
+    let p = lin.a.first().copied().unwrap_or(f64::NAN);
+    if lin.n_states != 1 || !(p > 0.0 && p < 1.0) {
+        return Err(DiagnoseError::InvalidArgument(
+            "mechanical template: the first-order model has no pole in (0, 1)".into(),
+        ));
+    }
+    let c = -p.ln() / ts;
+    let dc = lin.c[0] * lin.b[0] / (1.0 - p) + lin.d[0];
+    Ok((c, c * dc))
+}
+
+/// The template of the fit record `rec` (order 1 or 2) with the
+/// baseline's input delay `nk` (samples).
+fn template(rec: &gb_core::Record, order: usize, nk: usize) -> Result<PhysicsSpec, DiagnoseError> {
+    let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical template: {m}"));
     let (u, y) = (&rec.inputs, &rec.output);
     if u.len() != 1 {
         return Err(bad("one input is needed"));
     }
     let ts = rec.sample_time.unwrap_or(1.0);
-    let lin = gb_model::linear_from_oe(u, y, 2).map_err(gb_core::CoreError::from)?;
-    let (w2, cc, g) =
-        gb_model::second_order_parameters(&lin, ts).map_err(gb_core::CoreError::from)?;
+    let core = gb_core::CoreError::from;
+    let lin = gb_model::linear_from_oe(u, y, order).map_err(core)?;
     let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-    let y0 = mean(y) - g / w2 * mean(&u[0]);
     let (input, output) = (&rec.input_names[0], &rec.output_name);
     let [k, c, gi, yz] = NAMES;
-    let mut s = PhysicsSpec::new(TEMPLATE_NAME)
-        .input(input)
-        .parameter(Parameter::new(k, w2).bounds(0.0, f64::INFINITY))
-        .parameter(Parameter::new(c, cc))
-        .parameter(Parameter::new(gi, g))
-        .parameter(Parameter::new(yz, y0))
-        .state(State::new("q", 0.0).free(), "v")
-        .state(
-            State::new("v", 0.0).free(),
-            &format!("{gi}*{input}-{k}*q-{c}*v"),
-        )
-        .output(output, &format!("q+{yz}"))
-        .substeps(4)
-        .sample_time(ts);
+    let mut s = PhysicsSpec::new(TEMPLATE_NAME).input(input);
+    if order == 1 {
+        let (cc, g) = first_order_parameters(&lin, ts)?;
+        s = s
+            .parameter(Parameter::new(c, cc))
+            .parameter(Parameter::new(gi, g))
+            .parameter(Parameter::new(yz, mean(y) - g / cc * mean(&u[0])))
+            .state(State::new("x", 0.0).free(), &format!("{gi}*{input}-{c}*x"))
+            .output(output, &format!("x+{yz}"));
+    } else {
+        let (w2, cc, g) = gb_model::second_order_parameters(&lin, ts).map_err(core)?;
+        s = s
+            .parameter(Parameter::new(k, w2).bounds(0.0, f64::INFINITY))
+            .parameter(Parameter::new(c, cc))
+            .parameter(Parameter::new(gi, g))
+            .parameter(Parameter::new(yz, mean(y) - g / w2 * mean(&u[0])))
+            .state(State::new("q", 0.0).free(), "v")
+            .state(
+                State::new("v", 0.0).free(),
+                &format!("{gi}*{input}-{k}*q-{c}*v"),
+            )
+            .output(output, &format!("q+{yz}"));
+    }
+    let mut s = s.substeps(4).sample_time(ts);
     if nk != 1 {
         let d = (nk as f64 - 1.0) * ts;
         s = s
@@ -77,8 +104,11 @@ fn template(rec: &gb_core::Record, nk: usize) -> Result<PhysicsSpec, DiagnoseErr
 }
 
 /// The fit record (the first `hidden_state_fit_samples` of the fit block)
-/// and the linear mechanical template fitted on it.
-fn fitted_template(ctx: &Context) -> Result<(gb_core::Record, FittedModel), DiagnoseError> {
+/// and the linear template of `order` fitted on it.
+fn fitted_template(
+    ctx: &Context,
+    order: usize,
+) -> Result<(gb_core::Record, FittedModel), DiagnoseError> {
     let nk = ctx
         .current
         .lineage
@@ -87,29 +117,55 @@ fn fitted_template(ctx: &Context) -> Result<(gb_core::Record, FittedModel), Diag
         .unwrap_or(1);
     let n = ctx.fit.len().min(ctx.policy().hidden_state_fit_samples);
     let rec = ctx.fit.slice(0..n);
-    let spec = template(&rec, nk)?;
+    let spec = template(&rec, order, nk)?;
     let lin = fit_physics(&spec, &rec, ctx.observer)?;
     Ok((rec, lin))
 }
 
-/// Whether the current model is the plain order-2 linear model of one
-/// input (the template's start).
-fn plain_order_two(ctx: &Context) -> bool {
+/// The order (1 or 2) of the current model when it is the plain linear
+/// model of one input (the template's start).
+fn plain_order(ctx: &Context) -> Option<usize> {
     ctx.current
         .lineage
         .io()
-        .is_some_and(|p| !p.network && !p.hysteresis && p.order == 2)
-        && ctx.fit.inputs.len() == 1
+        .filter(|p| !p.network && !p.hysteresis && (p.order == 1 || p.order == 2))
+        .filter(|_| ctx.fit.inputs.len() == 1)
+        .map(|p| p.order)
+}
+
+/// Whether the current model is the plain order-2 linear model of one
+/// input.
+fn plain_order_two(ctx: &Context) -> bool {
+    plain_order(ctx) == Some(2)
+}
+
+/// The static laws [`MechanicalNonlinearity`] tries: (name, equation,
+/// variable, text) for the template of order 1 and 2.
+fn laws(order: usize) -> Vec<(&'static str, &'static str, &'static str, &'static str)> {
+    if order == 1 {
+        vec![
+            ("friction", "x", "x", "a first-order grey-box model from the order-1 linear model: ẋ = g·u − c·x − f·tanh(x/ε), y = x + y₀ (a velocity with dry friction) in continuous time"),
+            ("law", "x", "x", "a first-order grey-box model from the order-1 linear model: ẋ = g·u − c·x + c2·w² + c3·w³, w = (x − mid)/half-range, y = x + y₀ (a nonlinear damping or flow law) in continuous time"),
+        ]
+    } else {
+        vec![
+            ("spring", "v", "q", "a mechanical grey-box model from the order-2 linear model: q̇ = v, v̇ = g·u − k·q − c·v + c2·w² + c3·w³, w = (q − mid)/half-range, y = q + y₀ (a nonlinear spring) in continuous time"),
+            ("friction", "v", "v", "a mechanical grey-box model from the order-2 linear model: q̇ = v, v̇ = g·u − k·q − c·v − f·tanh(v/ε), y = q + y₀ (dry friction) in continuous time"),
+        ]
+    }
 }
 
 /// The static counterpart of [`MechanicalHysteresis`] (cause
-/// `nonlinearity`): the same template with the centred law
-/// `c2·w² + c3·w³` of the position in its force balance (a nonlinear
-/// spring), so that a nonlinear spring is not explained by a hysteretic
-/// state for want of a static rival of the same class (a tie between the
-/// two is resolved by the unique contributions of the model with both,
-/// else by fewer parameters). Proposed for the same current model, without
-/// the memory condition.
+/// `nonlinearity`): the same template with, as separate candidates, the
+/// centred law `c2·w² + c3·w³` of the position in its force balance (a
+/// nonlinear spring) and dry friction `−f·tanh(v/ε)` (`ε` free), so that a
+/// nonlinear spring or friction is not explained by a hysteretic state for
+/// want of a static rival of the same class (a tie between the two is
+/// resolved by the unique contributions of the model with both, else by
+/// fewer parameters). Proposed for the same current model, without the
+/// memory condition. For a plain order-1 linear model (a stable real
+/// pole), the first-order template `ẋ = g·u − c·x`, `y = x + y₀` with dry
+/// friction or a centred law of `x` in its equation.
 pub struct MechanicalNonlinearity;
 
 impl Extension for MechanicalNonlinearity {
@@ -123,23 +179,39 @@ impl Extension for MechanicalNonlinearity {
         true
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
-        if !plain_order_two(ctx) {
+        let Some(order) = plain_order(ctx) else {
             return vec![];
-        }
-        vec![Proposal {
-            cause: Cause::Nonlinearity,
-            lineage: Lineage::Other {
-                spec: "mechanical (q, v) + centred(q) in dv/dt".into(),
-                order: 2,
-            },
-            text: "a mechanical grey-box model from the order-2 linear model: q̇ = v, v̇ = g·u − k·q − c·v + c2·w² + c3·w³, w = (q − mid)/half-range, y = q + y₀ (a nonlinear spring) in continuous time".into(),
-        }]
+        };
+        let states = if order == 1 { "(x)" } else { "(q, v)" };
+        laws(order)
+            .into_iter()
+            .map(|(law, eq, var, text)| Proposal {
+                cause: Cause::Nonlinearity,
+                lineage: Lineage::Other {
+                    spec: format!("mechanical {states} + {law}({var}) in d{eq}/dt"),
+                    order,
+                },
+                text: text.into(),
+            })
+            .collect()
     }
-    fn fit(&self, _p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-nonlinearity: {m}"));
-        let (rec, lin) = fitted_template(ctx)?;
+        let order = plain_order(ctx).ok_or_else(|| bad("not a plain linear model"))?;
+        let Lineage::Other { spec, .. } = &p.lineage else {
+            return Err(bad("no law in the proposal"));
+        };
+        let (_, eq, var, _) = laws(order)
+            .into_iter()
+            .find(|(law, _, v, _)| spec.contains(&format!("+ {law}({v})")))
+            .ok_or_else(|| bad("unknown law"))?;
+        let (rec, lin) = fitted_template(ctx, order)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
-        let spec = super::physics_terms::with_centred_law(cur, &rec, "v", "q")?;
+        let spec = if spec.contains("+ friction(") {
+            super::physics_terms::with_coulomb_law(cur, &rec, eq)?
+        } else {
+            super::physics_terms::with_centred_law(cur, &rec, eq, var)?
+        };
         fit_physics(&spec, &rec, ctx.observer)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
@@ -176,7 +248,7 @@ impl Extension for MechanicalHysteresis {
     }
     fn fit(&self, _p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
-        let (rec, lin) = fitted_template(ctx)?;
+        let (rec, lin) = fitted_template(ctx, 2)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
         best_of_starts(
             super::physics_hysteresis::B_STARTS

@@ -25,7 +25,11 @@ use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
 ///   e.g. a flow that changes with the level);
 /// * `hinge`: `ẋᵢ += b_hi·max(x_s − q₉₀, 0) + b_lo·max(q₁₀ − x_s, 0)` with
 ///   the 10 % and 90 % quantiles of the simulated state (a law that
-///   changes beyond a level).
+///   changes beyond a level);
+/// * `coulomb` (on the state's own equation, `s = i`): `ẋᵢ −= f·tanh(xᵢ/ε)`
+///   with `ε > 0` free, started at 5 % of the rms of the simulated state
+///   (dry friction on a velocity: a force of size `f` against the motion,
+///   smoothed over `|xᵢ| ≲ ε`, which a polynomial does not approach).
 ///
 /// On the state itself (`s = i`), a hard limit (an overflow, an end stop,
 /// an empty tank), with `r = substeps/Ts` the inverse RK4 step:
@@ -58,6 +62,7 @@ enum Kind {
     Poly,
     Centred,
     Hinge,
+    Coulomb,
     Ceiling,
     Floor,
     Spill,
@@ -88,10 +93,11 @@ impl Place {
 }
 
 impl Kind {
-    const ALL: [Kind; 8] = [
+    const ALL: [Kind; 9] = [
         Kind::Poly,
         Kind::Centred,
         Kind::Hinge,
+        Kind::Coulomb,
         Kind::Ceiling,
         Kind::Floor,
         Kind::Spill,
@@ -104,6 +110,7 @@ impl Kind {
             Kind::Poly => "poly",
             Kind::Centred => "centred",
             Kind::Hinge => "hinge",
+            Kind::Coulomb => "coulomb",
             Kind::Ceiling => "ceiling",
             Kind::Floor => "floor",
             Kind::Spill => "spill",
@@ -120,6 +127,7 @@ impl Kind {
             Kind::Poly => vec![format!("a2_{eq}_{var}"), format!("a3_{eq}_{var}")],
             Kind::Centred => vec![format!("c2_{eq}_{var}"), format!("c3_{eq}_{var}")],
             Kind::Hinge => vec![format!("b_hi_{eq}_{var}"), format!("b_lo_{eq}_{var}")],
+            Kind::Coulomb => vec![format!("f_c_{eq}"), format!("eps_c_{eq}")],
             Kind::Ceiling => vec![ceiling_name(eq)],
             Kind::Floor => vec![format!("L_lo_{eq}")],
             Kind::Spill => vec![format!("k_spill_{var}_{eq}")],
@@ -193,6 +201,7 @@ fn applies(spec: &PhysicsSpec, kind: Kind, at: &Place, var: &str) -> bool {
             }
             match kind {
                 Kind::Poly | Kind::Centred | Kind::Hinge => state(var).is_some(),
+                Kind::Coulomb => var == eq,
                 Kind::Ceiling => var == eq && spec.states[i].upper == f64::INFINITY,
                 Kind::Floor => var == eq && spec.states[i].lower == f64::NEG_INFINITY,
                 Kind::Spill => var != eq && state(var).is_some() && has(&ceiling_name(var)),
@@ -302,6 +311,21 @@ fn state_terms(
             );
             vec![(quantile(&x[i], 1.0 - q), pos_part(&z))]
         }
+        Kind::Coulomb => {
+            let v = &x[j];
+            let rms = (v
+                .iter()
+                .filter(|a| a.is_finite())
+                .map(|a| a * a)
+                .sum::<f64>()
+                / v.len().max(1) as f64)
+                .sqrt();
+            let eps = (0.05 * rms).max(1e-12);
+            vec![
+                (0.0, format!("-{}*tanh({var}/{})", names[0], names[1])),
+                (eps, String::new()),
+            ]
+        }
         Kind::Spill => {
             // the overflow of the source state j (= var) into equation i
             let z = format!(
@@ -366,8 +390,16 @@ fn extended(
         }
     };
     for (n, (start, t)) in names.iter().zip(terms) {
-        s.parameters.push(Parameter::new(n, start));
-        s.add_term(target, &t).map_err(core)?;
+        let p = Parameter::new(n, start);
+        // a smoothing width (ε of `coulomb`) stays positive
+        s.parameters.push(if t.is_empty() {
+            p.bounds(1e-6 * start, f64::INFINITY)
+        } else {
+            p
+        });
+        if !t.is_empty() {
+            s.add_term(target, &t).map_err(core)?;
+        }
     }
     Ok(s)
 }
@@ -386,6 +418,16 @@ pub(super) fn with_centred_law(
         (Kind::Centred, &Place::State(eq.into()), var),
         1.0,
     )
+}
+
+/// `cur`'s spec with dry friction `−f·tanh(x/ε)` of state `eq` added to
+/// its own equation (for the blind templates).
+pub(super) fn with_coulomb_law(
+    cur: &PhysicsModel,
+    fit: &gb_core::Record,
+    eq: &str,
+) -> Result<PhysicsSpec, DiagnoseError> {
+    extended(cur, fit, (Kind::Coulomb, &Place::State(eq.into()), eq), 1.0)
 }
 
 /// The quantiles of the simulation a limit starts from (each start is
@@ -410,6 +452,11 @@ fn describe(kind: Kind, at: &Place, var: &str, names: &[String]) -> String {
         ),
         Kind::Hinge => format!(
             "{lhs} += {}·max({var} − q90, 0) + {}·max(q10 − {var}, 0) at the quantiles of the simulated {var}",
+            p(0),
+            p(1)
+        ),
+        Kind::Coulomb => format!(
+            "{lhs} −= {}·tanh({var}/{}) (dry friction against the motion, ε started at 5 % of the rms of the simulated {var})",
             p(0),
             p(1)
         ),
