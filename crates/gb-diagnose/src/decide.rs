@@ -1,6 +1,6 @@
 //! Whether a candidate pays: moving-block-bootstrap intervals of its gain on
 //! the select block, and the choice among the candidates of an iteration.
-use crate::evaluate::{residuals_on, Evaluated, Lineage};
+use crate::evaluate::{residuals_on, Evaluated, Lineage, Residuals};
 use crate::extension::{io_model, Context, Extension, GainMetric, Proposal, Role};
 use crate::physics::{fit_physics, merged_spec, physics_fit_record, physics_of};
 use crate::plan::{assess, core};
@@ -119,17 +119,24 @@ fn pays_from_a_fresh_start(cand: &Evaluated, ctx: &Context, seed: u64) -> bool {
         return true;
     }
     let d = ctx.data;
-    let rec = d.train.slice(d.select.clone());
-    // the first third is a burn-in: both models' transients from the fresh
-    // start (a slow resonance, a filter started at rest) die out there
-    let scored = rec.len() / 3..rec.len();
     let w = ctx.plan.w;
-    let (Ok(before), Ok(after)) = (
-        residuals_on(&ctx.current.model, &rec, &scored, w),
-        residuals_on(&cand.model, &rec, &scored, w),
-    ) else {
-        return false;
-    };
+    let (mut before, mut after) = (Residuals::default(), Residuals::default());
+    // every record's select block on its own (several records: the
+    // residuals concatenated in record order)
+    for p in d.parts() {
+        let rec = p.record.slice(p.select.clone());
+        // the first third is a burn-in: both models' transients from the fresh
+        // start (a slow resonance, a filter started at rest) die out there
+        let scored = rec.len() / 3..rec.len();
+        let (Ok(b), Ok(a)) = (
+            residuals_on(&ctx.current.model, &rec, &scored, w),
+            residuals_on(&cand.model, &rec, &scored, w),
+        ) else {
+            return false;
+        };
+        before.e.extend(b.e);
+        after.e.extend(a.e);
+    }
     let ok = |e: &[f64]| !e.is_empty() && e.iter().all(|v| v.is_finite());
     if !ok(&before.e) || !ok(&after.e) {
         return false;

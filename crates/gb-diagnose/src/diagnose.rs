@@ -352,8 +352,15 @@ pub fn diagnose(
     let pol = &opts.policy;
     d.check(pol.min_fit, pol.min_block)?;
     let obs: &dyn Observer = obs.unwrap_or(&Silent);
-    // the physics baseline fits long records whole (its fits are cheap)
-    if opts.physics.is_none() && d.select.end - d.fit.start >= pol.long_record {
+    if d.multi() && opts.physics.is_some() {
+        return Err(DiagnoseError::InvalidArgument(
+            "several training records are not supported with your own equations (--model-file) yet"
+                .into(),
+        ));
+    }
+    // the physics baseline fits long records whole (its fits are cheap);
+    // several records are searched whole (no subsample)
+    if opts.physics.is_none() && !d.multi() && d.select.end - d.fit.start >= pol.long_record {
         return crate::long::diagnose_long(d, opts, obs);
     }
     let budget = Duration::from_secs_f64(pol.search_budget_s);
@@ -473,11 +480,12 @@ pub(crate) fn assemble(
             inputs: d.train.input_names.clone(),
             output: d.train.output_name.clone(),
             samples_fit: plan.fit.len(),
-            samples_select: d.select.len(),
+            samples_select: d.select_samples(),
             samples_validate: d.report_scored(plan.w).len(),
             split: d.split_text(),
             init_window: plan.w,
             decision: structure.decision.clone(),
+            records: d.record_summaries(),
         },
         baseline: ModelSummary::of(base),
         structure,

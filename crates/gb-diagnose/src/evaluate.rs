@@ -168,6 +168,24 @@ pub fn residuals_on(
     })
 }
 
+/// Residuals of `model` on the select blocks of every training record:
+/// record `i` is simulated in free run from its own start with its initial
+/// state from its first `w` outputs (no state carried across records) and
+/// scored on its select block `S_i`; `e = [e_S1, e_S2, …]` in record order.
+pub fn select_residuals(
+    model: &FittedModel,
+    d: &DiagnoseData,
+    w: usize,
+) -> Result<Residuals, DiagnoseError> {
+    let mut all = Residuals::default();
+    for p in d.parts() {
+        let r = residuals_on(model, p.record, p.select, w)?;
+        all.e.extend_from_slice(&r.e);
+        all.yhat.extend_from_slice(&r.yhat);
+    }
+    Ok(all)
+}
+
 /// Score `model` on the select and report blocks of `d` (init window from
 /// the policy and the shorter of the two blocks).
 pub fn evaluate(
@@ -176,7 +194,7 @@ pub fn evaluate(
     d: &DiagnoseData,
     policy: &DecisionPolicy,
 ) -> Result<Evaluated, DiagnoseError> {
-    let w = policy.init_window_for(d.select.len().min(d.report_range.len()));
+    let w = policy.init_window_for(d.shortest_select().min(d.report_range.len()));
     evaluate_on(model, lineage, d, w, None)
 }
 
@@ -192,6 +210,10 @@ pub(crate) fn evaluate_on(
 ) -> Result<Evaluated, DiagnoseError> {
     let (select, sd_s) = match decision {
         Some(x) => x,
+        None if d.multi() => (
+            select_residuals(&model, d, w)?,
+            metrics::std(&d.select_output(w)),
+        ),
         None => (
             residuals_on(&model, &d.train, &d.select, w)?,
             metrics::std(&d.train.output[d.select_scored(w)]),

@@ -60,7 +60,10 @@ pub struct Proposal {
 pub struct Context<'a> {
     /// The data.
     pub data: &'a DiagnoseData,
-    /// The fit block.
+    /// The fit block. With several training records: the longest fit part,
+    /// because every model class the extensions fit (input–output networks,
+    /// block-oriented, Wiener–Hammerstein and state-space models) is
+    /// identified on one record; the select decisions use all records.
     pub fit: &'a Record,
     /// The current model.
     pub current: &'a Evaluated,

@@ -51,14 +51,18 @@ mod verdict;
 
 pub use baseline::{DelayRescan, StructureChoice};
 pub use cause::Cause;
-pub use data::DiagnoseData;
+pub use data::{DiagnoseData, Part, TrainPart};
 pub use diagnose::{diagnose, DiagnoseOptions, Diagnosis, OrderChoice};
-pub use evaluate::{evaluate, residuals_on, Evaluated, Lineage, Residuals, Scores};
+pub use evaluate::{
+    evaluate, residuals_on, select_residuals, Evaluated, Lineage, Residuals, Scores,
+};
 pub use evidence::Evidence;
 pub use extension::{introducing, Context, Extension, GainMetric, Proposal, Role, EXTENSIONS};
 pub use html::{render_html, render_html_outputs};
 pub use policy::DecisionPolicy;
-pub use report::{DataSummary, ModelSummary, NoiseFound, Report, Step, REPORT_VERSION};
+pub use report::{
+    DataSummary, ModelSummary, NoiseFound, RecordSummary, Report, Step, REPORT_VERSION,
+};
 pub use select::{choose_structure, ChosenStructure};
 pub use verdict::{white_noise_level, Verdict, VerdictKind};
 

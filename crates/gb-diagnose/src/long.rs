@@ -29,6 +29,8 @@ pub(crate) fn subsample(d: &DiagnoseData, n: usize) -> DiagnoseData {
         report: report.slice(0..r),
         report_range: 0..r,
         single_record: false,
+        more: vec![],
+        names: vec![],
     }
 }
 

@@ -67,6 +67,9 @@ impl Plan {
     /// representative of the training record ([`block_shift`]: a sweep, a
     /// drifting level).
     pub fn new(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
+        if d.multi() {
+            return Self::multi(d, pol);
+        }
         let shift = block_shift(d, pol);
         if d.select.len() >= pol.bootstrap_min_samples && shift.is_none() {
             let fit_y = d.fit_record();
@@ -124,6 +127,25 @@ impl Plan {
             fit_y,
             folds,
             shift: shift.filter(|_| d.select.len() >= pol.bootstrap_min_samples),
+        }
+    }
+
+    /// The plan of several training records: decisions on the select
+    /// blocks of all records (each simulated from its own start, residuals
+    /// concatenated in record order), whatever their length: the blocked
+    /// cross-validation is single-record (leave-one-record-out folds are
+    /// not implemented). Every model class of the chain is fitted on one
+    /// record (the input–output networks, the block-oriented and
+    /// state-space models), so models are fitted on the longest fit part.
+    fn multi(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
+        let fit_y = d.longest_fit_record();
+        Self {
+            w: pol.init_window_for(d.shortest_select().min(d.report_range.len())),
+            integrating: false,
+            fit: fit_y.clone(),
+            fit_y,
+            folds: vec![],
+            shift: None,
         }
     }
 
@@ -216,6 +238,15 @@ impl Plan {
                 self.w
             )
         } else {
+            if d.multi() {
+                return format!(
+                    "moving-block bootstrap on the {} select samples of {} training records (each record simulated from its own start, its first {} samples the init window; models fitted on the longest fit part, {} samples)",
+                    d.select_samples(),
+                    d.parts().len(),
+                    self.w,
+                    self.fit_y.len()
+                );
+            }
             format!(
                 "moving-block bootstrap on the {}-sample select block, init window {}",
                 d.select.len(),

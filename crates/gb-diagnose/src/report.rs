@@ -161,6 +161,36 @@ pub struct DataSummary {
     /// cross-validation).
     #[serde(default)]
     pub decision: String,
+    /// The records of a multi-record diagnosis (training records, then the
+    /// report record); empty with one training record.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub records: Vec<RecordSummary>,
+}
+
+/// One record of a multi-record diagnosis and how its samples are used.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RecordSummary {
+    /// File name (or `record i`).
+    pub name: String,
+    /// Samples of the record.
+    pub samples: usize,
+    /// Samples of its fit part (0 for the report record).
+    pub fit: usize,
+    /// Samples of its select part (0 for the report record).
+    pub select: usize,
+    /// Samples of its report block (0 for a training record).
+    pub report: usize,
+}
+
+impl RecordSummary {
+    /// `a.csv: fit 750 / select 250` or `v.csv: report 1000`.
+    pub fn text(&self) -> String {
+        if self.report > 0 {
+            format!("{}: report {}", self.name, self.report)
+        } else {
+            format!("{}: fit {} / select {}", self.name, self.fit, self.select)
+        }
+    }
 }
 
 /// The diagnosis (the `--json` report).
@@ -224,6 +254,10 @@ impl Report {
             r.data.samples_select,
             r.data.samples_validate
         );
+        if !r.data.records.is_empty() {
+            let recs: Vec<String> = r.data.records.iter().map(|x| x.text()).collect();
+            let _ = writeln!(s, "records: {}", recs.join("; "));
+        }
         let _ = writeln!(s, "decisions: {}", r.data.decision);
         let _ = writeln!(
             s,

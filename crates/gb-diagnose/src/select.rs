@@ -27,7 +27,7 @@ pub fn choose_structure(
     opts.check()?;
     let pol = &opts.policy;
     d.check(pol.min_fit, pol.min_block)?;
-    let long = d.select.end - d.fit.start >= pol.long_record;
+    let long = !d.multi() && d.select.end - d.fit.start >= pol.long_record;
     let sub;
     let d = if long {
         sub = crate::long::subsample(d, pol.search_samples);

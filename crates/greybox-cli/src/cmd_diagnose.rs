@@ -19,6 +19,14 @@ fn parse_order(s: &str, max: usize) -> Result<OrderChoice> {
 /// validation file, or split into blocks); with `--model-file` the records
 /// carry the model's signal names and the spec comes along.
 fn data(a: &DiagnoseArgs) -> Result<(DiagnoseData, Option<PhysicsSpec>)> {
+    if !a.more_train.is_empty() {
+        if a.model_file.is_some() {
+            return Err(
+                "several training records (--train) are not supported with --model-file yet".into(),
+            );
+        }
+        return Ok((multi_data(a)?, None));
+    }
     if let (Some(mf), Some(train)) = (&a.model_file, &a.train) {
         let (spec, tr, val) =
             crate::cmd_physics::diagnose_data(mf, train, a.validate.as_deref(), &a.signals)?;
@@ -71,6 +79,23 @@ fn plain_data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
     }
 }
 
+/// The data of several training records (the positional TRAIN, then each
+/// `--train FILE`): every record must carry the first record's signals.
+fn multi_data(a: &DiagnoseArgs) -> Result<DiagnoseData> {
+    let paths: Vec<&std::path::PathBuf> = a.train.iter().chain(&a.more_train).collect();
+    let mut records = Vec::with_capacity(paths.len());
+    for p in &paths {
+        records.push((p.display().to_string(), load(p, &a.signals)?));
+    }
+    let validate = match &a.validate {
+        Some(v) => Some((v.display().to_string(), load(v, &a.signals)?)),
+        None => None,
+    };
+    let d = DiagnoseData::from_records(records, validate).map_err(|e| e.to_string())?;
+    println!("{}", d.split_text());
+    Ok(d)
+}
+
 /// `--budget SECONDS`: the search budget of long records (positive).
 fn set_budget(opts: &mut DiagnoseOptions, budget: Option<f64>) -> Result<()> {
     if let Some(b) = budget {
@@ -93,6 +118,9 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
         return Err(format!("--max-steps must be 1..=4, got {}", a.max_steps));
     }
     if a.signals.outputs.len() > 1 {
+        if !a.more_train.is_empty() {
+            return Err("several training records (--train) take one --output".into());
+        }
         return run_outputs(&a, order, quiet);
     }
     let (data, physics) = data(&a)?;
@@ -113,7 +141,13 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
         Some(_) => {
             let title = match (&a.example, &a.train) {
                 (Some(ex), _) => format!("greybox diagnosis: example {ex}"),
-                (None, Some(p)) => format!("greybox diagnosis: {}", p.display()),
+                (None, Some(p)) if a.more_train.is_empty() => {
+                    format!("greybox diagnosis: {}", p.display())
+                }
+                (None, _) if !a.more_train.is_empty() => format!(
+                    "greybox diagnosis: {} training records",
+                    a.more_train.len() + usize::from(a.train.is_some())
+                ),
                 _ => "greybox diagnosis".to_string(),
             };
             Some(gb_diagnose::render_html(&d, &data, &title).map_err(|e| e.to_string())?)

@@ -49,7 +49,7 @@ struct Cli {
 enum Command {
     /// Show what the simulation gets wrong, name the cause, extend the model, measure the gain.
     #[command(
-        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm\n  greybox diagnose train.csv --validate val.csv --model-file examples/models/msd.toml\n  greybox diagnose long.csv --budget 120 --save model.gbm\n\nTime: records shorter than 100 000 training samples are searched whole (with fewer than 300 select samples, decisions use 4-fold blocked cross-validation, so every candidate is fitted five times). No extension step starts after the --budget (300 s by default). Longer records are searched on their first 20 000 samples (fit/select 75/25) within it, then the baseline and the final structure are refitted on the whole fit block and every model is scored on the whole select and report blocks. Measured on 2 cores (docs/benchmarks.md, docs/results.md): a median of about 5 s for the generated systems of 600-13 000 samples, 4-240 s for the real benchmarks. A progress bar shows on a terminal (--quiet, or a pipe, hides it)."
+        after_help = "Examples:\n  greybox diagnose --example shock-absorber\n  greybox diagnose train.csv --validate val.csv --input u --output y --json report.json --report report.html\n  greybox diagnose data.csv --order auto --save model.gbm\n  greybox diagnose train.csv --validate val.csv --model-file examples/models/msd.toml\n  greybox diagnose long.csv --budget 120 --save model.gbm\n  greybox diagnose --train run1.csv --train run2.csv --validate run3.csv --json report.json\n\nSeveral records (the positional TRAIN and each --train FILE, same columns): no regressor and no simulated state spans two records. With --validate each training record is split into fit (first 75 %) and select (last 25 %) parts and the validation record is the report data; without it the last training record is the report data (held out whole) and the others are split 75/25. Every record is simulated from its own start (its first samples are the init window); the select residuals of all records, concatenated in record order, make the decisions (moving-block bootstrap; no cross-validation with several records). The model classes of the diagnosis are fitted on one record: they are fitted on the longest fit part. The report lists the records and their fit/select samples. Not with --model-file or several --output.\n\nTime: records shorter than 100 000 training samples are searched whole (with fewer than 300 select samples, decisions use 4-fold blocked cross-validation, so every candidate is fitted five times). No extension step starts after the --budget (300 s by default). Longer records are searched on their first 20 000 samples (fit/select 75/25) within it, then the baseline and the final structure are refitted on the whole fit block and every model is scored on the whole select and report blocks. Measured on 2 cores (docs/benchmarks.md, docs/results.md): a median of about 5 s for the generated systems of 600-13 000 samples, 4-240 s for the real benchmarks. A progress bar shows on a terminal (--quiet, or a pipe, hides it)."
     )]
     Diagnose(DiagnoseArgs),
     /// Fit a model of a given structure (a SPEC of the model registry).
@@ -180,8 +180,11 @@ impl SignalArgs {
 #[derive(Args)]
 pub(crate) struct DiagnoseArgs {
     /// Training data (CSV). Without --validate it is split into fit/select/report blocks.
-    #[arg(required_unless_present = "example")]
+    #[arg(required_unless_present_any = ["example", "more_train"])]
     pub(crate) train: Option<PathBuf>,
+    /// A further training record (CSV, same columns; repeatable): each record is a separate experiment (see "Several records" below).
+    #[arg(long = "train", value_name = "FILE", conflicts_with = "example")]
+    pub(crate) more_train: Vec<PathBuf>,
     /// Validation data (CSV) on which the NRMSE is reported.
     #[arg(long)]
     pub(crate) validate: Option<PathBuf>,

@@ -93,7 +93,9 @@ pub(crate) fn delay_variants(d: &str) -> Vec<String> {
 }
 
 /// Fit the recipe of a proposal's spec (`greybox fit --model SPEC`) on at
-/// most `cap` samples of the fit block.
+/// most `cap` samples of the fit block (the recipes the diagnosis proposes
+/// are single-record: with several training records, the longest fit
+/// part, see [`Context::fit`]).
 pub(crate) fn fit_spec(
     lineage: &Lineage,
     ctx: &Context,
@@ -110,7 +112,8 @@ pub(crate) fn fit_spec(
     Ok(f.model)
 }
 
-/// Fit an input–output network on the fit block, warm-started from the
+/// Fit an input–output network (a single-record class: with several
+/// training records the longest fit part) on the fit block, warm-started from the
 /// current model (its network for linear fits, its simulated output for
 /// LOLIMOT's output-error construction).
 pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, DiagnoseError> {

@@ -307,8 +307,15 @@ impl Extension for ProcessNoise {
             }
             c.select.nll = all;
         } else {
-            let rec = d.train.slice(0..d.select.end);
-            c.select.nll = predictive(&c.model, &rec, w, d.select_scored(w), &[], pol)?.nll;
+            // every training record filtered from its own start, the select
+            // blocks' nll concatenated in record order
+            let mut all = vec![];
+            for p in d.parts() {
+                let rec = p.record.slice(0..p.select.end);
+                let scored = p.select.start.max(w)..p.select.end;
+                all.extend(predictive(&c.model, &rec, w, scored, &[], pol)?.nll);
+            }
+            c.select.nll = all;
         }
         if c.select.nll.len() != c.select.e.len() {
             return Err(DiagnoseError::InvalidArgument(

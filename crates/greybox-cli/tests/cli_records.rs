@@ -1,0 +1,141 @@
+//! `greybox diagnose` on several training records (`--train FILE`
+//! repeated): the report lists the records, and records with other
+//! columns are a one-line error naming the file (exit 2).
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn tmp(name: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("greybox-records-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_greybox"))
+        .args(args)
+        .output()
+        .expect("run greybox")
+}
+
+/// Rows `rows` of the CSV `from` (header kept) written to `to`.
+fn rows(from: &Path, to: &Path, rows: std::ops::Range<usize>) {
+    let text = std::fs::read_to_string(from).unwrap();
+    let mut lines = text.lines();
+    let mut out = format!("{}\n", lines.next().unwrap());
+    for l in lines.skip(rows.start).take(rows.len()) {
+        out.push_str(l);
+        out.push('\n');
+    }
+    std::fs::write(to, out).unwrap();
+}
+
+#[test]
+fn two_training_records_are_listed_in_the_report() {
+    let d = tmp("two");
+    let ds = d.to_str().unwrap();
+    let o = run(&[
+        "generate",
+        "msd-linear",
+        "-o",
+        ds,
+        "--seed",
+        "2",
+        "--samples",
+        "2000",
+        "--validate-samples",
+        "1000",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (d.join("a.csv"), d.join("b.csv"));
+    rows(&d.join("train.csv"), &a, 0..1200);
+    rows(&d.join("train.csv"), &b, 1200..2000);
+    let (v, json) = (d.join("validate.csv"), d.join("r.json"));
+    let o = run(&[
+        "diagnose",
+        "--train",
+        a.to_str().unwrap(),
+        "--train",
+        b.to_str().unwrap(),
+        "--validate",
+        v.to_str().unwrap(),
+        "--max-steps",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let out = String::from_utf8_lossy(&o.stdout).to_string();
+    assert!(
+        o.status.success(),
+        "{}\n{out}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(out.contains("records: "), "{out}");
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let recs = r["data"]["records"].as_array().expect("records list");
+    let got: Vec<(String, u64, u64, u64)> = recs
+        .iter()
+        .map(|x| {
+            (
+                x["name"]
+                    .as_str()
+                    .unwrap()
+                    .rsplit('/')
+                    .next()
+                    .unwrap()
+                    .to_string(),
+                x["fit"].as_u64().unwrap(),
+                x["select"].as_u64().unwrap(),
+                x["report"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(
+        got,
+        vec![
+            ("a.csv".to_string(), 900, 300, 0),
+            ("b.csv".to_string(), 600, 200, 0),
+            ("validate.csv".to_string(), 0, 0, 1000),
+        ]
+    );
+    assert_eq!(r["data"]["samples_select"].as_u64(), Some(500));
+}
+
+#[test]
+fn a_record_with_other_columns_is_one_line_naming_the_file() {
+    let d = tmp("bad");
+    let a = d.join("a.csv");
+    let b = d.join("b.csv");
+    let mut ta = String::from("u,y\n");
+    let mut tb = String::from("u,w,y\n");
+    for k in 0..400 {
+        let u = ((k * 37) % 11) as f64 - 5.0;
+        ta.push_str(&format!("{u},{}\n", ((k * 13) % 7) as f64));
+        tb.push_str(&format!(
+            "{u},{},{}\n",
+            (k % 3) as f64,
+            ((k * 13) % 7) as f64
+        ));
+    }
+    std::fs::write(&a, ta).unwrap();
+    std::fs::write(&b, tb).unwrap();
+    let json = d.join("r.json");
+    let o = run(&[
+        "diagnose",
+        "--train",
+        a.to_str().unwrap(),
+        "--train",
+        b.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let e = String::from_utf8_lossy(&o.stderr).to_string();
+    assert_eq!(o.status.code(), Some(2), "{e}");
+    assert!(!e.contains("panicked"), "{e}");
+    assert_eq!(e.trim_end().lines().count(), 1, "not one line: {e}");
+    assert!(e.contains("b.csv"), "{e}");
+    assert!(!json.exists());
+}
