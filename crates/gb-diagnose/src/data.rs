@@ -51,6 +51,9 @@ pub struct DiagnoseData {
     /// Names of the training records, then of the report record (file
     /// names, for the report; empty when not given).
     pub names: Vec<String>,
+    /// Whether the report lists the records ([`from_records`](Self::from_records)
+    /// with several training records, the last possibly the report data).
+    pub listed: bool,
 }
 
 impl DiagnoseData {
@@ -69,6 +72,7 @@ impl DiagnoseData {
             single_record: false,
             more: vec![],
             names: vec![],
+            listed: false,
         })
     }
 
@@ -140,6 +144,7 @@ impl DiagnoseData {
             single_record: false,
             more,
             names,
+            listed: true,
         })
     }
 
@@ -161,6 +166,14 @@ impl DiagnoseData {
             select: &p.select,
         }))
         .collect()
+    }
+
+    /// Training record `i` (0: `train`, then `more` in order).
+    pub fn record(&self, i: usize) -> &Record {
+        match i.checked_sub(1) {
+            Some(j) => &self.more[j].record,
+            None => &self.train,
+        }
     }
 
     /// The fit block a single-record model class is fitted on: the fit
@@ -205,6 +218,7 @@ impl DiagnoseData {
             single_record: true,
             more: vec![],
             names: vec![],
+            listed: false,
         }
     }
 
@@ -270,7 +284,7 @@ impl DiagnoseData {
     /// The records and their fit/select (or report) sample counts, for the
     /// report (empty with one training record).
     pub fn record_summaries(&self) -> Vec<crate::report::RecordSummary> {
-        if !self.multi() {
+        if !self.listed {
             return vec![];
         }
         let name = |i: usize| {
@@ -307,11 +321,12 @@ impl DiagnoseData {
             "fit {}..{}, select {}..{}",
             self.fit.start, self.fit.end, self.select.start, self.select.end
         );
-        if self.multi() {
+        if self.listed {
             let recs: Vec<String> = self.record_summaries().iter().map(|r| r.text()).collect();
+            let k = self.parts().len();
             format!(
-                "{} training records, each simulated from its own start: {}",
-                self.parts().len(),
+                "{k} training record{}, each simulated from its own start: {}",
+                if k == 1 { "" } else { "s" },
                 recs.join("; ")
             )
         } else if self.single_record {

@@ -31,6 +31,7 @@ pub(crate) fn subsample(d: &DiagnoseData, n: usize) -> DiagnoseData {
         single_record: false,
         more: vec![],
         names: vec![],
+        listed: false,
     }
 }
 

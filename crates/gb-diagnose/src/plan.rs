@@ -18,7 +18,10 @@ pub(crate) struct Fold {
     pub fit: Record,
     /// The same samples with the measured output.
     pub fit_y: Record,
-    /// The held-out samples (in the training record).
+    /// The training record the held-out samples are in (index of
+    /// [`DiagnoseData::parts`]; 0 with one training record).
+    pub record: usize,
+    /// The held-out samples (in that training record).
     pub test: Range<usize>,
     /// Which held-out samples are scored (`keep[i]` for sample
     /// `test.start + i`): those after the init window whose signals lie in
@@ -27,7 +30,7 @@ pub(crate) struct Fold {
 }
 
 impl Fold {
-    /// The scored samples (indices of the training record).
+    /// The scored samples (indices of the fold's training record).
     pub fn scored(&self) -> impl Iterator<Item = usize> + '_ {
         self.keep
             .iter()
@@ -99,6 +102,7 @@ impl Plan {
                 Fold {
                     fit: fit_y.clone(),
                     fit_y,
+                    record: 0,
                     test,
                     keep: vec![],
                 }
@@ -130,14 +134,18 @@ impl Plan {
         }
     }
 
-    /// The plan of several training records: decisions on the select
-    /// blocks of all records (each simulated from its own start, residuals
-    /// concatenated in record order), whatever their length: the blocked
-    /// cross-validation is single-record (leave-one-record-out folds are
-    /// not implemented). Every model class of the chain is fitted on one
-    /// record (the input–output networks, the block-oriented and
-    /// state-space models), so models are fitted on the longest fit part.
+    /// The plan of several training records. Every model class of the
+    /// chain is fitted on one record (the input–output networks, the
+    /// block-oriented and state-space models). With at least the policy's
+    /// `bootstrap_min_samples` select samples in all, decisions use the
+    /// select blocks of all records (each simulated from its own start,
+    /// residuals concatenated in record order) and models are fitted on
+    /// the longest fit part; with fewer, leave-one-record-out
+    /// cross-validation ([`Plan::leave_one_record_out`]).
     fn multi(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
+        if d.select_samples() < pol.bootstrap_min_samples {
+            return Self::leave_one_record_out(d, pol);
+        }
         let fit_y = d.longest_fit_record();
         Self {
             w: pol.init_window_for(d.shortest_select().min(d.report_range.len())),
@@ -145,6 +153,49 @@ impl Plan {
             fit: fit_y.clone(),
             fit_y,
             folds: vec![],
+            shift: None,
+        }
+    }
+
+    /// Leave-one-record-out cross-validation: fold `i` holds out training
+    /// record `i` whole (simulated from its start, scored after the init
+    /// window on the samples its fit covers, [`covered`]) and is fitted on
+    /// the longest other training record, whole (a single-record class);
+    /// the final models are fitted on the longest training record, whole.
+    fn leave_one_record_out(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
+        let parts = d.parts();
+        let whole = |i: usize| parts[i].record.slice(0..parts[i].select.end);
+        let longest = |skip: Option<usize>| {
+            (0..parts.len())
+                .filter(|&i| Some(i) != skip)
+                .fold(None, |best: Option<usize>, i| match best {
+                    Some(b) if parts[b].select.end >= parts[i].select.end => Some(b),
+                    _ => Some(i),
+                })
+                .unwrap_or(0)
+        };
+        let shortest = parts.iter().map(|p| p.select.end).min().unwrap_or(0);
+        let w = pol.init_window_for(shortest.min(d.report_range.len()));
+        let folds = (0..parts.len())
+            .map(|i| {
+                let fit_y = whole(longest(Some(i)));
+                let test = 0..parts[i].select.end;
+                Fold {
+                    keep: covered(&fit_y, parts[i].record, &test, w, pol),
+                    fit: fit_y.clone(),
+                    fit_y,
+                    record: i,
+                    test,
+                }
+            })
+            .collect();
+        let fit_y = whole(longest(None));
+        Self {
+            w,
+            integrating: false,
+            fit: fit_y.clone(),
+            fit_y,
+            folds,
             shift: None,
         }
     }
@@ -164,6 +215,7 @@ impl Plan {
                 .map(|f| Fold {
                     fit: target(&f.fit_y),
                     fit_y: f.fit_y.clone(),
+                    record: f.record,
                     test: f.test.clone(),
                     keep: f.keep.clone(),
                 })
@@ -205,7 +257,10 @@ impl Plan {
             .map(|j| {
                 self.folds
                     .iter()
-                    .flat_map(|f| f.scored().map(|k| d.train.inputs[j][k]))
+                    .flat_map(|f| {
+                        let rec = d.record(f.record);
+                        f.scored().map(move |k| rec.inputs[j][k])
+                    })
                     .collect()
             })
             .collect()
@@ -231,6 +286,15 @@ impl Plan {
             } else {
                 String::new()
             };
+            if d.multi() {
+                return format!(
+                    "leave-one-record-out cross-validation: {} folds, each training record held out whole and scored by the structure refitted on the longest other record (the {} select samples are too few for the bootstrap), init window {}; models fitted on the longest training record, {} samples{outside}",
+                    self.folds.len(),
+                    d.select_samples(),
+                    self.w,
+                    self.fit_y.len()
+                );
+            }
             format!(
                 "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest), init window {}{outside}{why}",
                 self.folds.len(),
@@ -388,7 +452,8 @@ pub(crate) fn assess(
     for (f, fold) in folds.iter().zip(&plan.folds) {
         pooled.e.extend_from_slice(&f.select.e);
         pooled.yhat.extend_from_slice(&f.select.yhat);
-        y.extend(fold.scored().map(|k| d.train.output[k]));
+        let rec = d.record(fold.record);
+        y.extend(fold.scored().map(|k| rec.output[k]));
     }
     let sd = metrics::std(&y);
     let mut e = evaluate_on(m, lineage, d, plan.w, Some((pooled, sd)))?;
@@ -406,7 +471,8 @@ fn fold_scores(
     k: usize,
 ) -> Result<Evaluated, DiagnoseError> {
     let fold = &plan.folds[k];
-    let rec = d.train.slice(fold.test.clone());
+    let held = d.record(fold.record);
+    let rec = held.slice(fold.test.clone());
     let all = residuals_on(&m, &rec, &(0..rec.len()), plan.w)?;
     let s = plan.w.min(rec.len());
     let keep = |i: &usize| fold.keep.get(s + i).copied().unwrap_or(false);
@@ -418,7 +484,7 @@ fn fold_scores(
             .collect(),
         nll: vec![],
     };
-    let y: Vec<f64> = fold.scored().map(|i| d.train.output[i]).collect();
+    let y: Vec<f64> = fold.scored().map(|i| held.output[i]).collect();
     let sd = metrics::std(&y);
     let nrmse = metrics::rms(&r.e) / sd;
     let nll = m.noise.mean_nll(&r.e);

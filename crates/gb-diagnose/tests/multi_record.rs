@@ -151,3 +151,46 @@ fn no_simulated_state_spans_two_records() {
     eprintln!("b's first 50 scored samples: rms fresh {rf:.4e}, carried over the jump {rc:.4e}");
     assert!(rc > 2.0 * rf, "fresh {rf:.4e}, carried {rc:.4e}");
 }
+
+/// Records too short for the bootstrap on their select parts (`linear`
+/// seed 1 of 672 training samples cut at 60 %, swapped: 168 select
+/// samples): decisions by leave-one-record-out cross-validation, one fold
+/// per record, each record held out whole and simulated from its own
+/// start.
+#[test]
+fn short_records_are_judged_leaving_one_record_out() {
+    let c = gb_diagnose::generator::draw("linear", 1).unwrap();
+    let n = c.train.len();
+    let k = n * 3 / 5;
+    let (a, b) = (c.train.slice(k..n), c.train.slice(0..k));
+    let recs = vec![("a".to_string(), a.clone()), ("b".to_string(), b.clone())];
+    let d = DiagnoseData::from_records(recs, Some(("v".into(), c.validate.clone()))).unwrap();
+    let dg = diagnose(&d, &options(c.model_order), None).unwrap();
+    let text = dg.report.to_text();
+    assert!(
+        dg.report.data.decision.contains("leave-one-record-out"),
+        "{text}"
+    );
+    let base = &dg.chain[0];
+    assert_eq!(base.folds.len(), 2, "{text}");
+    let w = dg.report.data.init_window;
+    for (f, r) in base.folds.iter().zip([&a, &b]) {
+        let e = &f.select.e;
+        assert!(
+            e.len() > (r.len() - w) / 2 && e.len() <= r.len() - w,
+            "{text}"
+        );
+    }
+    // models are fitted on the longest training record, whole
+    assert_eq!(dg.report.data.samples_fit, b.len(), "{text}");
+    let floor = c.noise_floor_nrmse;
+    eprintln!(
+        "leave-one-record-out: final {:.4}, floor {floor:.4}",
+        dg.report.final_model.nrmse
+    );
+    assert!(
+        dg.report.final_model.nrmse <= 1.3 * floor,
+        "final {:.4} vs floor {floor:.4}\n{text}",
+        dg.report.final_model.nrmse
+    );
+}

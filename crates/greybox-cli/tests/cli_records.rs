@@ -101,6 +101,30 @@ fn two_training_records_are_listed_in_the_report() {
         ]
     );
     assert_eq!(r["data"]["samples_select"].as_u64(), Some(500));
+    // without --validate the last record is the report data, held out whole
+    let o = run(&[
+        "diagnose",
+        a.to_str().unwrap(),
+        "--train",
+        b.to_str().unwrap(),
+        "--max-steps",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let r: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let recs = r["data"]["records"].as_array().expect("records list");
+    let got: Vec<(u64, u64, u64)> = recs
+        .iter()
+        .map(|x| {
+            let n = |k: &str| x[k].as_u64().unwrap();
+            (n("fit"), n("select"), n("report"))
+        })
+        .collect();
+    assert_eq!(got, vec![(900, 300, 0), (0, 0, 800)]);
 }
 
 #[test]

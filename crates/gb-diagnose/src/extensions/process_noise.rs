@@ -293,7 +293,7 @@ impl Extension for ProcessNoise {
         if ctx.plan.cv() {
             let mut all = vec![];
             for (f, fold) in c.folds.iter_mut().zip(&ctx.plan.folds) {
-                let rec = d.train.slice(fold.test.clone());
+                let rec = d.record(fold.record).slice(fold.test.clone());
                 let s = w.min(rec.len());
                 let nll = predictive(&f.model, &rec, w, s..rec.len(), &[], pol)?.nll;
                 // the fold's scored samples only (aligned with its residuals)
