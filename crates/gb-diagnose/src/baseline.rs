@@ -3,12 +3,17 @@
 //! output integrates, and with `--order auto` the order. A least-squares
 //! ARX scan proposes ([`crate::structure`]); the output-error fit on the
 //! decision data (select block or cross-validation) confirms.
+//!
+//! With several training records the output-error fits (the delay and
+//! order scans, the baseline itself) use the fit parts of all records as
+//! separate experiments: the cost is Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))², each record
+//! simulated from its own start; the ARX scan reads the longest fit part.
 use crate::evaluate::{Evaluated, Lineage};
 use crate::extension::io_model;
 use crate::plan::{assess, Plan};
 use crate::{structure, DiagnoseData, DiagnoseError, DiagnoseOptions, OrderChoice};
 use gb_core::Record;
-use gb_lmn::{IoNetworkParams, LocalModelNetwork, WarmStart};
+use gb_lmn::{Experiment, IoNetworkParams, LocalModelNetwork, WarmStart};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -169,10 +174,11 @@ pub(crate) struct Baseline {
 }
 
 /// Information criterion N ln σ² + p ln N of a network's in-sample
-/// simulation error on `rec` (unbiased under output noise, unlike an ARX
-/// loss).
-fn bic(net: &LocalModelNetwork, rec: &Record) -> f64 {
-    match net.simulation_residuals(&rec.inputs, &rec.output) {
+/// simulation error on the records `recs` (each simulated from its own
+/// start, N their scored samples together; unbiased under output noise,
+/// unlike an ARX loss).
+fn bic(net: &LocalModelNetwork, recs: &[Record]) -> f64 {
+    match net.simulation_residuals_records(&Experiment::all(recs)) {
         Ok(e) if !e.is_empty() => {
             let n = e.len() as f64;
             let mse = e.iter().map(|v| v * v).sum::<f64>() / n;
@@ -182,24 +188,26 @@ fn bic(net: &LocalModelNetwork, rec: &Record) -> f64 {
     }
 }
 
-/// The linear output-error model of `p` on `rec`: a cold fit and, with a
-/// pole template, a fit started from its poles with the numerator of this
-/// structure ([`gb_lmn::fixed_pole_start`]); the smaller simulation error
+/// The linear output-error model of `p` on the records `recs` (separate
+/// experiments): a cold fit and, with a pole template, a fit started from
+/// its poles with the numerator of this structure
+/// ([`gb_lmn::fixed_pole_start_records`]); the smaller simulation error
 /// wins (output-error costs of oversampled records have local minima).
 fn fit_net(
     p: &IoNetworkParams,
-    rec: &Record,
+    recs: &[Record],
     poles: Option<&LocalModelNetwork>,
 ) -> Result<LocalModelNetwork, DiagnoseError> {
     let v = p.check()?;
-    let cold = v.fit(rec, WarmStart::default());
-    let spec = p.network_spec(rec.n_inputs());
+    let exps = Experiment::all(recs);
+    let cold = v.fit_records(recs, WarmStart::default(), &gb_core::Silent);
+    let spec = p.network_spec(recs.first().map_or(0, Record::n_inputs));
     let warm = poles
-        .and_then(|t| gb_lmn::fixed_pole_start(t, &spec, &rec.inputs, &rec.output))
-        .and_then(|s| gb_lmn::refine_output_error(&s, &rec.inputs, &rec.output, &p.fit).ok())
+        .and_then(|t| gb_lmn::fixed_pole_start_records(t, &spec, &exps))
+        .and_then(|s| gb_lmn::refine_output_error_records(&s, &exps, &p.fit, &gb_core::Silent).ok())
         .map(|(m, _)| m);
     let err = |m: &LocalModelNetwork| {
-        m.simulation_residuals(&rec.inputs, &rec.output)
+        m.simulation_residuals_records(&exps)
             .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e))
     };
     match (cold, warm) {
@@ -210,20 +218,38 @@ fn fit_net(
     }
 }
 
+/// The first `cap` samples of the records `recs` in order (whole records,
+/// then the head of the one the cap falls in).
+fn head(recs: &[Record], cap: usize) -> Vec<Record> {
+    let mut left = cap;
+    let mut out = vec![];
+    for r in recs {
+        if left == 0 {
+            break;
+        }
+        let n = r.len().min(left);
+        out.push(r.slice(0..n));
+        left -= n;
+    }
+    out
+}
+
 /// The delay of every input by output-error fits of `order` over
-/// `0..=bound` on (at most the policy's `delay_scan_samples` of) `rec`,
-/// scanning one input at a time from `start`: cold fits first, then every
-/// delay again from the poles of the best one; the smallest information
-/// criterion wins. Returns the delay and the best network (a pole template).
+/// `0..=bound` on (at most the policy's `delay_scan_samples` of) the
+/// records `recs` (separate experiments), scanning one input at a time
+/// from `start`: cold fits first, then every delay again from the poles of
+/// the best one; the smallest information criterion wins. Returns the delay
+/// and the best network (a pole template).
 fn oe_delay_scan(
-    rec: &Record,
+    recs: &[Record],
     order: usize,
     bound: usize,
     start: &[usize],
     opts: &DiagnoseOptions,
 ) -> (Vec<usize>, Option<LocalModelNetwork>) {
-    let n = rec.len().min(opts.policy.delay_scan_samples);
-    let rec = rec.slice(0..n);
+    let rec = head(recs, opts.policy.delay_scan_samples);
+    let exps = Experiment::all(&rec);
+    let n_inputs = rec.first().map_or(0, Record::n_inputs);
     let params = |t: &[usize]| IoNetworkParams {
         fit: opts.fit.clone(),
         delay: t.to_vec(),
@@ -246,14 +272,9 @@ fn oe_delay_scan(
                     let net = if pass == 0 {
                         fit_net(&params(&t), &rec, None).ok()?
                     } else {
-                        let spec = params(&t).network_spec(rec.n_inputs());
-                        let s = gb_lmn::fixed_pole_start(
-                            poles.as_ref()?,
-                            &spec,
-                            &rec.inputs,
-                            &rec.output,
-                        )?;
-                        gb_lmn::refine_output_error(&s, &rec.inputs, &rec.output, &opts.fit)
+                        let spec = params(&t).network_spec(n_inputs);
+                        let s = gb_lmn::fixed_pole_start_records(poles.as_ref()?, &spec, &exps)?;
+                        gb_lmn::refine_output_error_records(&s, &exps, &opts.fit, &gb_core::Silent)
                             .ok()?
                             .0
                     };
@@ -317,8 +338,7 @@ fn fit_structure(
     };
     let lineage = Lineage::Io(p.clone());
     assess(plan, d, lineage, &|t| {
-        let rec = plan.fit_of(t);
-        io_model(fit_net(&p, rec, poles)?, rec)
+        io_model(fit_net(&p, plan.fits_of(t), poles)?, plan.fit_of(t))
     })
 }
 
@@ -362,7 +382,7 @@ pub(crate) fn baseline(
     };
     choice.integrating = plan.integrating;
     // the delay: an output-error scan proposes, the decision data confirm
-    let (oe, poles) = oe_delay_scan(&plan.fit, n_ref, bound, &scan.best, opts);
+    let (oe, poles) = oe_delay_scan(&plan.fits, n_ref, bound, &scan.best, opts);
     choice.oe_delay = oe.clone();
     let mut cands = vec![];
     around(&oe, bound, &mut cands);
@@ -555,7 +575,7 @@ fn auto_structure(
     if n == n_ref {
         return Ok(eval);
     }
-    let (oe, poles) = oe_delay_scan(&plan.fit, n, bound, &delay, opts);
+    let (oe, poles) = oe_delay_scan(&plan.fits, n, bound, &delay, opts);
     // at a higher order the numerator spans more lags: every delay from the
     // scan's up to n − 1 samples later may fit as well
     let mut cands = vec![];

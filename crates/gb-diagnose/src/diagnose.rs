@@ -270,6 +270,7 @@ fn iterate(
     let ctx = Context {
         data: d,
         fit: &plan.fit,
+        fits: &plan.fits,
         current: cur,
         causes,
         evidence: &ev,

@@ -61,10 +61,15 @@ pub struct Context<'a> {
     /// The data.
     pub data: &'a DiagnoseData,
     /// The fit block. With several training records: the longest fit part,
-    /// because every model class the extensions fit (input–output networks,
-    /// block-oriented, Wiener–Hammerstein and state-space models) is
-    /// identified on one record; the select decisions use all records.
+    /// for the model classes identified on one record (LOLIMOT networks,
+    /// block-oriented, Wiener–Hammerstein and state-space models); the
+    /// select decisions use all records.
     pub fit: &'a Record,
+    /// The fit parts of all training records, one experiment each (`[fit]`
+    /// with one record): the linear input–output models (the `order`
+    /// extension, the linear noise and hysteresis variants) are fitted on
+    /// all of them.
+    pub fits: &'a [Record],
     /// The current model.
     pub current: &'a Evaluated,
     /// Causes named so far, in order.
@@ -91,6 +96,7 @@ impl<'a> Context<'a> {
         match t {
             Some(k) if k < self.current.folds.len() => Context {
                 fit: self.plan.fit_of(Some(k)),
+                fits: self.plan.fits_of(Some(k)),
                 current: &self.current.folds[k],
                 simulated_fit: self.fold_sims.get(k).and_then(|s| s.as_deref()),
                 ..*self

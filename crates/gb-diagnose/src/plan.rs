@@ -18,6 +18,12 @@ pub(crate) struct Fold {
     pub fit: Record,
     /// The same samples with the measured output.
     pub fit_y: Record,
+    /// What the linear input–output models are fitted on, one record per
+    /// experiment (increments when integrating): `[fit]` with one training
+    /// record, all other training records whole under leave-one-record-out.
+    pub fits: Vec<Record>,
+    /// The same records with the measured output.
+    pub fits_y: Vec<Record>,
     /// The training record the held-out samples are in (index of
     /// [`DiagnoseData::parts`]; 0 with one training record).
     pub record: usize,
@@ -53,6 +59,13 @@ pub(crate) struct Plan {
     pub fit: Record,
     /// The same samples with the measured output.
     pub fit_y: Record,
+    /// What the linear input–output models (the baseline, its delay and
+    /// order scan, the `order` extension) are fitted on, one record per
+    /// experiment: `[fit]` with one training record, the fit parts of all
+    /// training records with several (increments when integrating).
+    pub fits: Vec<Record>,
+    /// The same records with the measured output.
+    pub fits_y: Vec<Record>,
     /// The folds (empty: decisions on the select block).
     pub folds: Vec<Fold>,
     /// Why decisions use cross-validation although the select block is
@@ -80,6 +93,8 @@ impl Plan {
                 w: pol.init_window_for(d.select.len().min(d.report_range.len())),
                 integrating: false,
                 fit: fit_y.clone(),
+                fits: vec![fit_y.clone()],
+                fits_y: vec![fit_y.clone()],
                 fit_y,
                 folds: vec![],
                 shift: None,
@@ -101,6 +116,8 @@ impl Plan {
                 let fit_y = d.train.slice(rest);
                 Fold {
                     fit: fit_y.clone(),
+                    fits: vec![fit_y.clone()],
+                    fits_y: vec![fit_y.clone()],
                     fit_y,
                     record: 0,
                     test,
@@ -128,29 +145,40 @@ impl Plan {
             w,
             integrating: false,
             fit: fit_y.clone(),
+            fits: vec![fit_y.clone()],
+            fits_y: vec![fit_y.clone()],
             fit_y,
             folds,
             shift: shift.filter(|_| d.select.len() >= pol.bootstrap_min_samples),
         }
     }
 
-    /// The plan of several training records. Every model class of the
-    /// chain is fitted on one record (the input–output networks, the
-    /// block-oriented and state-space models). With at least the policy's
-    /// `bootstrap_min_samples` select samples in all, decisions use the
-    /// select blocks of all records (each simulated from its own start,
-    /// residuals concatenated in record order) and models are fitted on
-    /// the longest fit part; with fewer, leave-one-record-out
-    /// cross-validation ([`Plan::leave_one_record_out`]).
+    /// The plan of several training records. The linear input–output
+    /// models (the baseline, its output-error delay and order scan, the
+    /// `order` extension) are fitted on the fit parts of all records as
+    /// separate experiments (`fits`); the other classes (LOLIMOT, block-
+    /// oriented, Wiener–Hammerstein, state-space models) and the ARX
+    /// structure scan on one record, the longest fit part (`fit`). With at
+    /// least the policy's `bootstrap_min_samples` select samples in all,
+    /// decisions use the select blocks of all records (each simulated from
+    /// its own start, residuals concatenated in record order); with fewer,
+    /// leave-one-record-out cross-validation ([`Plan::leave_one_record_out`]).
     fn multi(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
         if d.select_samples() < pol.bootstrap_min_samples {
             return Self::leave_one_record_out(d, pol);
         }
         let fit_y = d.longest_fit_record();
+        let fits: Vec<Record> = d
+            .parts()
+            .iter()
+            .map(|p| p.record.slice(p.fit.clone()))
+            .collect();
         Self {
             w: pol.init_window_for(d.shortest_select().min(d.report_range.len())),
             integrating: false,
             fit: fit_y.clone(),
+            fits: fits.clone(),
+            fits_y: fits,
             fit_y,
             folds: vec![],
             shift: None,
@@ -160,8 +188,10 @@ impl Plan {
     /// Leave-one-record-out cross-validation: fold `i` holds out training
     /// record `i` whole (simulated from its start, scored after the init
     /// window on the samples its fit covers, [`covered`]) and is fitted on
-    /// the longest other training record, whole (a single-record class);
-    /// the final models are fitted on the longest training record, whole.
+    /// the longest other training record, whole (a single-record class;
+    /// the linear input–output models on all other training records, whole);
+    /// the final models on the longest training record, whole (the linear
+    /// ones on all training records).
     fn leave_one_record_out(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
         let parts = d.parts();
         let whole = |i: usize| parts[i].record.slice(0..parts[i].select.end);
@@ -176,6 +206,12 @@ impl Plan {
         };
         let shortest = parts.iter().map(|p| p.select.end).min().unwrap_or(0);
         let w = pol.init_window_for(shortest.min(d.report_range.len()));
+        let others = |skip: Option<usize>| -> Vec<Record> {
+            (0..parts.len())
+                .filter(|&i| Some(i) != skip)
+                .map(whole)
+                .collect()
+        };
         let folds = (0..parts.len())
             .map(|i| {
                 let fit_y = whole(longest(Some(i)));
@@ -183,6 +219,8 @@ impl Plan {
                 Fold {
                     keep: covered(&fit_y, parts[i].record, &test, w, pol),
                     fit: fit_y.clone(),
+                    fits: others(Some(i)),
+                    fits_y: others(Some(i)),
                     fit_y,
                     record: i,
                     test,
@@ -194,6 +232,8 @@ impl Plan {
             w,
             integrating: false,
             fit: fit_y.clone(),
+            fits: others(None),
+            fits_y: others(None),
             fit_y,
             folds,
             shift: None,
@@ -209,12 +249,16 @@ impl Plan {
             integrating: on,
             fit: target(&self.fit_y),
             fit_y: self.fit_y.clone(),
+            fits: self.fits_y.iter().map(target).collect(),
+            fits_y: self.fits_y.clone(),
             folds: self
                 .folds
                 .iter()
                 .map(|f| Fold {
                     fit: target(&f.fit_y),
                     fit_y: f.fit_y.clone(),
+                    fits: f.fits_y.iter().map(target).collect(),
+                    fits_y: f.fits_y.clone(),
                     record: f.record,
                     test: f.test.clone(),
                     keep: f.keep.clone(),
@@ -245,6 +289,12 @@ impl Plan {
     /// The record fits of target `t` are made on.
     pub fn fit_of(&self, t: Option<usize>) -> &Record {
         t.map_or(&self.fit, |k| &self.folds[k].fit)
+    }
+
+    /// The records (experiments) linear input–output fits of target `t`
+    /// are made on.
+    pub fn fits_of(&self, t: Option<usize>) -> &[Record] {
+        t.map_or(&self.fits, |k| &self.folds[k].fits)
     }
 
     /// The inputs over the decision samples (aligned with `select`
@@ -288,7 +338,7 @@ impl Plan {
             };
             if d.multi() {
                 return format!(
-                    "leave-one-record-out cross-validation: {} folds, each training record held out whole and scored by the structure refitted on the longest other record (the {} select samples are too few for the bootstrap), init window {}; models fitted on the longest training record, {} samples{outside}",
+                    "leave-one-record-out cross-validation: {} folds, each training record held out whole and scored by the structure refitted on the other records (linear input-output models on all of them, the other classes on the longest) (the {} select samples are too few for the bootstrap), init window {}; linear input-output models fitted on all training records, the other classes on the longest, {} samples{outside}",
                     self.folds.len(),
                     d.select_samples(),
                     self.w,
@@ -304,10 +354,11 @@ impl Plan {
         } else {
             if d.multi() {
                 return format!(
-                    "moving-block bootstrap on the {} select samples of {} training records (each record simulated from its own start, its first {} samples the init window; models fitted on the longest fit part, {} samples)",
+                    "moving-block bootstrap on the {} select samples of {} training records (each record simulated from its own start, its first {} samples the init window; linear input-output models fitted on the fit parts of all records, {} samples, the other classes on the longest fit part, {} samples)",
                     d.select_samples(),
                     d.parts().len(),
                     self.w,
+                    self.fits_y.iter().map(Record::len).sum::<usize>(),
                     self.fit_y.len()
                 );
             }

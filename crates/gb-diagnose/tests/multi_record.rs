@@ -5,6 +5,7 @@ use gb_diagnose::generator::{draw_with, Case, Knobs};
 use gb_diagnose::{
     diagnose, residuals_on, select_residuals, DiagnoseData, DiagnoseOptions, OrderChoice,
 };
+use rand::Rng;
 
 /// `linear` seed 1 with 3000 training and 1000 validation samples (the
 /// one-record diagnosis gets it right: no cause, report NRMSE at the floor).
@@ -75,8 +76,13 @@ fn two_records_are_fitted_and_judged_as_separate_experiments() {
         (fb, b.len() - fb)
     );
     assert_eq!(r.data.records[2].report, c.validate.len());
-    // models are fitted on the longest fit part (b's)
+    // the single-record classes are fitted on the longest fit part (b's);
+    // the linear baseline on both fit parts
     assert_eq!(r.data.samples_fit, fb, "{text}");
+    assert!(
+        r.data.decision.contains(&format!("{} samples", fa + fb)),
+        "{text}"
+    );
     assert_eq!(r.data.samples_select, n - fa - fb, "{text}");
     assert!(text.contains("records: a: fit"), "{text}");
     // the decision residuals cover the scored select samples of both
@@ -181,7 +187,8 @@ fn short_records_are_judged_leaving_one_record_out() {
             "{text}"
         );
     }
-    // models are fitted on the longest training record, whole
+    // the single-record classes are fitted on the longest training record,
+    // whole (the linear baseline on both)
     assert_eq!(dg.report.data.samples_fit, b.len(), "{text}");
     let floor = c.noise_floor_nrmse;
     eprintln!(
@@ -192,5 +199,65 @@ fn short_records_are_judged_leaving_one_record_out() {
         dg.report.final_model.nrmse <= 1.3 * floor,
         "final {:.4} vs floor {floor:.4}\n{text}",
         dg.report.final_model.nrmse
+    );
+}
+
+/// A lightly damped resonance (poles 0.97·e^{±0.3i}, unit static gain)
+/// driven by `u`, with output noise of standard deviation `noise`.
+fn resonant(u: Vec<f64>, noise: f64, seed: u64) -> Record {
+    let (r, w) = (0.97f64, 0.3f64);
+    let (a1, a2) = (2.0 * r * w.cos(), -r * r);
+    let b = 1.0 - a1 - a2;
+    let mut rng = gb_core::rng::seeded(seed);
+    let mut x = vec![0.0; u.len()];
+    for k in 2..u.len() {
+        x[k] = a1 * x[k - 1] + a2 * x[k - 2] + b * u[k - 1];
+    }
+    let y = x
+        .iter()
+        .map(|v| v + noise * (rng.random::<f64>() - 0.5) * 12f64.sqrt())
+        .collect();
+    Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap()
+}
+
+/// White input, uniform on ±1.
+fn white(n: usize, seed: u64) -> Vec<f64> {
+    let mut rng = gb_core::rng::seeded(seed);
+    (0..n).map(|_| rng.random_range(-1.0..1.0)).collect()
+}
+
+/// A long record whose input hardly excites the resonance (one slow sine,
+/// period 400 samples against the resonance's 21: it fixes the response
+/// at one frequency, not the four parameters of the resonance) and a
+/// shorter one with a white input: the baseline fitted on both fit parts
+/// finds the resonance, fitted on the long one alone it cannot; its report
+/// NRMSE on a white-input validation record must show it.
+#[test]
+fn the_baseline_is_fitted_on_every_record() {
+    let n = 4000;
+    let slow: Vec<f64> = (0..n)
+        .map(|k| (std::f64::consts::TAU * k as f64 / 400.0).sin())
+        .collect();
+    let long = resonant(slow, 0.05, 1);
+    let rich = resonant(white(1600, 2), 0.05, 3);
+    let val = resonant(white(1500, 4), 0.05, 5);
+    let o = options(2);
+    let v = || Some(("v".to_string(), val.clone()));
+    let both = vec![
+        ("long".to_string(), long.clone()),
+        ("rich".to_string(), rich.clone()),
+    ];
+    let d2 = DiagnoseData::from_records(both, v()).unwrap();
+    let d1 = DiagnoseData::from_records(vec![("long".to_string(), long)], v()).unwrap();
+    let (dg2, dg1) = (
+        diagnose(&d2, &o, None).unwrap(),
+        diagnose(&d1, &o, None).unwrap(),
+    );
+    let (two, one) = (dg2.report.baseline.nrmse, dg1.report.baseline.nrmse);
+    eprintln!("baseline report NRMSE: both records {two:.4}, the long one alone {one:.4}");
+    assert!(
+        two < 0.5 * one,
+        "both {two:.4}, long alone {one:.4}\n{}",
+        dg2.report.to_text()
     );
 }

@@ -18,7 +18,7 @@
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
 //! | `lolimot` | [`LolimotOptions::default`] | LOLIMOT settings |
 use crate::lolimot::fit_lmn_oe_obs;
-use crate::noe::fit_linear_oe_warm_obs;
+use crate::noe::{fit_linear_oe_warm_obs, fit_linear_oe_warm_records, Experiment};
 use crate::{FitOptions, LmnError, LocalModelNetwork, LolimotOptions, NetworkSpec};
 use gb_core::{Identify, Observer, Record, Records, Silent};
 
@@ -280,21 +280,76 @@ impl ValidIoNetworkParams {
     }
 }
 
+impl ValidIoNetworkParams {
+    /// Fit a linear model (no LOLIMOT network) on several records as
+    /// separate experiments ([`fit_linear_oe_warm_records`]): the output-error
+    /// cost is Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))², every record simulated from its own
+    /// starting history. The data-dependent parts of the structure (play
+    /// thresholds, output-map knots) are read on all records together.
+    /// One record: [`fit_with_observer`](Self::fit_with_observer).
+    pub fn fit_records(
+        &self,
+        data: &[Record],
+        warm: WarmStart<'_>,
+        observer: &dyn Observer,
+    ) -> Result<LocalModelNetwork, LmnError> {
+        let p = &self.0;
+        let (first, all) = match data {
+            [] => return Err(LmnError::InvalidArgument("no record given".into())),
+            [one] => return self.fit_with_observer(one, warm, observer),
+            [first, ..] => (first, data),
+        };
+        if p.network {
+            return Err(LmnError::InvalidArgument(
+                "a LOLIMOT network is fitted on one record; use the tree network (lmn with tree weights) for several".into(),
+            ));
+        }
+        if let Some(r) = all.iter().find(|r| r.n_inputs() != first.n_inputs()) {
+            return Err(LmnError::Dimension(format!(
+                "records with {} and {} inputs",
+                first.n_inputs(),
+                r.n_inputs()
+            )));
+        }
+        if !p.delay.is_empty() && p.delay.len() != first.n_inputs() {
+            return Err(LmnError::InvalidArgument(format!(
+                "{} dead times for {} inputs",
+                p.delay.len(),
+                first.n_inputs()
+            )));
+        }
+        let joined = Record::new(
+            first.input_names.clone(),
+            first.output_name.clone(),
+            (0..first.n_inputs())
+                .map(|j| {
+                    all.iter()
+                        .flat_map(|r| r.inputs[j].iter().copied())
+                        .collect()
+                })
+                .collect(),
+            all.iter().flat_map(|r| r.output.iter().copied()).collect(),
+        )
+        .map_err(|e| LmnError::InvalidArgument(e.to_string()))?;
+        let spec = p.network_spec_on(&joined);
+        let mut fopts = p.fit.clone();
+        fopts.robust = p.robust;
+        fopts.separable_hysteresis |= p.separable_hysteresis;
+        fit_linear_oe_warm_records(&spec, &Experiment::all(all), &fopts, warm.network, observer)
+    }
+}
+
 impl Identify for ValidIoNetworkParams {
     type Model = LocalModelNetwork;
     type Error = LmnError;
-    /// One record only (the network's regressors are built on one record).
+    /// Several records only for a linear model ([`ValidIoNetworkParams::fit_records`]);
+    /// a LOLIMOT network's regressors are built on one record.
     fn identify(
         &self,
         data: &Records,
         observer: &dyn Observer,
     ) -> Result<LocalModelNetwork, LmnError> {
-        if data.len() != 1 {
-            return Err(LmnError::InvalidArgument(
-                "an input-output network is fitted on one record; use the tree network (lmn with tree weights) for several".into(),
-            ));
-        }
-        self.fit_with_observer(data.first(), WarmStart::default(), observer)
+        self.fit_records(data.as_slice(), WarmStart::default(), observer)
     }
 }
 

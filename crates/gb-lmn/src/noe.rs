@@ -1097,28 +1097,60 @@ pub(crate) fn smoothed_start(y: &[f64], k0: usize) -> Vec<f64> {
 /// cost and linearisation first estimates `p.init` for the trial θ by
 /// [`LocalModelNetwork::estimate_init`], so the caller re-estimates it for
 /// the final θ.
+///
+/// Several experiments: the residual vector is the concatenation of the
+/// experiments' simulation errors (each simulated from its own estimated
+/// history), so cost, JᵀWJ and JᵀWe are sums over the experiments.
 struct OutputErrorProblem<'a> {
     net: LocalModelNetwork,
-    p: &'a mut Prepared,
-    weights: Option<&'a [f64]>,
+    ps: &'a mut [Prepared],
+    weights: Option<&'a [Vec<f64>]>,
     jtj: DMatrix<f64>,
     jtr: DVector<f64>,
+    /// JᵀWJ and JᵀWe of the second and later experiments.
+    more: Option<(DMatrix<f64>, DVector<f64>)>,
     buf: Vec<f64>,
 }
 
 impl<'a> OutputErrorProblem<'a> {
-    fn new(net: &LocalModelNetwork, p: &'a mut Prepared, weights: Option<&'a [f64]>) -> Self {
+    fn new(
+        net: &LocalModelNetwork,
+        ps: &'a mut [Prepared],
+        weights: Option<&'a [Vec<f64>]>,
+    ) -> Self {
         let np = net.n_parameters();
-        let n = p.yn.len();
+        let n = ps.iter().map(|p| p.yn.len()).max().unwrap_or(0);
+        let more = (ps.len() > 1).then(|| (DMatrix::zeros(np, np), DVector::zeros(np)));
         Self {
             net: net.clone(),
-            p,
+            ps,
             weights,
             jtj: DMatrix::zeros(np, np),
             jtr: DVector::zeros(np),
+            more,
             buf: Vec::with_capacity(n),
         }
     }
+}
+
+/// Weights of experiment `i` (`None`: unweighted).
+fn weights_of(w: Option<&[Vec<f64>]>, i: usize) -> Option<&[f64]> {
+    w.and_then(|w| w.get(i)).map(Vec::as_slice)
+}
+
+/// Σᵢ of the experiments' weighted simulation costs (starting histories as
+/// they are); `None` if one diverges.
+fn total_cost(
+    net: &LocalModelNetwork,
+    ps: &[Prepared],
+    weights: Option<&[Vec<f64>]>,
+    buf: &mut Vec<f64>,
+) -> Option<f64> {
+    let mut c = 0.0;
+    for (i, p) in ps.iter().enumerate() {
+        c += net.weighted_cost(p, weights_of(weights, i), buf)?;
+    }
+    Some(c)
 }
 
 impl LeastSquaresProblem for OutputErrorProblem<'_> {
@@ -1127,15 +1159,28 @@ impl LeastSquaresProblem for OutputErrorProblem<'_> {
     }
     fn cost(&mut self, theta: &[f64]) -> Option<f64> {
         self.net.set_parameters(theta);
-        self.net.estimate_init(self.p);
-        self.net.weighted_cost(self.p, self.weights, &mut self.buf)
+        for p in self.ps.iter_mut() {
+            self.net.estimate_init(p);
+        }
+        total_cost(&self.net, self.ps, self.weights, &mut self.buf)
     }
     fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
         self.net.set_parameters(theta);
-        self.net.estimate_init(self.p);
-        let c = self
-            .net
-            .simulate_sens(self.p, self.weights, &mut self.jtj, &mut self.jtr)?;
+        let mut c = 0.0;
+        for (i, p) in self.ps.iter_mut().enumerate() {
+            self.net.estimate_init(p);
+            let w = weights_of(self.weights, i);
+            match (i, self.more.as_mut()) {
+                (0, _) | (_, None) => {
+                    c += self.net.simulate_sens(p, w, &mut self.jtj, &mut self.jtr)?;
+                }
+                (_, Some((jtj, jtr))) => {
+                    c += self.net.simulate_sens(p, w, jtj, jtr)?;
+                    self.jtj += &*jtj;
+                    self.jtr += &*jtr;
+                }
+            }
+        }
         // JᵀWJ is exactly symmetric (mirrored), so column-major = row-major
         gram.copy_from_slice(self.jtj.as_slice());
         grad.copy_from_slice(self.jtr.as_slice());
@@ -1191,10 +1236,69 @@ pub fn refine_output_error_with_observer(
     opts: &FitOptions,
     observer: &dyn Observer,
 ) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
+    refine_output_error_records(net, &[Experiment::new(inputs, y)], opts, observer)
+}
+
+/// The experiments prepared for `net` (normalised signals; the starting
+/// history estimated when `estimate`, else the first measured outputs).
+fn prepare_all(
+    net: &LocalModelNetwork,
+    exps: &[Experiment],
+    estimate: bool,
+) -> Result<Vec<Prepared>, LmnError> {
+    if exps.is_empty() {
+        return Err(LmnError::InvalidArgument("no experiment given".into()));
+    }
+    exps.iter()
+        .map(|e| {
+            let mut p = net.prepare(e.inputs, e.output)?;
+            p.estimate = estimate;
+            if !estimate {
+                p.init = p.yn[..net.spec.max_lag().min(e.output.len())].to_vec();
+            }
+            Ok(p)
+        })
+        .collect()
+}
+
+/// Student-t weights of the simulation residuals of every experiment,
+/// the noise model estimated on all of them together.
+fn robust_weights(net: &LocalModelNetwork, ps: &[Prepared], buf: &mut Vec<f64>) -> Vec<Vec<f64>> {
+    let k0 = net.spec.max_lag();
+    let res: Vec<Vec<f64>> = ps
+        .iter()
+        .map(|p| {
+            net.weighted_cost(p, None, buf);
+            (k0..p.yn.len()).map(|k| p.yn[k] - buf[k]).collect()
+        })
+        .collect();
+    let nf = NoiseModel::student_t(&res.concat());
+    ps.iter()
+        .zip(&res)
+        .map(|(p, r)| {
+            let mut w = vec![0.0; p.yn.len()];
+            for (k, e) in (k0..p.yn.len()).zip(r) {
+                w[k] = nf.weight(*e);
+            }
+            w
+        })
+        .collect()
+}
+
+/// [`refine_output_error`] on several experiments (records): minimises
+/// Σᵢ Σₖ wᵢₖ (yᵢ(k) − ŷᵢ(k))², every experiment simulated from its own
+/// estimated starting history (no simulated state spans two records); the
+/// Student-t weights and the noise model are estimated on the residuals of
+/// all experiments. One experiment: the single-record fit, bit for bit.
+pub fn refine_output_error_records(
+    net: &LocalModelNetwork,
+    exps: &[Experiment],
+    opts: &FitOptions,
+    observer: &dyn Observer,
+) -> Result<(LocalModelNetwork, TrainReport), LmnError> {
     opts.check()?;
-    let mut p = net.prepare(inputs, y)?;
-    p.estimate = opts.estimate_start;
-    let n = y.len();
+    let mut ps = prepare_all(net, exps, opts.estimate_start)?;
+    let n: usize = exps.iter().map(|e| e.output.len()).sum();
     let k0 = net.spec.max_lag();
     let sep = if opts.separable_hysteresis {
         Separable::new(net)
@@ -1204,20 +1308,23 @@ pub fn refine_output_error_with_observer(
     let np = sep
         .as_ref()
         .map_or_else(|| net.n_parameters(), Separable::n_reduced);
-    if n < k0 + 2 * np + 2 {
-        return Err(LmnError::TooShort {
-            needed: k0 + 2 * np + 2,
-            got: n,
-        });
+    let needed = exps.len() * k0 + 2 * np + 2;
+    if n < needed {
+        return Err(LmnError::TooShort { needed, got: n });
     }
     let mut cur = net.clone();
     if !cur.is_acceptably_stable() {
         cur.stabilise(0.98);
     }
-    let mut buf = Vec::with_capacity(n);
-    let neff = (n - k0) as f64;
-    cur.estimate_init(&mut p);
-    let mse0 = match cur.weighted_cost(&p, None, &mut buf) {
+    let mut buf = Vec::with_capacity(exps.iter().map(|e| e.output.len()).max().unwrap_or(0));
+    let neff = exps
+        .iter()
+        .map(|e| e.output.len().saturating_sub(k0))
+        .sum::<usize>() as f64;
+    for p in &mut ps {
+        cur.estimate_init(p);
+    }
+    let mse0 = match total_cost(&cur, &ps, None, &mut buf) {
         Some(c) => c / neff,
         None => {
             return Err(LmnError::Unstable(
@@ -1230,23 +1337,14 @@ pub fn refine_output_error_with_observer(
     let rounds = if opts.robust { 4 } else { 1 };
     let mut total_iter = 0;
     for round in 0..rounds {
-        let weights: Option<Vec<f64>> = opts.robust.then(|| {
-            cur.weighted_cost(&p, None, &mut buf);
-            let res: Vec<f64> = (k0..n).map(|k| p.yn[k] - buf[k]).collect();
-            let nf = NoiseModel::student_t(&res);
-            let mut w = vec![0.0; n];
-            for k in k0..n {
-                w[k] = nf.weight(p.yn[k] - buf[k]);
-            }
-            w
-        });
+        let weights = opts.robust.then(|| robust_weights(&cur, &ps, &mut buf));
         let iters = if opts.robust && round + 1 < rounds {
             opts.max_iter / 2
         } else {
             opts.max_iter
         };
         let lm = oe_solver(iters, opts.tol)?;
-        let mut problem = OutputErrorProblem::new(&cur, &mut p, weights.as_deref());
+        let mut problem = OutputErrorProblem::new(&cur, &mut ps, weights.as_deref());
         let fitted = match &sep {
             Some(s) => {
                 let start = s.reduce(&cur.parameters());
@@ -1267,15 +1365,19 @@ pub fn refine_output_error_with_observer(
             Err(_) => total_iter += iters.min(1),
         }
         // the problem left the start of its last trial: back to θ's own
-        cur.estimate_init(&mut p);
+        for p in &mut ps {
+            cur.estimate_init(p);
+        }
     }
-    let mse1 = cur
-        .weighted_cost(&p, None, &mut buf)
-        .ok_or_else(|| LmnError::Unstable("trained model diverges".into()))?
-        / neff;
-    let res: Vec<f64> = (k0..n)
-        .map(|k| (p.yn[k] - buf[k]) * cur.output_scaling.scale)
-        .collect();
+    let mut res = Vec::with_capacity(n);
+    let mut mse1 = 0.0;
+    for p in &ps {
+        mse1 += cur
+            .weighted_cost(p, None, &mut buf)
+            .ok_or_else(|| LmnError::Unstable("trained model diverges".into()))?;
+        res.extend((k0..p.yn.len()).map(|k| (p.yn[k] - buf[k]) * cur.output_scaling.scale));
+    }
+    let mse1 = mse1 / neff;
     cur.noise = if opts.robust {
         NoiseModel::student_t(&res)
     } else {
@@ -1406,34 +1508,51 @@ pub(crate) fn global_ls(
     yreg: &[f64],
     ridge: f64,
 ) -> Result<(), LmnError> {
-    let (rows, ncol) = regression_matrix(net, p, yreg);
+    global_ls_records(net, &[(p, yreg)], ridge)
+}
+
+/// [`global_ls`] on the union of the regression rows of several
+/// experiments `(prepared, output lags)`: each experiment's rows start
+/// after its own `max_lag` samples, so no regressor spans two records.
+fn global_ls_records(
+    net: &mut LocalModelNetwork,
+    data: &[(&Prepared, &[f64])],
+    ridge: f64,
+) -> Result<(), LmnError> {
     let nd = net.spec.n_dynamic();
     let nh = net.spec.n_hysteresis();
     let m = net.leaves.len();
     let np = net.n_parameters();
-    let nrow = rows.len() / ncol.max(1);
-    let k0 = p.yn.len() - nrow;
-    let mut a = vec![0.0; nrow * np];
+    let mut a = vec![];
+    let mut target = vec![];
     let mut s = net.scratch();
-    for r in 0..nrow {
-        let x = &rows[r * ncol..(r + 1) * ncol];
-        if m > 1 {
-            net.fill_z(x, &mut s);
-            net.validity(&mut s);
-        } else {
-            s.phi[0] = 1.0;
-        }
-        let dst = &mut a[r * np..(r + 1) * np];
-        for i in 0..m {
-            let ph = s.phi[i];
-            dst[i * (nd + 1)] = ph;
-            for j in 0..nd {
-                dst[i * (nd + 1) + 1 + j] = ph * x[j];
+    for &(p, yreg) in data {
+        let (rows, ncol) = regression_matrix(net, p, yreg);
+        let nrow = rows.len() / ncol.max(1);
+        let k0 = p.yn.len() - nrow;
+        let base = a.len();
+        a.resize(base + nrow * np, 0.0);
+        for r in 0..nrow {
+            let x = &rows[r * ncol..(r + 1) * ncol];
+            if m > 1 {
+                net.fill_z(x, &mut s);
+                net.validity(&mut s);
+            } else {
+                s.phi[0] = 1.0;
             }
+            let dst = &mut a[base + r * np..base + (r + 1) * np];
+            for i in 0..m {
+                let ph = s.phi[i];
+                dst[i * (nd + 1)] = ph;
+                for j in 0..nd {
+                    dst[i * (nd + 1) + 1 + j] = ph * x[j];
+                }
+            }
+            dst[m * (nd + 1)..].copy_from_slice(&x[nd..nd + nh]);
         }
-        dst[m * (nd + 1)..].copy_from_slice(&x[nd..nd + nh]);
+        target.extend_from_slice(&p.yn[k0..]);
     }
-    let theta = weighted_ls(&a, &p.yn[k0..], None, np, ridge)?;
+    let theta = weighted_ls(&a, &target, None, np, ridge)?;
     net.set_parameters(&theta);
     Ok(())
 }
@@ -1498,51 +1617,62 @@ pub fn fixed_pole_start(
     inputs: &[Vec<f64>],
     y: &[f64],
 ) -> Option<LocalModelNetwork> {
+    fixed_pole_start_records(poles, spec, &[Experiment::new(inputs, y)])
+}
+
+/// [`fixed_pole_start`] on several experiments: the filtered inputs of
+/// every experiment start from rest at its own first sample, and the
+/// numerator is the least-squares fit on the union of their rows (each
+/// experiment's rows after its first max(max_lag, n/10) samples).
+pub fn fixed_pole_start_records(
+    poles: &LocalModelNetwork,
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+) -> Option<LocalModelNetwork> {
     if poles.leaves.len() != 1 || poles.spec.na != spec.na || spec.n_hysteresis() > 0 {
         return None;
     }
-    spec.check(inputs.len()).ok()?;
-    let mut net = linear_network(spec, inputs, y);
-    let p = net.prepare(inputs, y).ok()?;
+    spec.check(exps.first()?.inputs.len()).ok()?;
+    let mut net = linear_network_on(spec, exps);
     let a = &poles.leaves[0].theta[1..=spec.na];
-    let n = y.len();
-    // 1/A applied from rest: v(k) = x(k) + Σ aᵢ v(k−i)
-    let filt = |x: &dyn Fn(usize) -> f64| -> Vec<f64> {
-        let mut v = vec![0.0; n];
-        for k in 0..n {
-            let mut s = x(k);
-            for (i, ai) in a.iter().enumerate() {
-                if k > i {
-                    s += ai * v[k - 1 - i];
-                }
-            }
-            v[k] = s;
-        }
-        v
-    };
-    let ones = filt(&|_| 1.0);
-    let uf: Vec<Vec<f64>> = p.un.iter().map(|u| filt(&|k| u[k])).collect();
-    let k0 = spec.max_lag().max(n / 10);
     let nbs: usize = spec.nb.iter().sum();
     let np = 1 + nbs;
-    if n < k0 + 2 * np + 10 {
-        return None;
-    }
-    let rows = n - k0;
-    let mut m = vec![0.0; rows * np];
-    for (r, k) in (k0..n).enumerate() {
-        let row = &mut m[r * np..(r + 1) * np];
-        row[0] = ones[k];
-        let mut c = 1;
-        for (j, u) in uf.iter().enumerate() {
-            for l in 0..spec.nb[j] {
-                let d = spec.nk[j] + l;
-                row[c] = if k >= d { u[k - d] } else { 0.0 };
-                c += 1;
+    let (mut m, mut target) = (vec![], vec![]);
+    for e in exps {
+        let p = net.prepare(e.inputs, e.output).ok()?;
+        let n = e.output.len();
+        // 1/A applied from rest: v(k) = x(k) + Σ aᵢ v(k−i)
+        let filt = |x: &dyn Fn(usize) -> f64| -> Vec<f64> {
+            let mut v = vec![0.0; n];
+            for k in 0..n {
+                let mut s = x(k);
+                for (i, ai) in a.iter().enumerate() {
+                    if k > i {
+                        s += ai * v[k - 1 - i];
+                    }
+                }
+                v[k] = s;
+            }
+            v
+        };
+        let ones = filt(&|_| 1.0);
+        let uf: Vec<Vec<f64>> = p.un.iter().map(|u| filt(&|k| u[k])).collect();
+        let k0 = spec.max_lag().max(n / 10).min(n);
+        for k in k0..n {
+            m.push(ones[k]);
+            for (j, u) in uf.iter().enumerate() {
+                for l in 0..spec.nb[j] {
+                    let d = spec.nk[j] + l;
+                    m.push(if k >= d { u[k - d] } else { 0.0 });
+                }
             }
         }
+        target.extend_from_slice(&p.yn[k0..]);
     }
-    let th = weighted_ls(&m, &p.yn[k0..], None, np, 1e-9).ok()?;
+    if target.len() < 2 * np + 10 {
+        return None;
+    }
+    let th = weighted_ls(&m, &target, None, np, 1e-9).ok()?;
     let mut theta = vec![0.0; 1 + spec.n_dynamic()];
     theta[0] = th[0];
     theta[1..=spec.na].copy_from_slice(a);
@@ -1591,7 +1721,28 @@ pub(crate) fn fit_linear_oe_obs(
     opts: &FitOptions,
     observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe_cold(spec, inputs, y, opts, observer);
+    fit_linear_oe_records(spec, &[Experiment::new(inputs, y)], opts, observer)
+}
+
+/// The rms simulation error of `net` over all experiments (each from its
+/// own estimated history); infinite when one diverges.
+fn rms_error(net: &LocalModelNetwork, exps: &[Experiment]) -> f64 {
+    net.simulation_residuals_records(exps)
+        .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e))
+}
+
+/// [`fit_linear_oe`] on several experiments (records): the least-squares
+/// ARX start and the pseudo-linear passes on the union of the experiments'
+/// regression rows, Levenberg–Marquardt on the concatenation of their
+/// simulation errors ([`refine_output_error_records`]); scalings from all
+/// samples together. One experiment: the single-record fit, bit for bit.
+pub fn fit_linear_oe_records(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    opts: &FitOptions,
+    observer: &dyn Observer,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_cold(spec, exps, opts, observer);
     if spec.na < 2 || spec.n_hysteresis() > 0 {
         return cold;
     }
@@ -1603,21 +1754,17 @@ pub(crate) fn fit_linear_oe_obs(
         *b = b.saturating_sub(1).max(1);
     }
     lower.hysteresis_lags = lower.hysteresis_lags.saturating_sub(1).max(1);
-    let staged = fit_linear_oe_obs(&lower, inputs, y, opts, observer)
+    let staged = fit_linear_oe_records(&lower, exps, opts, observer)
         .ok()
         .and_then(|w| embed_linear(&w, spec))
-        .and_then(|start| refine_output_error_with_observer(&start, inputs, y, opts, observer).ok())
+        .and_then(|start| refine_output_error_records(&start, exps, opts, observer).ok())
         .map(|(m, _)| m);
     match (cold, staged) {
-        (Ok(c), Some(s)) => {
-            let ec = c
-                .simulation_residuals(inputs, y)
-                .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e));
-            let es = s
-                .simulation_residuals(inputs, y)
-                .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e));
-            Ok(if es < ec { s } else { c })
-        }
+        (Ok(c), Some(s)) => Ok(if rms_error(&s, exps) < rms_error(&c, exps) {
+            s
+        } else {
+            c
+        }),
         (Ok(c), None) => Ok(c),
         (Err(_), Some(s)) => Ok(s),
         (Err(e), None) => Err(e),
@@ -1626,54 +1773,61 @@ pub(crate) fn fit_linear_oe_obs(
 
 fn fit_linear_oe_cold(
     spec: &NetworkSpec,
-    inputs: &[Vec<f64>],
-    y: &[f64],
+    exps: &[Experiment],
     opts: &FitOptions,
     observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
-    spec.check(inputs.len())?;
+    let first = exps
+        .first()
+        .ok_or_else(|| LmnError::InvalidArgument("no experiment given".into()))?;
+    spec.check(first.inputs.len())?;
     opts.check()?;
-    let mut net = linear_network(spec, inputs, y);
+    let mut net = linear_network_on(spec, exps);
     let np = net.n_parameters();
-    let needed = spec.max_lag() + 3 * np + 10;
-    if y.len() < needed {
-        return Err(LmnError::TooShort {
-            needed,
-            got: y.len(),
-        });
+    let n: usize = exps.iter().map(|e| e.output.len()).sum();
+    let needed = exps.len() * spec.max_lag() + 3 * np + 10;
+    if n < needed {
+        return Err(LmnError::TooShort { needed, got: n });
     }
-    let mut p = net.prepare(inputs, y)?;
-    p.estimate = opts.estimate_start;
-    if !p.estimate {
-        p.init = p.yn[..spec.max_lag().min(y.len())].to_vec();
-    }
-    global_ls(&mut net, &p, &p.yn, opts.ridge)?;
+    let mut ps = prepare_all(&net, exps, opts.estimate_start)?;
+    let rows: Vec<(&Prepared, &[f64])> = ps.iter().map(|p| (p, &p.yn[..])).collect();
+    global_ls_records(&mut net, &rows, opts.ridge)?;
     net.stabilise(0.995);
-    let n = y.len();
-    let mut buf = Vec::with_capacity(n);
+    let mut buf = Vec::with_capacity(exps.iter().map(|e| e.output.len()).max().unwrap_or(0));
     let mut best = net.clone();
-    best.estimate_init(&mut p);
-    let mut best_init = p.init.clone();
-    let mut best_cost = net
-        .weighted_cost(&p, None, &mut buf)
-        .unwrap_or(f64::INFINITY);
+    for p in &mut ps {
+        best.estimate_init(p);
+    }
+    let mut best_init: Vec<Vec<f64>> = ps.iter().map(|p| p.init.clone()).collect();
+    let mut best_cost = total_cost(&net, &ps, None, &mut buf).unwrap_or(f64::INFINITY);
     for _ in 0..3 {
         let mut cand = best.clone();
-        p.init.clone_from(&best_init);
-        if !cand.simulate_norm(&p, n, &p.init, &mut buf) {
+        // simulated output lags, each experiment from its own history
+        let mut yreg = Vec::with_capacity(ps.len());
+        for (p, init) in ps.iter_mut().zip(&best_init) {
+            p.init.clone_from(init);
+            if !cand.simulate_norm(p, p.yn.len(), &p.init, &mut buf) {
+                break;
+            }
+            yreg.push(buf.clone());
+        }
+        if yreg.len() < ps.len() {
             break;
         }
-        let yreg = buf.clone();
-        if global_ls(&mut cand, &p, &yreg, opts.ridge).is_err() {
+        let rows: Vec<(&Prepared, &[f64])> =
+            ps.iter().zip(&yreg).map(|(p, y)| (p, &y[..])).collect();
+        if global_ls_records(&mut cand, &rows, opts.ridge).is_err() {
             break;
         }
         cand.stabilise(0.995);
-        cand.estimate_init(&mut p);
-        match cand.weighted_cost(&p, None, &mut buf) {
+        for p in &mut ps {
+            cand.estimate_init(p);
+        }
+        match total_cost(&cand, &ps, None, &mut buf) {
             Some(c) if c < best_cost => {
                 best_cost = c;
                 best = cand;
-                best_init.clone_from(&p.init);
+                best_init = ps.iter().map(|p| p.init.clone()).collect();
             }
             _ => break,
         }
@@ -1682,7 +1836,7 @@ fn fit_linear_oe_cold(
         // fall back to a heavily damped start
         best.stabilise(0.5);
     }
-    refine_output_error_with_observer(&best, inputs, y, opts, observer).map(|(m, _)| m)
+    refine_output_error_records(&best, exps, opts, observer).map(|(m, _)| m)
 }
 
 /// [`fit_linear_oe`], and also Levenberg–Marquardt started from `warm`
@@ -1708,21 +1862,88 @@ pub(crate) fn fit_linear_oe_warm_obs(
     warm: Option<&LocalModelNetwork>,
     observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe_obs(spec, inputs, y, opts, observer);
+    fit_linear_oe_warm_records(spec, &[Experiment::new(inputs, y)], opts, warm, observer)
+}
+
+/// [`fit_linear_oe_warm`] on several experiments ([`fit_linear_oe_records`]).
+pub fn fit_linear_oe_warm_records(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    opts: &FitOptions,
+    warm: Option<&LocalModelNetwork>,
+    observer: &dyn Observer,
+) -> Result<LocalModelNetwork, LmnError> {
+    let cold = fit_linear_oe_records(spec, exps, opts, observer);
     let Some(start) = warm.and_then(|w| embed_linear(w, spec)) else {
         return cold;
     };
-    let warm_fit =
-        refine_output_error_with_observer(&start, inputs, y, opts, observer).map(|(m, _)| m);
+    let warm_fit = refine_output_error_records(&start, exps, opts, observer).map(|(m, _)| m);
     match (cold, warm_fit) {
         (Ok(c), Ok(w)) => {
-            let ec = gb_core::metrics::rms(&c.simulation_residuals(inputs, y)?);
-            let ew = gb_core::metrics::rms(&w.simulation_residuals(inputs, y)?);
+            let ec = gb_core::metrics::rms(&c.simulation_residuals_records(exps)?);
+            let ew = gb_core::metrics::rms(&w.simulation_residuals_records(exps)?);
             Ok(if ew < ec { w } else { c })
         }
         (Ok(c), Err(_)) => Ok(c),
         (Err(_), Ok(w)) => Ok(w),
         (Err(e), Err(_)) => Err(e),
+    }
+}
+
+/// One experiment of a multi-record fit: its inputs and measured output.
+/// No regressor and no simulated state spans two experiments; each is
+/// simulated from its own starting history.
+#[derive(Debug, Clone, Copy)]
+pub struct Experiment<'a> {
+    /// Input signals (equal lengths).
+    pub inputs: &'a [Vec<f64>],
+    /// Measured output.
+    pub output: &'a [f64],
+}
+
+impl<'a> Experiment<'a> {
+    /// The experiment of `inputs` and `output`.
+    pub fn new(inputs: &'a [Vec<f64>], output: &'a [f64]) -> Self {
+        Self { inputs, output }
+    }
+    /// The experiment of a record.
+    pub fn of(r: &'a gb_core::Record) -> Self {
+        Self::new(&r.inputs, &r.output)
+    }
+    /// Every record of `rs`, in order.
+    pub fn all(rs: &'a [gb_core::Record]) -> Vec<Self> {
+        rs.iter().map(Self::of).collect()
+    }
+}
+
+/// A one-leaf network of `spec` with zero parameters and the scalings of
+/// all experiments' samples together (one experiment: its own).
+pub(crate) fn linear_network_on(spec: &NetworkSpec, exps: &[Experiment]) -> LocalModelNetwork {
+    if let [e] = exps {
+        return linear_network(spec, e.inputs, e.output);
+    }
+    let m = exps.first().map_or(0, |e| e.inputs.len());
+    let inputs: Vec<Vec<f64>> = (0..m)
+        .map(|j| {
+            exps.iter()
+                .flat_map(|e| e.inputs.get(j).into_iter().flatten().copied())
+                .collect()
+        })
+        .collect();
+    let y: Vec<f64> = exps.iter().flat_map(|e| e.output.iter().copied()).collect();
+    linear_network(spec, &inputs, &y)
+}
+
+impl LocalModelNetwork {
+    /// [`simulation_residuals`](Self::simulation_residuals) of every
+    /// experiment (each from its own estimated history), concatenated in
+    /// order.
+    pub fn simulation_residuals_records(&self, exps: &[Experiment]) -> Result<Vec<f64>, LmnError> {
+        let mut out = vec![];
+        for e in exps {
+            out.extend(self.simulation_residuals(e.inputs, e.output)?);
+        }
+        Ok(out)
     }
 }
 
@@ -1797,6 +2018,95 @@ mod tests {
                 v + noise * e
             })
             .collect()
+    }
+
+    /// Every parameter and the noise model, bit for bit.
+    fn bits(m: &LocalModelNetwork) -> (Vec<u64>, String) {
+        let th = m.parameters().iter().map(|v| v.to_bits()).collect();
+        (th, format!("{:?} {:?}", m.noise, m.output_scaling))
+    }
+
+    #[test]
+    fn one_experiment_is_the_single_record_fit_bit_for_bit() {
+        let mut r = rand::rngs::SmallRng::seed_from_u64(11);
+        let u: Vec<f64> = (0..800).map(|_| StandardNormal.sample(&mut r)).collect();
+        let y = simulate_true(&u, 0.3, 12);
+        let us = std::slice::from_ref(&u);
+        let one = [Experiment::new(us, &y)];
+        for robust in [false, true] {
+            let opts = FitOptions {
+                robust,
+                ..FitOptions::default()
+            };
+            let spec = NetworkSpec::order(3, 1);
+            let single = fit_linear_oe(&spec, us, &y, &opts).unwrap();
+            let multi = fit_linear_oe_records(&spec, &one, &opts, &Silent).unwrap();
+            assert_eq!(bits(&single), bits(&multi), "robust {robust}");
+            let (a, _) = refine_output_error(&single, us, &y, &opts).unwrap();
+            let (b, _) = refine_output_error_records(&single, &one, &opts, &Silent).unwrap();
+            assert_eq!(bits(&a), bits(&b));
+        }
+        let spec = NetworkSpec::order(2, 1);
+        let poles = fit_linear_oe(&spec, us, &y, &FitOptions::default()).unwrap();
+        let mut other = spec.clone();
+        other.nk = vec![2];
+        let a = fixed_pole_start(&poles, &other, us, &y).unwrap();
+        let b = fixed_pole_start_records(&poles, &other, &one).unwrap();
+        assert_eq!(bits(&a), bits(&b));
+    }
+
+    /// The rms error of a model's simulation against the noise-free
+    /// system on a fresh input (from rest, both).
+    fn error_to_truth(m: &LocalModelNetwork) -> f64 {
+        let mut r = rand::rngs::SmallRng::seed_from_u64(99);
+        let u: Vec<f64> = (0..2000).map(|_| StandardNormal.sample(&mut r)).collect();
+        let y0 = simulate_true(&u, 0.0, 0);
+        let sim = m
+            .simulate_signals(std::slice::from_ref(&u), &y0[..2])
+            .unwrap();
+        let e: Vec<f64> = y0.iter().zip(&sim).map(|(a, b)| a - b).collect();
+        gb_core::metrics::rms(&e[2..])
+    }
+
+    #[test]
+    fn two_records_of_one_system_give_a_model_closer_to_it() {
+        // record a: 700 samples of a slow input (a random walk's steps
+        // held for 8 samples: little excitation above 1/16 cycles per
+        // sample); record b: 400 samples of white noise; output noise 0.5
+        let mut r = rand::rngs::SmallRng::seed_from_u64(21);
+        let mut level = 0.0;
+        let ua: Vec<f64> = (0..700)
+            .map(|k| {
+                if k % 8 == 0 {
+                    let z: f64 = StandardNormal.sample(&mut r);
+                    level = 0.7 * level + z;
+                }
+                level
+            })
+            .collect();
+        let ub: Vec<f64> = (0..400).map(|_| StandardNormal.sample(&mut r)).collect();
+        let (ya, yb) = (simulate_true(&ua, 0.5, 22), simulate_true(&ub, 0.5, 23));
+        let spec = NetworkSpec::order(2, 1);
+        let opts = FitOptions::default();
+        let (ra, rb) = (std::slice::from_ref(&ua), std::slice::from_ref(&ub));
+        let alone_a = error_to_truth(&fit_linear_oe(&spec, ra, &ya, &opts).unwrap());
+        let alone_b = error_to_truth(&fit_linear_oe(&spec, rb, &yb, &opts).unwrap());
+        let both = [Experiment::new(ra, &ya), Experiment::new(rb, &yb)];
+        let m = fit_linear_oe_records(&spec, &both, &opts, &Silent).unwrap();
+        let joint = error_to_truth(&m);
+        let th = &m.leaves[0].theta;
+        assert!(
+            (th[1] - 1.5).abs() < 0.03 && (th[2] + 0.7).abs() < 0.03,
+            "{th:?}"
+        );
+        assert!(
+            joint < alone_a && joint <= alone_b,
+            "both {joint:.4}, a alone {alone_a:.4}, b alone {alone_b:.4}"
+        );
+        // each record scored after its own two starting samples
+        let e = m.simulation_residuals_records(&both).unwrap();
+        assert_eq!(e.len(), 700 + 400 - 2 * 2);
+        eprintln!("error to the truth: both {joint:.4}, a {alone_a:.4}, b {alone_b:.4}");
     }
 
     #[test]

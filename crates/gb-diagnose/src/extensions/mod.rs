@@ -112,10 +112,12 @@ pub(crate) fn fit_spec(
     Ok(f.model)
 }
 
-/// Fit an input–output network (a single-record class: with several
-/// training records the longest fit part) on the fit block, warm-started from the
+/// Fit an input–output model on the fit block, warm-started from the
 /// current model (its network for linear fits, its simulated output for
-/// LOLIMOT's output-error construction).
+/// LOLIMOT's output-error construction). With several training records a
+/// linear model is fitted on the fit parts of all of them as separate
+/// experiments ([`Context::fits`]), a LOLIMOT network (a single-record
+/// class) on the longest fit part.
 pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
     let mut p = p.clone();
     p.fit = ctx.options.fit.clone();
@@ -123,13 +125,15 @@ pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, 
     let warm_net = crate::plan::core(&ctx.current.model)
         .as_any()
         .downcast_ref::<gb_lmn::LocalModelNetwork>();
-    let net = p.check()?.fit(
-        ctx.fit,
-        WarmStart {
-            simulated_output: ctx.simulated_fit,
-            network: warm_net,
-        },
-    )?;
+    let warm = WarmStart {
+        simulated_output: ctx.simulated_fit,
+        network: warm_net,
+    };
+    let net = if p.network || ctx.fits.len() < 2 {
+        p.check()?.fit(ctx.fit, warm)?
+    } else {
+        p.check()?.fit_records(ctx.fits, warm, &gb_core::Silent)?
+    };
     io_model(net, ctx.fit)
 }
 
