@@ -7,7 +7,8 @@
 //! With several training records the output-error fits (the delay and
 //! order scans, the baseline itself) use the fit parts of all records as
 //! separate experiments: the cost is Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))², each record
-//! simulated from its own start; the ARX scan reads the longest fit part.
+//! simulated from its own start; the ARX scan uses the union of the
+//! records' regressor rows.
 use crate::evaluate::{Evaluated, Lineage};
 use crate::extension::io_model;
 use crate::plan::{assess, Plan};
@@ -354,7 +355,7 @@ pub(crate) fn baseline(
         OrderChoice::Auto => 2,
     };
     let bound = pol.delay_bound(plan0.fit_y.len());
-    let scan = structure::scan(&plan0.fit_y, n_ref, bound, pol.structure_scan_samples);
+    let scan = structure::scan(&plan0.fits_y, n_ref, bound, pol.structure_scan_samples);
     let mut choice = StructureChoice {
         delay_bound: bound,
         arx_delay: scan.best.clone(),

@@ -154,11 +154,11 @@ impl Plan {
     }
 
     /// The plan of several training records. The linear input–output
-    /// models (the baseline, its output-error delay and order scan, the
-    /// `order` extension) are fitted on the fit parts of all records as
-    /// separate experiments (`fits`); the other classes (LOLIMOT, block-
-    /// oriented, Wiener–Hammerstein, state-space models) and the ARX
-    /// structure scan on one record, the longest fit part (`fit`). With at
+    /// models (the baseline, its ARX and output-error delay scans and order
+    /// scan, the `order` extension) are fitted on the fit parts of all
+    /// records as separate experiments (`fits`); the other classes
+    /// (LOLIMOT, block-oriented, Wiener–Hammerstein, state-space models) on
+    /// one record, the longest fit part (`fit`). With at
     /// least the policy's `bootstrap_min_samples` select samples in all,
     /// decisions use the select blocks of all records (each simulated from
     /// its own start, residuals concatenated in record order); with fewer,

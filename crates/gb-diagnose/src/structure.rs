@@ -16,13 +16,16 @@ pub(crate) struct Scan {
     pub real_pole: f64,
 }
 
+/// One record's normalised inputs and output.
+type Normalised = (Vec<Vec<f64>>, Vec<f64>);
+
 /// Least-squares ARX model y(k) = c + Σ aᵢ y(k−i) + Σⱼ Σ_{l = nkⱼ..=last}
-/// bⱼₗ uⱼ(k−l) on signals normalised to unit variance, scored from `start`:
-/// the mean squared one-step error, the number of parameters and the `a`
-/// coefficients. `None` when the normal equations are singular.
+/// bⱼₗ uⱼ(k−l) on signals normalised to unit variance, scored from `start`
+/// of every record of `data` (the union of their rows: no regressor spans
+/// two records): the mean squared one-step error, the number of parameters
+/// and the `a` coefficients. `None` when the normal equations are singular.
 fn arx(
-    u: &[Vec<f64>],
-    y: &[f64],
+    data: &[Normalised],
     na: usize,
     nk: &[usize],
     last: usize,
@@ -33,14 +36,56 @@ fn arx(
         + nk.iter()
             .map(|&k| last + 1 - k.min(last + 1))
             .sum::<usize>();
-    let n = y.len();
-    if n < start + 2 * p + 10 {
+    let n_rows: usize = data
+        .iter()
+        .map(|(_, y)| y.len().saturating_sub(start))
+        .sum();
+    if n_rows < 2 * p + 10 {
         return None;
     }
     let mut g = DMatrix::<f64>::zeros(p, p);
     let mut h = DVector::<f64>::zeros(p);
     let mut phi = vec![0.0; p];
     let mut yy = 0.0;
+    for (u, y) in data {
+        accumulate(
+            u,
+            y,
+            (na, nk, last, start),
+            &mut phi,
+            (&mut g, &mut h, &mut yy),
+        );
+    }
+    for a in 0..p {
+        for b in 0..a {
+            g[(a, b)] = g[(b, a)];
+        }
+    }
+    let ridge = 1e-9 * (0..p).map(|i| g[(i, i)]).fold(0.0, f64::max);
+    for i in 0..p {
+        g[(i, i)] += ridge;
+    }
+    let theta = g.clone().cholesky()?.solve(&h);
+    // Σ e² = yᵀy − 2θᵀh + θᵀGθ
+    let sse = yy - 2.0 * theta.dot(&h) + theta.dot(&(&g * &theta));
+    let rows = n_rows as f64;
+    Some((
+        (sse / rows).max(1e-300),
+        p,
+        theta.iter().skip(1).take(na).copied().collect(),
+    ))
+}
+
+/// Add one record's ARX rows k = start..n to the upper triangle of
+/// G = Σ φφᵀ, to h = Σ φ y and to yᵀy.
+fn accumulate(
+    u: &[Vec<f64>],
+    y: &[f64],
+    (na, nk, last, start): (usize, &[usize], usize, usize),
+    phi: &mut [f64],
+    (g, h, yy): (&mut DMatrix<f64>, &mut DVector<f64>, &mut f64),
+) {
+    let (p, n) = (phi.len(), y.len());
     for k in start..n {
         phi[0] = 1.0;
         for i in 1..=na {
@@ -60,26 +105,8 @@ fn arx(
                 g[(a, b)] += pa * phi[b];
             }
         }
-        yy += y[k] * y[k];
+        *yy += y[k] * y[k];
     }
-    for a in 0..p {
-        for b in 0..a {
-            g[(a, b)] = g[(b, a)];
-        }
-    }
-    let ridge = 1e-9 * (0..p).map(|i| g[(i, i)]).fold(0.0, f64::max);
-    for i in 0..p {
-        g[(i, i)] += ridge;
-    }
-    let theta = g.clone().cholesky()?.solve(&h);
-    // Σ e² = yᵀy − 2θᵀh + θᵀGθ
-    let sse = yy - 2.0 * theta.dot(&h) + theta.dot(&(&g * &theta));
-    let rows = (n - start) as f64;
-    Some((
-        (sse / rows).max(1e-300),
-        p,
-        theta.iter().skip(1).take(na).copied().collect(),
-    ))
 }
 
 /// The real root of z^na − a₁ z^{na−1} − … − a_na closest to 1 (−∞ when
@@ -104,15 +131,22 @@ fn real_pole_near_one(a: &[f64]) -> f64 {
         .unwrap_or(f64::NEG_INFINITY)
 }
 
-fn normalised(x: &[f64]) -> Vec<f64> {
-    let m = metrics::mean(x);
-    let s = metrics::std(x);
+/// Every signal `xs[i]` normalised by the mean and standard deviation of
+/// all of them together.
+fn normalised(xs: &[&[f64]]) -> Vec<Vec<f64>> {
+    let all = xs.concat();
+    let m = metrics::mean(&all);
+    let s = metrics::std(&all);
     let s = if s > 0.0 && s.is_finite() { s } else { 1.0 };
-    x.iter().map(|v| (v - m) / s).collect()
+    xs.iter()
+        .map(|x| x.iter().map(|v| (v - m) / s).collect())
+        .collect()
 }
 
-/// Scan the input delay of every input over `0..=max_delay` on `fit` (at
-/// most `max_samples` of it). The ARX models have n_a = max(order, 2)
+/// Scan the input delay of every input over `0..=max_delay` on the records
+/// `fits` (separate experiments: their first `max_samples` samples in
+/// order, normalised together, the ARX rows of each after its own first
+/// `start` samples). The ARX models have n_a = max(order, 2)
 /// output lags and the input lags nk..=max_delay + n_a: nested models, so
 /// dropping leading lags that carry nothing lowers the Bayesian information
 /// criterion N ln σ² + p ln N, and dropping a lag that carries the response
@@ -120,17 +154,43 @@ fn normalised(x: &[f64]) -> Vec<f64> {
 /// (two passes). It proposes (the output-error scan and check decide): with
 /// output noise an ARX model is biased, and on oversampled records the
 /// output lags amplify the noise of the equation error.
-pub(crate) fn scan(fit: &Record, order: usize, max_delay: usize, max_samples: usize) -> Scan {
-    let n = fit.len().min(max_samples);
-    let u: Vec<Vec<f64>> = fit.inputs.iter().map(|x| normalised(&x[..n])).collect();
-    let y = normalised(&fit.output[..n]);
-    let m = u.len();
+pub(crate) fn scan(fits: &[Record], order: usize, max_delay: usize, max_samples: usize) -> Scan {
+    // the first max_samples samples of the records, in order
+    let mut left = max_samples;
+    let lens: Vec<usize> = fits
+        .iter()
+        .map(|r| {
+            let n = r.len().min(left);
+            left -= n;
+            n
+        })
+        .collect();
+    let m = fits.first().map_or(0, Record::n_inputs);
+    let signal = |x: &dyn Fn(&Record) -> &[f64]| -> Vec<Vec<f64>> {
+        let parts: Vec<&[f64]> = fits.iter().zip(&lens).map(|(r, &n)| &x(r)[..n]).collect();
+        normalised(&parts)
+    };
+    let mut u: Vec<Vec<Vec<f64>>> = (0..m).map(|j| signal(&|r: &Record| &r.inputs[j])).collect();
+    let data: Vec<Normalised> = signal(&|r: &Record| &r.output)
+        .into_iter()
+        .enumerate()
+        .map(|(i, y)| {
+            (
+                u.iter_mut().map(|uj| std::mem::take(&mut uj[i])).collect(),
+                y,
+            )
+        })
+        .collect();
     let na = order.max(2);
     let last = max_delay + na;
     let start = last.max(na);
-    let rows = n.saturating_sub(start).max(1) as f64;
+    let rows = lens
+        .iter()
+        .map(|n| n.saturating_sub(start))
+        .sum::<usize>()
+        .max(1) as f64;
     let bic = |t: &[usize]| {
-        arx(&u, &y, na, t, last, start).map_or(f64::INFINITY, |(l, p, _)| {
+        arx(&data, na, t, last, start).map_or(f64::INFINITY, |(l, p, _)| {
             rows * l.ln() + p as f64 * rows.ln()
         })
     };
@@ -149,7 +209,7 @@ pub(crate) fn scan(fit: &Record, order: usize, max_delay: usize, max_samples: us
             }
         }
     }
-    let real_pole = arx(&u, &y, na, &best, last, start)
+    let real_pole = arx(&data, na, &best, last, start)
         .map_or(f64::NEG_INFINITY, |(_, _, a)| real_pole_near_one(&a));
     Scan { best, real_pole }
 }
@@ -196,7 +256,7 @@ mod tests {
     #[test]
     fn the_scan_finds_delay_feedthrough_and_dead_time() {
         for (d, seed) in [(0usize, 1u64), (1, 2), (3, 3), (9, 4), (17, 5)] {
-            let s = scan(&record(d, 2000, seed), 2, 20, 100_000);
+            let s = scan(&[record(d, 2000, seed)], 2, 20, 100_000);
             assert_eq!(s.best, vec![d], "true delay {d}");
             assert!(s.real_pole < 0.99, "{}", s.real_pole);
         }
@@ -211,7 +271,7 @@ mod tests {
             acc += 0.1 * r.output[k];
             pos.output[k] = acc;
         }
-        let s = scan(&pos, 2, 20, 100_000);
+        let s = scan(std::slice::from_ref(&pos), 2, 20, 100_000);
         assert!((s.real_pole - 1.0).abs() < 0.01, "{}", s.real_pole);
         let back = increments(&pos);
         assert!((back.output[5] - 0.1 * r.output[5]).abs() < 1e-12);
