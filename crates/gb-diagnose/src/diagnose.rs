@@ -250,6 +250,15 @@ fn simulated_on(m: &FittedModel, rec: &gb_core::Record) -> Option<Vec<f64>> {
         .ok()
 }
 
+/// Free-run simulations of `m` on every record of `recs`, each from its own
+/// start; `None` with fewer than two records or when one fails.
+fn simulated_on_all(m: &FittedModel, recs: &[gb_core::Record]) -> Option<Vec<Vec<f64>>> {
+    if recs.len() < 2 {
+        return None;
+    }
+    recs.iter().map(|r| simulated_on(m, r)).collect()
+}
+
 /// One iteration: evidence, candidates, choice, escalation, rows.
 fn iterate(
     run: &Run,
@@ -267,6 +276,13 @@ fn iterate(
         .zip(&plan.folds)
         .map(|(e, f)| simulated_on(&e.model, &f.fit))
         .collect();
+    let simulated_fits = simulated_on_all(&cur.model, &plan.fits);
+    let fold_sims_all: Vec<Option<Vec<Vec<f64>>>> = cur
+        .folds
+        .iter()
+        .zip(&plan.folds)
+        .map(|(e, f)| simulated_on_all(&e.model, &f.fits))
+        .collect();
     let ctx = Context {
         data: d,
         fit: &plan.fit,
@@ -276,9 +292,11 @@ fn iterate(
         evidence: &ev,
         options: opts,
         simulated_fit: simulated_fit.as_deref(),
+        simulated_fits: simulated_fits.as_deref(),
         observer: obs,
         plan,
         fold_sims: &fold_sims,
+        fold_sims_all: &fold_sims_all,
     };
     let props = proposals(&ctx, tried);
     if props.is_empty() {

@@ -61,14 +61,15 @@ pub struct Context<'a> {
     /// The data.
     pub data: &'a DiagnoseData,
     /// The fit block. With several training records: the longest fit part,
-    /// for the model classes identified on one record (LOLIMOT networks,
-    /// block-oriented, Wiener–Hammerstein and state-space models); the
-    /// select decisions use all records.
+    /// for the model classes identified on one record (block-oriented,
+    /// polynomial NOE, Wiener–Hammerstein, state-space and physics models);
+    /// the select decisions use all records.
     pub fit: &'a Record,
     /// The fit parts of all training records, one experiment each (`[fit]`
-    /// with one record): the linear input–output models (the `order`
-    /// extension, the linear noise and hysteresis variants) are fitted on
-    /// all of them.
+    /// with one record): the input–output models (linear, with hysteresis
+    /// columns or Student-t noise, and LOLIMOT networks: the `order`,
+    /// `lolimot`, `capacity`, Preisach and Student-t extensions) are fitted
+    /// on all of them.
     pub fits: &'a [Record],
     /// The current model.
     pub current: &'a Evaluated,
@@ -80,6 +81,9 @@ pub struct Context<'a> {
     pub options: &'a DiagnoseOptions,
     /// Free-run simulation of the current model on the fit block.
     pub simulated_fit: Option<&'a [f64]>,
+    /// With several training records: free-run simulations of the current
+    /// model on every record of `fits`, each from its own start.
+    pub simulated_fits: Option<&'a [Vec<f64>]>,
     /// Progress of long fits.
     pub observer: &'a dyn Observer,
     /// How models are fitted and judged.
@@ -87,6 +91,9 @@ pub struct Context<'a> {
     /// Free-run simulations of the current model's fold refits on their fit
     /// records (cross-validation).
     pub(crate) fold_sims: &'a [Option<Vec<f64>>],
+    /// Free-run simulations of the fold refits on every record of their
+    /// `fits` (several records).
+    pub(crate) fold_sims_all: &'a [Option<Vec<Vec<f64>>>],
 }
 
 impl<'a> Context<'a> {
@@ -99,6 +106,7 @@ impl<'a> Context<'a> {
                 fits: self.plan.fits_of(Some(k)),
                 current: &self.current.folds[k],
                 simulated_fit: self.fold_sims.get(k).and_then(|s| s.as_deref()),
+                simulated_fits: self.fold_sims_all.get(k).and_then(|s| s.as_deref()),
                 ..*self
             },
             _ => *self,

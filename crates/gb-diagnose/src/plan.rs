@@ -18,7 +18,7 @@ pub(crate) struct Fold {
     pub fit: Record,
     /// The same samples with the measured output.
     pub fit_y: Record,
-    /// What the linear input–output models are fitted on, one record per
+    /// What the input–output models are fitted on, one record per
     /// experiment (increments when integrating): `[fit]` with one training
     /// record, all other training records whole under leave-one-record-out.
     pub fits: Vec<Record>,
@@ -59,8 +59,8 @@ pub(crate) struct Plan {
     pub fit: Record,
     /// The same samples with the measured output.
     pub fit_y: Record,
-    /// What the linear input–output models (the baseline, its delay and
-    /// order scan, the `order` extension) are fitted on, one record per
+    /// What the input–output models (the baseline, its delay and order
+    /// scans, linear and LOLIMOT extensions) are fitted on, one record per
     /// experiment: `[fit]` with one training record, the fit parts of all
     /// training records with several (increments when integrating).
     pub fits: Vec<Record>,
@@ -153,12 +153,13 @@ impl Plan {
         }
     }
 
-    /// The plan of several training records. The linear input–output
-    /// models (the baseline, its ARX and output-error delay scans and order
-    /// scan, the `order` extension) are fitted on the fit parts of all
-    /// records as separate experiments (`fits`); the other classes
-    /// (LOLIMOT, block-oriented, Wiener–Hammerstein, state-space models) on
-    /// one record, the longest fit part (`fit`). With at
+    /// The plan of several training records. The input–output models (the
+    /// baseline, its ARX and output-error delay scans and order scan, the
+    /// extensions fitting linear models or LOLIMOT networks) are fitted on
+    /// the fit parts of all records as separate experiments (`fits`); the
+    /// other classes (block-oriented, polynomial NOE, Wiener–Hammerstein,
+    /// state-space and physics models) on one record, the longest fit part
+    /// (`fit`). With at
     /// least the policy's `bootstrap_min_samples` select samples in all,
     /// decisions use the select blocks of all records (each simulated from
     /// its own start, residuals concatenated in record order); with fewer,
@@ -189,9 +190,9 @@ impl Plan {
     /// record `i` whole (simulated from its start, scored after the init
     /// window on the samples its fit covers, [`covered`]) and is fitted on
     /// the longest other training record, whole (a single-record class;
-    /// the linear input–output models on all other training records, whole);
-    /// the final models on the longest training record, whole (the linear
-    /// ones on all training records).
+    /// the input–output models on all other training records, whole);
+    /// the final models on the longest training record, whole (the
+    /// input–output ones on all training records).
     fn leave_one_record_out(d: &DiagnoseData, pol: &DecisionPolicy) -> Self {
         let parts = d.parts();
         let whole = |i: usize| parts[i].record.slice(0..parts[i].select.end);
@@ -291,7 +292,7 @@ impl Plan {
         t.map_or(&self.fit, |k| &self.folds[k].fit)
     }
 
-    /// The records (experiments) linear input–output fits of target `t`
+    /// The records (experiments) input–output fits of target `t`
     /// are made on.
     pub fn fits_of(&self, t: Option<usize>) -> &[Record] {
         t.map_or(&self.fits, |k| &self.folds[k].fits)
@@ -338,7 +339,7 @@ impl Plan {
             };
             if d.multi() {
                 return format!(
-                    "leave-one-record-out cross-validation: {} folds, each training record held out whole and scored by the structure refitted on the other records (linear input-output models on all of them, the other classes on the longest) (the {} select samples are too few for the bootstrap), init window {}; linear input-output models fitted on all training records, the other classes on the longest, {} samples{outside}",
+                    "leave-one-record-out cross-validation: {} folds, each training record held out whole and scored by the structure refitted on the other records (input-output models on all of them, the other classes on the longest) (the {} select samples are too few for the bootstrap), init window {}; input-output models fitted on all training records, the other classes on the longest, {} samples{outside}",
                     self.folds.len(),
                     d.select_samples(),
                     self.w,
@@ -354,7 +355,7 @@ impl Plan {
         } else {
             if d.multi() {
                 return format!(
-                    "moving-block bootstrap on the {} select samples of {} training records (each record simulated from its own start, its first {} samples the init window; linear input-output models fitted on the fit parts of all records, {} samples, the other classes on the longest fit part, {} samples)",
+                    "moving-block bootstrap on the {} select samples of {} training records (each record simulated from its own start, its first {} samples the init window; input-output models fitted on the fit parts of all records, {} samples, the other classes on the longest fit part, {} samples)",
                     d.select_samples(),
                     d.parts().len(),
                     self.w,

@@ -17,7 +17,7 @@
 //! | `detail` | 0 | capacity level: `10 + 5·detail` leaves, `6(1+detail)` output plays |
 //! | `fit` | [`FitOptions::default`] | Levenberg–Marquardt settings |
 //! | `lolimot` | [`LolimotOptions::default`] | LOLIMOT settings |
-use crate::lolimot::fit_lmn_oe_obs;
+use crate::lolimot::{fit_lmn_oe_obs, fit_lmn_oe_records};
 use crate::noe::{fit_linear_oe_warm_obs, fit_linear_oe_warm_records, Experiment};
 use crate::{FitOptions, LmnError, LocalModelNetwork, LolimotOptions, NetworkSpec};
 use gb_core::{Identify, Observer, Record, Records, Silent};
@@ -222,6 +222,10 @@ pub struct WarmStart<'a> {
     pub simulated_output: Option<&'a [f64]>,
     /// A previous network whose parameters start a linear fit.
     pub network: Option<&'a LocalModelNetwork>,
+    /// With several records ([`ValidIoNetworkParams::fit_records`]): the
+    /// previous model's free-run simulation of every record (LOLIMOT's
+    /// output-error construction; `simulated_output` is then unused).
+    pub simulated_outputs: Option<&'a [Vec<f64>]>,
 }
 
 impl ValidIoNetworkParams {
@@ -281,12 +285,13 @@ impl ValidIoNetworkParams {
 }
 
 impl ValidIoNetworkParams {
-    /// Fit a linear model (no LOLIMOT network) on several records as
-    /// separate experiments ([`fit_linear_oe_warm_records`]): the output-error
+    /// Fit on several records as separate experiments: the output-error
     /// cost is Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))², every record simulated from its own
-    /// starting history. The data-dependent parts of the structure (play
-    /// thresholds, output-map knots) are read on all records together.
-    /// One record: [`fit_with_observer`](Self::fit_with_observer).
+    /// starting history (a linear model: [`fit_linear_oe_warm_records`]; a
+    /// LOLIMOT network: [`fit_lmn_oe_records`], grown on the union of the
+    /// records' regression rows). The data-dependent parts of the structure
+    /// (play thresholds, output-map knots) are read on all records
+    /// together. One record: [`fit_with_observer`](Self::fit_with_observer).
     pub fn fit_records(
         &self,
         data: &[Record],
@@ -299,11 +304,6 @@ impl ValidIoNetworkParams {
             [one] => return self.fit_with_observer(one, warm, observer),
             [first, ..] => (first, data),
         };
-        if p.network {
-            return Err(LmnError::InvalidArgument(
-                "a LOLIMOT network is fitted on one record; use the tree network (lmn with tree weights) for several".into(),
-            ));
-        }
         if let Some(r) = all.iter().find(|r| r.n_inputs() != first.n_inputs()) {
             return Err(LmnError::Dimension(format!(
                 "records with {} and {} inputs",
@@ -335,15 +335,23 @@ impl ValidIoNetworkParams {
         let mut fopts = p.fit.clone();
         fopts.robust = p.robust;
         fopts.separable_hysteresis |= p.separable_hysteresis;
-        fit_linear_oe_warm_records(&spec, &Experiment::all(all), &fopts, warm.network, observer)
+        let exps = Experiment::all(all);
+        if p.network {
+            let mut lopts = p.lolimot.clone();
+            lopts.max_leaves = lopts.max_leaves.max(p.max_leaves());
+            let sims: Option<Vec<&[f64]>> = warm
+                .simulated_outputs
+                .map(|s| s.iter().map(Vec::as_slice).collect());
+            return fit_lmn_oe_records(&spec, &exps, sims.as_deref(), &lopts, &fopts, observer);
+        }
+        fit_linear_oe_warm_records(&spec, &exps, &fopts, warm.network, observer)
     }
 }
 
 impl Identify for ValidIoNetworkParams {
     type Model = LocalModelNetwork;
     type Error = LmnError;
-    /// Several records only for a linear model ([`ValidIoNetworkParams::fit_records`]);
-    /// a LOLIMOT network's regressors are built on one record.
+    /// One record or several ([`ValidIoNetworkParams::fit_records`]).
     fn identify(
         &self,
         data: &Records,

@@ -83,7 +83,10 @@ pub use io_network::{
     HysteresisOn, IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER,
 };
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
-pub use lolimot::{fit_lmn_oe, fit_lolimot, LolimotOptions, TerminationCriterion};
+pub use lolimot::{
+    fit_lmn_oe, fit_lmn_oe_records, fit_lolimot, fit_lolimot_records, LolimotOptions,
+    TerminationCriterion,
+};
 pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{

@@ -8,8 +8,8 @@
 //! number of leaves is chosen by an information criterion.
 use crate::network::{Leaf, K_SIGMA};
 use crate::noe::{
-    global_ls, linear_network, refine_output_error_with_observer, regression_matrix, weighted_ls,
-    FitOptions,
+    global_ls_records, linear_network_on, refine_output_error_records, regression_matrix,
+    weighted_ls, Experiment, FitOptions, Prepared,
 };
 use crate::{LmnError, LocalModelNetwork, NetworkSpec};
 use serde::{Deserialize, Serialize};
@@ -403,28 +403,62 @@ pub fn fit_lolimot(
     yreg: Option<&[f64]>,
     opts: &LolimotOptions,
 ) -> Result<Vec<LocalModelNetwork>, LmnError> {
-    spec.check(inputs.len())?;
+    let yreg = yreg.map(|r| vec![r]);
+    fit_lolimot_records(spec, &[Experiment::new(inputs, y)], yreg.as_deref(), opts)
+}
+
+/// [`fit_lolimot`] on several experiments (records): the local models and
+/// the splits are fitted on the union of the experiments' regression rows
+/// (each experiment's rows after its own `max_lag` samples, output lags
+/// from its own `yreg[i]` or measured output); scalings over all samples.
+/// One experiment: the single-record construction, bit for bit.
+pub fn fit_lolimot_records(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    yreg: Option<&[&[f64]]>,
+    opts: &LolimotOptions,
+) -> Result<Vec<LocalModelNetwork>, LmnError> {
+    let first = exps
+        .first()
+        .ok_or_else(|| LmnError::InvalidArgument("no experiment given".into()))?;
+    spec.check(first.inputs.len())?;
     opts.check()?;
-    let mut net = linear_network(spec, inputs, y);
-    let p = net.prepare(inputs, y)?;
-    let yreg_n: Vec<f64> = match yreg {
-        Some(r) => {
-            if r.len() != y.len() {
-                return Err(LmnError::Dimension("yreg and y differ in length".into()));
+    let mut net = linear_network_on(spec, exps);
+    if yreg.is_some_and(|r| r.len() != exps.len()) {
+        return Err(LmnError::Dimension("one yreg per experiment".into()));
+    }
+    let mut ps = Vec::with_capacity(exps.len());
+    let mut yreg_n = Vec::with_capacity(exps.len());
+    for (i, e) in exps.iter().enumerate() {
+        let p = net.prepare(e.inputs, e.output)?;
+        yreg_n.push(match yreg.map(|r| r[i]) {
+            Some(r) => {
+                if r.len() != e.output.len() {
+                    return Err(LmnError::Dimension("yreg and y differ in length".into()));
+                }
+                r.iter().map(|&v| net.output_scaling.to_norm(v)).collect()
             }
-            r.iter().map(|&v| net.output_scaling.to_norm(v)).collect()
-        }
-        None => p.yn.clone(),
-    };
-    let (rows, ncol) = regression_matrix(&net, &p, &yreg_n);
+            None => p.yn.clone(),
+        });
+        ps.push(p);
+    }
+    let (mut rows, mut target, mut ncol) = (vec![], vec![], 0);
+    for (p, yr) in ps.iter().zip(&yreg_n) {
+        let (r, c) = regression_matrix(&net, p, yr);
+        let k0 = p.yn.len() - r.len() / c.max(1);
+        rows.extend(r);
+        target.extend_from_slice(&p.yn[k0..]);
+        ncol = c;
+    }
+    let n: usize = exps.iter().map(|e| e.output.len()).sum();
     let nd = spec.n_dynamic();
     let nrow = rows.len() / ncol.max(1);
-    let k0 = y.len() - nrow;
+    let k0 = n - nrow;
     let pl = 1 + ncol;
     if nrow < 3 * pl + 10 {
         return Err(LmnError::TooShort {
             needed: k0 + 3 * pl + 10,
-            got: y.len(),
+            got: n,
         });
     }
     let a = local_design(&rows, nrow, ncol);
@@ -433,7 +467,7 @@ pub fn fit_lolimot(
     net.z_upper = zhi;
     let problem = LolimotProblem {
         a: &a,
-        target: &p.yn[k0..],
+        target: &target,
         z: &z,
         nrow,
         pl,
@@ -449,7 +483,9 @@ pub fn fit_lolimot(
         cand.leaves = leaves;
         // shared hysteresis weights: one global least squares on the final partition
         if spec.n_hysteresis() > 0 {
-            global_ls(&mut cand, &p, &yreg_n, opts.ridge)?;
+            let data: Vec<(&Prepared, &[f64])> =
+                ps.iter().zip(&yreg_n).map(|(p, y)| (p, &y[..])).collect();
+            global_ls_records(&mut cand, &data, opts.ridge)?;
         }
         out.push(cand);
     }
@@ -485,17 +521,36 @@ pub(crate) fn fit_lmn_oe_obs(
     fopts: &FitOptions,
     observer: &dyn gb_core::Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
+    let yreg = yreg.map(|r| vec![r]);
+    let exps = [Experiment::new(inputs, y)];
+    fit_lmn_oe_records(spec, &exps, yreg.as_deref(), lopts, fopts, observer)
+}
+
+/// [`fit_lmn_oe`] on several experiments (records): the construction on
+/// the union of their regression rows ([`fit_lolimot_records`], output
+/// lags from `yreg[i]` for experiment `i` in the output-error
+/// construction), the training on the concatenation of their simulation
+/// errors ([`refine_output_error_records`]). One experiment: the
+/// single-record fit, bit for bit.
+pub fn fit_lmn_oe_records(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    yreg: Option<&[&[f64]]>,
+    lopts: &LolimotOptions,
+    fopts: &FitOptions,
+    observer: &dyn gb_core::Observer,
+) -> Result<LocalModelNetwork, LmnError> {
     // Grow with measured output lags (NARX construction) and, if given, with
     // the previous model's simulated lags (output-error construction); train
     // each for simulation and keep the one with the smallest simulation error.
-    let mut sources: Vec<Option<&[f64]>> = vec![None];
+    let mut sources: Vec<Option<&[&[f64]]>> = vec![None];
     if yreg.is_some() {
         sources.push(yreg);
     }
     let mut best: Option<(f64, LocalModelNetwork)> = None;
     let mut last_err = LmnError::Unstable("no candidate network".into());
     for src in sources {
-        let cands = match fit_lolimot(spec, inputs, y, src, lopts) {
+        let cands = match fit_lolimot_records(spec, exps, src, lopts) {
             Ok(c) => c,
             Err(e) => {
                 last_err = e;
@@ -508,7 +563,7 @@ pub(crate) fn fit_lmn_oe_obs(
         // training in a poor basin) or does not beat a best of one local
         // model (the network would come out linear)
         for c in cands {
-            match refine_output_error_with_observer(&c, inputs, y, fopts, observer) {
+            match refine_output_error_records(&c, exps, fopts, observer) {
                 Ok((m, rep)) => {
                     let (b, linear) = best
                         .as_ref()
@@ -569,6 +624,47 @@ mod tests {
         let en = gb_core::metrics::rms(&lmn.simulation_residuals(&[u], &y).unwrap());
         assert!(en < 0.3 * el, "lmn {en} vs linear {el}");
         assert!(en < 0.03, "lmn rms {en}");
+    }
+
+    /// y(k) = 0.8 y(k−1) + 0.4 tanh(2 u(k−1)) + noise on `n` samples of
+    /// `u` uniform on `lo..hi`.
+    fn hammerstein(n: usize, (lo, hi): (f64, f64), seed: u64) -> (Vec<f64>, Vec<f64>) {
+        let mut r = rand::rngs::SmallRng::seed_from_u64(seed);
+        let ud = Uniform::new(lo, hi).unwrap();
+        let u: Vec<f64> = (0..n).map(|_| ud.sample(&mut r)).collect();
+        let mut y = vec![0.0; n];
+        for k in 1..n {
+            y[k] = 0.8 * y[k - 1] + 0.4 * (2.0 * u[k - 1]).tanh();
+        }
+        for v in y.iter_mut() {
+            let e: f64 = StandardNormal.sample(&mut r);
+            *v += 0.01 * e;
+        }
+        (u, y)
+    }
+
+    #[test]
+    fn two_records_covering_two_halves_of_the_input_range_give_one_network() {
+        let (ua, ya) = hammerstein(1200, (-1.5, 0.0), 7);
+        let (ub, yb) = hammerstein(1200, (0.0, 1.5), 8);
+        let (ut, yt) = hammerstein(2000, (-1.5, 1.5), 9);
+        let spec = NetworkSpec::order(1, 1);
+        let (lo, fo) = (LolimotOptions::default(), FitOptions::default());
+        let (ra, rb) = (std::slice::from_ref(&ua), std::slice::from_ref(&ub));
+        let a = fit_lmn_oe(&spec, ra, &ya, None, &lo, &fo).unwrap();
+        let one = [Experiment::new(ra, &ya)];
+        let a1 = fit_lmn_oe_records(&spec, &one, None, &lo, &fo, &gb_core::Silent).unwrap();
+        assert_eq!(a.parameters(), a1.parameters());
+        let b = fit_lmn_oe(&spec, rb, &yb, None, &lo, &fo).unwrap();
+        let both = [Experiment::new(ra, &ya), Experiment::new(rb, &yb)];
+        let ab = fit_lmn_oe_records(&spec, &both, None, &lo, &fo, &gb_core::Silent).unwrap();
+        let test = |m: &LocalModelNetwork| {
+            let e = m.simulation_residuals(std::slice::from_ref(&ut), &yt);
+            e.map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e))
+        };
+        let (ea, eb, eab) = (test(&a), test(&b), test(&ab));
+        eprintln!("full-range rms: both {eab:.4}, a {ea:.4}, b {eb:.4}");
+        assert!(eab < 0.5 * ea.min(eb), "both {eab}, a {ea}, b {eb}");
     }
 
     #[test]

@@ -1500,21 +1500,11 @@ pub(crate) fn linear_network(
 }
 
 /// Solve for all parameters of `net` (partition fixed) by one global least
-/// squares with output lags from `yreg` (normalised): columns Φᵢ·[1, x_dyn]
-/// for every leaf, then the hysteresis columns.
-pub(crate) fn global_ls(
-    net: &mut LocalModelNetwork,
-    p: &Prepared,
-    yreg: &[f64],
-    ridge: f64,
-) -> Result<(), LmnError> {
-    global_ls_records(net, &[(p, yreg)], ridge)
-}
-
-/// [`global_ls`] on the union of the regression rows of several
-/// experiments `(prepared, output lags)`: each experiment's rows start
-/// after its own `max_lag` samples, so no regressor spans two records.
-fn global_ls_records(
+/// squares on the union of the regression rows of the experiments
+/// `(prepared, output lags)`, output lags normalised: columns Φᵢ·[1, x_dyn]
+/// for every leaf, then the hysteresis columns. Each experiment's rows
+/// start after its own `max_lag` samples, so no regressor spans two records.
+pub(crate) fn global_ls_records(
     net: &mut LocalModelNetwork,
     data: &[(&Prepared, &[f64])],
     ridge: f64,

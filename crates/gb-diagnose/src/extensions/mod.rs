@@ -114,10 +114,9 @@ pub(crate) fn fit_spec(
 
 /// Fit an input–output model on the fit block, warm-started from the
 /// current model (its network for linear fits, its simulated output for
-/// LOLIMOT's output-error construction). With several training records a
-/// linear model is fitted on the fit parts of all of them as separate
-/// experiments ([`Context::fits`]), a LOLIMOT network (a single-record
-/// class) on the longest fit part.
+/// LOLIMOT's output-error construction). With several training records
+/// the model (linear or a LOLIMOT network) is fitted on the fit parts of
+/// all of them as separate experiments ([`Context::fits`]).
 pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
     let mut p = p.clone();
     p.fit = ctx.options.fit.clone();
@@ -125,13 +124,19 @@ pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, 
     let warm_net = crate::plan::core(&ctx.current.model)
         .as_any()
         .downcast_ref::<gb_lmn::LocalModelNetwork>();
-    let warm = WarmStart {
-        simulated_output: ctx.simulated_fit,
-        network: warm_net,
-    };
-    let net = if p.network || ctx.fits.len() < 2 {
+    let net = if ctx.fits.len() < 2 {
+        let warm = WarmStart {
+            simulated_output: ctx.simulated_fit,
+            network: warm_net,
+            ..WarmStart::default()
+        };
         p.check()?.fit(ctx.fit, warm)?
     } else {
+        let warm = WarmStart {
+            network: warm_net,
+            simulated_outputs: ctx.simulated_fits,
+            ..WarmStart::default()
+        };
         p.check()?.fit_records(ctx.fits, warm, &gb_core::Silent)?
     };
     io_model(net, ctx.fit)
