@@ -1,21 +1,12 @@
 //! The `greybox` binary as a user runs it: the workflow, and bad input
 //! giving a one-line error with exit code 2, no panic and no output file.
+mod common;
+use common::{bin, run};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_greybox"))
-}
+use std::process::Output;
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("greybox-cli-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn run(args: &[&str]) -> Output {
-    bin().args(args).output().expect("run greybox")
+    common::scratch("greybox-cli", name)
 }
 
 fn stderr(o: &Output) -> String {

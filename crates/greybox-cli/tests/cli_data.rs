@@ -1,24 +1,14 @@
 //! The binary on data questions: `fit --order auto` (order and input delay
 //! read from the training data), streaming `simulate` from standard input,
 //! and several outputs (`--output` repeated: one model per output).
+mod common;
+use common::{bin, run};
 use rand::Rng;
 use rand_distr::{Distribution, StandardNormal};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_greybox"))
-}
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("greybox-data-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn run(args: &[&str]) -> Output {
-    bin().args(args).output().expect("run greybox")
+    common::scratch("greybox-data", name)
 }
 
 fn ok(args: &[&str]) -> String {

@@ -3,12 +3,14 @@
 //! noisy samples, the diagnosis of a linear msd file on data with a cubic
 //! spring names the cause and gains on held-out data, and bad model files
 //! fail with `file:line` and exit 2.
+mod common;
+use common::{run, text};
 use gb_core::{DynamicModel, Init};
 use gb_model::physics::{ModelFile, PhysicsModel};
 use rand::Rng;
 use rand_distr::{Distribution, Normal};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 const TS: f64 = 0.05;
 /// m, c, k of the truth.
@@ -21,24 +23,7 @@ fn example(name: &str) -> PathBuf {
 }
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("greybox-physics-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_greybox"))
-        .args(args)
-        .output()
-        .expect("run greybox")
-}
-
-fn text(o: &Output) -> (String, String) {
-    (
-        String::from_utf8_lossy(&o.stdout).to_string(),
-        String::from_utf8_lossy(&o.stderr).to_string(),
-    )
+    common::scratch("greybox-physics", name)
 }
 
 /// Random force steps held 5–40 samples.

@@ -1,21 +1,12 @@
 //! `greybox diagnose` on several training records (`--train FILE`
 //! repeated): the report lists the records, and records with other
 //! columns are a one-line error naming the file (exit 2).
+mod common;
+use common::run;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("greybox-records-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_greybox"))
-        .args(args)
-        .output()
-        .expect("run greybox")
+    common::scratch("greybox-records", name)
 }
 
 /// Rows `rows` of the CSV `from` (header kept) written to `to`.

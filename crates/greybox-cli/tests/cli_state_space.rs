@@ -1,20 +1,11 @@
 //! `greybox fit --model state-space[+preisach]` and `simulate` of the
 //! gb-model file, and its bad-input cases.
+mod common;
+use common::run;
 use std::path::PathBuf;
-use std::process::{Command, Output};
-
-fn run(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_greybox"))
-        .args(args)
-        .output()
-        .expect("run greybox")
-}
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("greybox-ss-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::scratch("greybox-ss", name)
 }
 
 #[test]

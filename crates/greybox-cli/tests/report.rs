@@ -6,6 +6,7 @@
 //! Chromium is Debian's `chromium` package (`.ci/run` installs it and sets
 //! GREYBOX_REQUIRE_CHROMIUM=1, so in CI a missing browser fails the test;
 //! elsewhere the browser part is skipped with a notice).
+mod common;
 use gb_core::{DynamicModel, Init};
 use gb_model::physics::{ModelFile, Parameter, PhysicsModel, TermTarget};
 use rand::Rng;
@@ -14,10 +15,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("greybox-report-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::scratch("greybox-report", name)
 }
 
 fn chromium() -> Option<PathBuf> {
