@@ -592,18 +592,7 @@ mod tests {
     #[test]
     fn lolimot_learns_a_hammerstein_system_better_than_linear() {
         // y(k) = 0.8 y(k-1) + 0.4 tanh(2 u(k-1))
-        let mut r = rand::rngs::SmallRng::seed_from_u64(3);
-        let ud = Uniform::new(-1.5, 1.5).unwrap();
-        let n = 3000;
-        let u: Vec<f64> = (0..n).map(|_| ud.sample(&mut r)).collect();
-        let mut y = vec![0.0; n];
-        for k in 1..n {
-            y[k] = 0.8 * y[k - 1] + 0.4 * (2.0 * u[k - 1]).tanh();
-        }
-        for v in y.iter_mut() {
-            let e: f64 = StandardNormal.sample(&mut r);
-            *v += 0.01 * e;
-        }
+        let (u, y) = hammerstein(3000, (-1.5, 1.5), 3);
         let spec = NetworkSpec::order(1, 1);
         let lin = crate::fit_linear_oe(&spec, std::slice::from_ref(&u), &y, &FitOptions::default())
             .unwrap();
