@@ -72,6 +72,16 @@ pub(crate) fn parameters_text(m: &PhysicsModel) -> String {
 
 /// The baseline: the engineer's model file fitted on the plan's record
 /// (and refitted on every fold under cross-validation).
+/// A physics candidate's row in the report: the proposal's text and the
+/// fitted parameters with their standard errors.
+pub(crate) fn physics_row_text(
+    p: &crate::extension::Proposal,
+    fitted: &gb_core::FittedModel,
+) -> String {
+    let params = physics_of(fitted).map_or(String::new(), parameters_text);
+    format!("{} -> {params}", p.text)
+}
+
 pub(crate) fn physics_baseline(
     d: &DiagnoseData,
     plan: &Plan,

@@ -2,10 +2,11 @@
 //! linear model rewritten as a continuous-time mass–spring–damper (a
 //! physics model built from the data), with a hysteretic state in its force
 //! balance.
-use super::physics_hysteresis::extended as with_hysteresis;
+use super::physics_hysteresis::fit_state;
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{best_of_starts, fit_physics, parameters_text, physics_of, TEMPLATE_NAME};
+use crate::physics::physics_row_text;
+use crate::physics::{fit_physics, physics_of, TEMPLATE_NAME};
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
 use gb_model::physics::{Parameter, PhysicsSpec, State};
@@ -218,8 +219,7 @@ impl Extension for MechanicalNonlinearity {
         ctx.evidence.nonlinearity_text()
     }
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
-        let params = physics_of(fitted).map_or(String::new(), parameters_text);
-        format!("{} -> {params}", p.text)
+        physics_row_text(p, fitted)
     }
 }
 
@@ -250,19 +250,12 @@ impl Extension for MechanicalHysteresis {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
         let (rec, lin) = fitted_template(ctx, 2)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
-        best_of_starts(
-            super::physics_hysteresis::B_STARTS
-                .into_iter()
-                .map(|b0| with_hysteresis(cur, &rec, ("v", "q"), b0)),
-            &rec,
-            ctx.observer,
-        )
+        fit_state(cur, &rec, ("v", "q"), ctx.observer)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()
     }
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
-        let params = physics_of(fitted).map_or(String::new(), parameters_text);
-        format!("{} -> {params}", p.text)
+        physics_row_text(p, fitted)
     }
 }

@@ -2,9 +2,8 @@
 //! estimated with every physical parameter.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{
-    current_physics, fit_physics, parameters_text, physics_fit_record, physics_of,
-};
+use crate::physics::physics_row_text;
+use crate::physics::{current_physics, fit_physics, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel};
@@ -129,8 +128,7 @@ impl Extension for PhysicsInputDelay {
         ctx.evidence.dynamics_text()
     }
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
-        let params = physics_of(fitted).map_or(String::new(), parameters_text);
-        format!("{} -> {params}", p.text)
+        physics_row_text(p, fitted)
     }
 }
 

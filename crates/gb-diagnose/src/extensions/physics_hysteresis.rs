@@ -3,9 +3,8 @@
 use super::physics_terms::{is_law, quantile, sum_text};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{
-    best_of_starts, current_physics, parameters_text, physics_fit_record, physics_of,
-};
+use crate::physics::physics_row_text;
+use crate::physics::{best_of_starts, current_physics, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, State, TermTarget};
@@ -136,6 +135,23 @@ pub(super) fn extended(
     Ok(s)
 }
 
+/// `cur` with the hysteretic state of law `eq` driven by `var`, fitted on
+/// `rec` from each start of `b` ([`B_STARTS`]), the best fit kept.
+pub(super) fn fit_state(
+    cur: &PhysicsModel,
+    rec: &gb_core::Record,
+    (eq, var): (&str, &str),
+    obs: &dyn gb_core::Observer,
+) -> Result<FittedModel, DiagnoseError> {
+    best_of_starts(
+        B_STARTS
+            .into_iter()
+            .map(|b0| extended(cur, rec, (eq, var), b0)),
+        rec,
+        obs,
+    )
+}
+
 impl Extension for PhysicsHysteresis {
     fn name(&self) -> &'static str {
         "physics-hysteresis"
@@ -181,19 +197,12 @@ impl Extension for PhysicsHysteresis {
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
         let rec = physics_fit_record(ctx, cur);
-        best_of_starts(
-            B_STARTS
-                .into_iter()
-                .map(|b0| extended(cur, &rec, (&eq, &var), b0)),
-            &rec,
-            ctx.observer,
-        )
+        fit_state(cur, &rec, (&eq, &var), ctx.observer)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()
     }
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
-        let params = physics_of(fitted).map_or(String::new(), parameters_text);
-        format!("{} -> {params}", p.text)
+        physics_row_text(p, fitted)
     }
 }

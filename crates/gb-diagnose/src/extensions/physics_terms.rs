@@ -3,9 +3,8 @@
 //! parameters re-estimated with it.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
-use crate::physics::{
-    best_of_starts, current_physics, parameters_text, physics_fit_record, physics_of,
-};
+use crate::physics::physics_row_text;
+use crate::physics::{best_of_starts, current_physics, physics_fit_record, physics_of};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
@@ -282,6 +281,10 @@ fn unlimited(spec: &PhysicsSpec, i: usize) -> Vec<String> {
         .collect()
 }
 
+/// A new parameter (start, bounds) and the term it brings, if any (a
+/// parameter such as a smoothing width appears only inside another term).
+type NewParameter = (Parameter, Option<String>);
+
 /// The new parameters (with start values) and terms of `kind` at state
 /// equation `i` in variable `j`.
 fn state_terms(
@@ -291,7 +294,7 @@ fn state_terms(
     (i, j): (usize, usize),
     x: &[Vec<f64>],
     (rate, q): (f64, f64),
-) -> Vec<(f64, String)> {
+) -> Vec<NewParameter> {
     let (xi, var) = (&spec.states[i].name, &spec.states[j].name);
     let limit = |l: &str, own: &str| format!("({l}-{own})*{rate}");
     match kind {
@@ -301,7 +304,10 @@ fn state_terms(
                 limit(&names[0], xi),
                 sum_text(&spec.equations[i])
             );
-            vec![(quantile(&x[i], q), neg_part(&z))]
+            vec![(
+                Parameter::new(&names[0], quantile(&x[i], q)),
+                Some(neg_part(&z)),
+            )]
         }
         Kind::Floor => {
             let z = format!(
@@ -309,21 +315,23 @@ fn state_terms(
                 limit(&names[0], xi),
                 sum_text(&spec.equations[i])
             );
-            vec![(quantile(&x[i], 1.0 - q), pos_part(&z))]
+            vec![(
+                Parameter::new(&names[0], quantile(&x[i], 1.0 - q)),
+                Some(pos_part(&z)),
+            )]
         }
         Kind::Coulomb => {
-            let v = &x[j];
-            let rms = (v
-                .iter()
-                .filter(|a| a.is_finite())
-                .map(|a| a * a)
-                .sum::<f64>()
-                / v.len().max(1) as f64)
-                .sqrt();
-            let eps = (0.05 * rms).max(1e-12);
+            // the smoothing width stays positive; it has no term of its own
+            let eps = (0.05 * gb_core::metrics::rms(&x[j])).max(1e-12);
             vec![
-                (0.0, format!("-{}*tanh({var}/{})", names[0], names[1])),
-                (eps, String::new()),
+                (
+                    Parameter::new(&names[0], 0.0),
+                    Some(format!("-{}*tanh({var}/{})", names[0], names[1])),
+                ),
+                (
+                    Parameter::new(&names[1], eps).bounds(1e-6 * eps, f64::INFINITY),
+                    None,
+                ),
             ]
         }
         Kind::Spill => {
@@ -333,11 +341,15 @@ fn state_terms(
                 sum_text(&unlimited(spec, j)),
                 limit(&ceiling_name(var), var)
             );
-            vec![(0.0, format!("{}*{}", names[0], pos_part(&z)))]
+            vec![(
+                Parameter::new(&names[0], 0.0),
+                Some(format!("{}*{}", names[0], pos_part(&z))),
+            )]
         }
         _ => law_terms(kind, names, var, &x[j])
             .into_iter()
-            .map(|t| (0.0, t))
+            .zip(names)
+            .map(|(t, n)| (Parameter::new(n, 0.0), Some(t)))
             .collect(),
     }
 }
@@ -367,9 +379,12 @@ fn extended(
             let terms = if kind == Kind::Clip {
                 let y = cur.simulate(&fit.inputs, Init::Stored)?;
                 let z = format!("{}-({})", names[0], sum_text(&s.outputs[k].terms));
-                vec![(quantile(&y, q), neg_part(&z))]
+                vec![(
+                    Parameter::new(&names[0], quantile(&y, q)),
+                    Some(neg_part(&z)),
+                )]
             } else {
-                vec![(0.0, names[0].clone())]
+                vec![(Parameter::new(&names[0], 0.0), Some(names[0].clone()))]
             };
             (TermTarget::Output(k), terms)
         }
@@ -389,15 +404,9 @@ fn extended(
             (TermTarget::State(i), terms)
         }
     };
-    for (n, (start, t)) in names.iter().zip(terms) {
-        let p = Parameter::new(n, start);
-        // a smoothing width (ε of `coulomb`) stays positive
-        s.parameters.push(if t.is_empty() {
-            p.bounds(1e-6 * start, f64::INFINITY)
-        } else {
-            p
-        });
-        if !t.is_empty() {
+    for (p, term) in terms {
+        s.parameters.push(p);
+        if let Some(t) = term {
             s.add_term(target, &t).map_err(core)?;
         }
     }
@@ -552,7 +561,6 @@ impl Extension for PhysicsTerms {
         ctx.evidence.nonlinearity_text()
     }
     fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
-        let params = physics_of(fitted).map_or(String::new(), parameters_text);
-        format!("{} -> {params}", p.text)
+        physics_row_text(p, fitted)
     }
 }
