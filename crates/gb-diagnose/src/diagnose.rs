@@ -3,7 +3,7 @@
 //! whose gain on held-out data is significant, repeat.
 use crate::baseline::{baseline, StructureChoice};
 use crate::decide::{choose, relative_gain_ci, score, Candidate};
-use crate::evaluate::Evaluated;
+use crate::evaluate::{Evaluated, Lineage};
 use crate::extension::{Context, Extension, Proposal, Role, EXTENSIONS};
 use crate::plan::{assess, core, Plan};
 use crate::report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
@@ -119,7 +119,7 @@ fn fit_candidates(
     let pol = ctx.policy();
     let fitted: Vec<Option<Evaluated>> = proposals
         .par_iter()
-        .map(|(e, p)| fit_proposal(*e, p, ctx).ok())
+        .map(|(e, p)| timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx).ok()))
         .collect();
     proposals
         .into_iter()
@@ -130,6 +130,22 @@ fn fit_candidates(
             f.map(|f| score(e, p, f, ctx, seed))
         })
         .collect()
+}
+
+/// `f()`, and with the environment variable `GREYBOX_TIMING` set, one
+/// line on stderr with its wall time, the extension and the candidate.
+fn timed<T>(extension: &str, lineage: &Lineage, f: impl FnOnce() -> T) -> T {
+    if std::env::var_os("GREYBOX_TIMING").is_none() {
+        return f();
+    }
+    let t0 = Instant::now();
+    let r = f();
+    eprintln!(
+        "timing: {:8.3} s  {extension}  {}",
+        t0.elapsed().as_secs_f64(),
+        lineage.spec()
+    );
+    r
 }
 
 /// Fit a proposal on the plan's record (and its folds) and score it.

@@ -259,7 +259,7 @@ struct OutputHysteresis {
     ramps: Vec<f64>,
     slopes: Vec<f64>,
     /// relay states (±1) of the cells' relays
-    relay_states: Vec<f64>,
+    relay_states: Option<gb_preisach::RelayCellsState>,
     /// the cell columns
     relays: Vec<f64>,
     ring: Vec<f64>,
@@ -295,7 +295,7 @@ impl OutputHysteresis {
         let nr = net.spec.n_ramps();
         Self {
             bank: net.output_bank().ok().flatten(),
-            relay_states: cells.as_ref().map_or_else(Vec::new, |c| c.relay_states(y0)),
+            relay_states: cells.as_ref().map(|c| c.relay_states(y0)),
             cells,
             moving: vec![false; play.len()],
             play,
@@ -319,8 +319,8 @@ impl OutputHysteresis {
             bk.step(&mut self.play, y_prev, &mut self.moving);
         }
         ramps_at(&self.knots, y_prev, &mut self.ramps, &mut self.slopes);
-        if let Some(c) = &self.cells {
-            c.step(&mut self.relay_states, y_prev, &mut self.relays);
+        if let (Some(c), Some(st)) = (&self.cells, &mut self.relay_states) {
+            c.step(st, y_prev, &mut self.relays);
         }
         let (nop, nr) = (self.play.len(), self.ramps.len());
         let slot = (k % self.lags) * self.block;

@@ -58,7 +58,7 @@ pub use pi::{Envelope, GeneralizedPlay, PrandtlIshlinskii, StopOperator, StopOpe
 pub use play::{PlayOperator, PlayOperatorBank};
 pub use preisach::{InitialState, Preisach, PreisachState};
 pub use regressor::{GridPreisachRegressor, HysteresisRegressor, PlayBankState, Regressors};
-pub use relay::{RelayCells, RelayGrid};
+pub use relay::{RelayCells, RelayCellsState, RelayGrid};
 
 /// Errors of the Preisach crate.
 #[derive(Debug, thiserror::Error)]

@@ -215,6 +215,14 @@ impl RelayGrid {
 /// narrower than a cell is represented. `sub = 1` is
 /// [`RelayGrid::uniform`].
 ///
+/// A step only visits the relays whose threshold lies between the last
+/// input and the new one (relays sorted by α and by β): after an input x
+/// every relay with α ≤ x is up and every other relay with β ≥ x is down,
+/// so a rise to x′ > x can only switch up relays with α ∈ [x, x′], a fall
+/// only switch down relays with β ∈ [x′, x]. The per-cell sums of the ±1
+/// states are integers, exact in floating point, so the columns are those
+/// of a pass over every relay to the last bit.
+///
 /// ```
 /// use gb_preisach::RelayCells;
 /// let c = RelayCells::uniform(1, 1.0, 4).unwrap(); // one cell, 10 relays
@@ -230,6 +238,28 @@ pub struct RelayCells {
     relays: RelayGrid,
     cell: Vec<usize>,
     inv_size: Vec<f64>,
+    /// relay indices in increasing α, and those α
+    by_alpha: Vec<usize>,
+    alpha_sorted: Vec<f64>,
+    /// relay indices in increasing β, and those β
+    by_beta: Vec<usize>,
+    beta_sorted: Vec<f64>,
+}
+
+/// The state of a [`RelayCells`] operator: the relay states (±1), their
+/// sum per cell, and the last input.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RelayCellsState {
+    relays: Vec<f64>,
+    sums: Vec<f64>,
+    last: f64,
+}
+
+impl RelayCellsState {
+    /// The relay states (±1), in the order of the cells.
+    pub fn relays(&self) -> &[f64] {
+        &self.relays
+    }
 }
 
 impl RelayCells {
@@ -266,11 +296,23 @@ impl RelayCells {
                 inv_size.push(1.0 / n as f64);
             }
         }
+        let sorted = |t: &[f64]| {
+            let mut idx: Vec<usize> = (0..t.len()).collect();
+            idx.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
+            let vals = idx.iter().map(|&i| t[i]).collect::<Vec<_>>();
+            (idx, vals)
+        };
+        let (by_alpha, alpha_sorted) = sorted(&alpha);
+        let (by_beta, beta_sorted) = sorted(&beta);
         let weight = vec![1.0; alpha.len()];
         Ok(Self {
             relays: RelayGrid::new(alpha, beta, weight)?,
             cell,
             inv_size,
+            by_alpha,
+            alpha_sorted,
+            by_beta,
+            beta_sorted,
         })
     }
 
@@ -279,43 +321,66 @@ impl RelayCells {
         self.inv_size.len()
     }
 
-    /// States (±1) of the relays for a start at `x0`, as
+    /// The state for a start at `x0`: relay states as
     /// [`RelayGrid::relay_states`].
-    pub fn relay_states(&self, x0: f64) -> Vec<f64> {
-        self.relays.relay_states(x0)
+    pub fn relay_states(&self, x0: f64) -> RelayCellsState {
+        let relays = self.relays.relay_states(x0);
+        let mut sums = vec![0.0; self.n_cells()];
+        for (&s, &c) in relays.iter().zip(&self.cell) {
+            sums[c] += s;
+        }
+        RelayCellsState {
+            relays,
+            sums,
+            last: x0,
+        }
     }
 
     /// The cell columns (mean relay state per cell) into `out`
     /// (length [`n_cells`](Self::n_cells)).
     #[inline]
-    pub fn columns(&self, state: &[f64], out: &mut [f64]) {
-        out.fill(0.0);
-        for (&s, &c) in state.iter().zip(&self.cell) {
-            out[c] += s;
-        }
-        for (o, w) in out.iter_mut().zip(&self.inv_size) {
-            *o *= w;
+    pub fn columns(&self, state: &RelayCellsState, out: &mut [f64]) {
+        for ((o, s), w) in out.iter_mut().zip(&state.sums).zip(&self.inv_size) {
+            *o = s * w;
         }
     }
 
-    /// Switch the relay states with the input `x` (up when x ≥ α, down when
-    /// x ≤ β) and write the [`columns`](Self::columns) into `out`, in one
-    /// pass over the relays.
+    /// Switch the relays with the input `x` (up when x ≥ α, down when
+    /// x ≤ β) and write the [`columns`](Self::columns) into `out`.
     #[inline]
-    pub fn step(&self, state: &mut [f64], x: f64, out: &mut [f64]) {
-        out.fill(0.0);
-        let r = &self.relays;
-        for (((s, &a), &b), &c) in state.iter_mut().zip(&r.alpha).zip(&r.beta).zip(&self.cell) {
-            if x >= a {
-                *s = 1.0;
-            } else if x <= b {
-                *s = -1.0;
+    pub fn step(&self, state: &mut RelayCellsState, x: f64, out: &mut [f64]) {
+        let last = state.last;
+        if last.is_nan() {
+            // no ordered start (a NaN input): one pass over every relay
+            self.relays.switch(&mut state.relays, x);
+            state.sums.fill(0.0);
+            for (&s, &c) in state.relays.iter().zip(&self.cell) {
+                state.sums[c] += s;
             }
-            out[c] += *s;
+        } else if x > last {
+            let lo = self.alpha_sorted.partition_point(|&a| a < last);
+            let hi = self.alpha_sorted.partition_point(|&a| a <= x);
+            for &r in &self.by_alpha[lo..hi] {
+                if state.relays[r] != 1.0 {
+                    state.relays[r] = 1.0;
+                    state.sums[self.cell[r]] += 2.0;
+                }
+            }
+        } else if x < last {
+            let lo = self.beta_sorted.partition_point(|&b| b < x);
+            let hi = self.beta_sorted.partition_point(|&b| b <= last);
+            let alpha = &self.relays.alpha;
+            for &r in &self.by_beta[lo..hi] {
+                if alpha[r] > x && state.relays[r] != -1.0 {
+                    state.relays[r] = -1.0;
+                    state.sums[self.cell[r]] -= 2.0;
+                }
+            }
         }
-        for (o, w) in out.iter_mut().zip(&self.inv_size) {
-            *o *= w;
+        if !x.is_nan() {
+            state.last = x;
         }
+        self.columns(state, out);
     }
 }
 
@@ -329,7 +394,11 @@ mod cell_tests {
         let c = RelayCells::uniform(6, 2.5, 1).unwrap();
         let x = [0.3, -1.7, 2.2, 0.9, -0.4, 1.1, -2.6, 0.0];
         for x0 in [0.0, 0.1] {
-            assert_eq!(g.relay_states(x0), c.relay_states(x0), "start at {x0}");
+            assert_eq!(
+                g.relay_states(x0),
+                c.relay_states(x0).relays(),
+                "start at {x0}"
+            );
         }
         let (mut sg, mut sc) = (g.relay_states(0.1), c.relay_states(0.1));
         let mut col = vec![0.0; c.n_cells()];
@@ -337,6 +406,62 @@ mod cell_tests {
             g.switch(&mut sg, v);
             c.step(&mut sc, v, &mut col);
             assert_eq!(col, sg);
+            assert_eq!(sc.relays(), &sg[..]);
+        }
+    }
+
+    /// The step that visits only the relays between the last and the new
+    /// input gives, to the last bit, the relays and columns of a pass over
+    /// every relay: a random walk, jumps, repeats, inputs exactly on
+    /// thresholds, outside the range, and a NaN.
+    #[test]
+    fn the_ordered_step_is_the_pass_over_every_relay() {
+        let (levels, h, sub) = (7, 1.3, 3);
+        let c = RelayCells::uniform(levels, h, sub).unwrap();
+        let g = &c.relays;
+        let on_threshold = g.alpha[11];
+        let mut x = vec![
+            0.2,
+            0.2,
+            on_threshold,
+            g.beta[5],
+            3.0,
+            -3.0,
+            f64::NAN,
+            0.4,
+            0.4,
+        ];
+        let mut v = 0.0f64;
+        let mut seed = 12345u64;
+        for _ in 0..2000 {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            let r = (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+            v = if r.abs() < 0.01 {
+                2.0 * r * h * 50.0
+            } else {
+                (v + 0.3 * r).clamp(-1.6, 1.6)
+            };
+            x.push(v);
+        }
+        for x0 in [0.0, 0.37, -2.0, f64::NAN] {
+            let mut full = g.relay_states(x0);
+            let mut st = c.relay_states(x0);
+            let (mut col, mut expect) = (vec![0.0; c.n_cells()], vec![0.0; c.n_cells()]);
+            for (k, &xk) in x.iter().enumerate() {
+                g.switch(&mut full, xk);
+                expect.fill(0.0);
+                for (&s, &cell) in full.iter().zip(&c.cell) {
+                    expect[cell] += s;
+                }
+                for (e, w) in expect.iter_mut().zip(&c.inv_size) {
+                    *e *= w;
+                }
+                c.step(&mut st, xk, &mut col);
+                assert_eq!(st.relays(), &full[..], "relays at k = {k}, x0 = {x0}");
+                assert_eq!(col, expect, "columns at k = {k}, x0 = {x0}");
+            }
         }
     }
 

@@ -17,7 +17,7 @@
 //! delay's lane (the stage points' `a = c·τ/m` differentiate to `−c/m`),
 //! so `∂y/∂d` is again the exact derivative of the discrete map.
 use super::spec::Compiled;
-use super::tape::{Slots, Tape};
+use super::tape::{DualPlan, Slots, Tape};
 
 /// Which derivative lane each free parameter and each free initial state
 /// has (`None`: fixed).
@@ -37,6 +37,8 @@ pub(crate) struct Integrator<'c> {
     c: &'c Compiled,
     fs: Slots,
     gs: Slots,
+    /// The lane work of `f` and `g`.
+    plans: (DualPlan, DualPlan),
     h: f64,
     substeps: usize,
     /// Some state has a finite `min` or `max` (else no clamping).
@@ -80,12 +82,14 @@ impl<'c> Integrator<'c> {
                 }
             }
         }
+        let plan = |t: &Tape| t.dual_plan(n, nu, &lanes.param, l);
+        let plans = (plan(&c.f), plan(&c.g));
         if l == 0 {
             c.f.run_pre(&mut fs);
             c.g.run_pre(&mut gs);
         } else {
-            c.f.run_pre_dual(&mut fs);
-            c.g.run_pre_dual(&mut gs);
+            c.f.run_pre_dual(&mut fs, &plans.0);
+            c.g.run_pre_dual(&mut gs, &plans.1);
         }
         let z = |m: usize| vec![0.0; m];
         let (shift, tau) = c.delay.map_or((0, 0.0), |p| split_delay(theta[p], ts));
@@ -96,6 +100,7 @@ impl<'c> Integrator<'c> {
             c,
             fs,
             gs,
+            plans,
             h: ts / substeps as f64,
             substeps,
             xo: z(n),
@@ -142,8 +147,13 @@ impl<'c> Integrator<'c> {
             self.fs.v[n + j] = v;
             self.gs.v[n + j] = v;
         }
-        self.c.f.run_input(&mut self.fs);
-        self.c.g.run_input(&mut self.gs);
+        if self.fs.lanes == 0 {
+            self.c.f.run_input(&mut self.fs);
+            self.c.g.run_input(&mut self.gs);
+        } else {
+            self.c.f.run_input_dual(&mut self.fs, &self.plans.0);
+            self.c.g.run_input_dual(&mut self.gs, &self.plans.1);
+        }
     }
 
     /// The input delay's shift `D` in samples: `y_k = ỹ_{k−D}`.
@@ -199,7 +209,7 @@ impl<'c> Integrator<'c> {
         let (n, l) = (self.c.n, self.gs.lanes);
         self.gs.v[..n].copy_from_slice(&self.x);
         self.gs.d[..n * l].copy_from_slice(&self.s);
-        self.c.g.run_dual(&mut self.gs);
+        self.c.g.run_dual(&mut self.gs, &self.plans.1);
         for (o, yo) in y.iter_mut().enumerate() {
             *yo = self.c.g.out(&self.gs, o);
             dy[o * l..(o + 1) * l].copy_from_slice(self.c.g.out_lanes(&self.gs, o));
@@ -333,7 +343,7 @@ impl<'c> Integrator<'c> {
         };
         self.fs.v[..n].copy_from_slice(x);
         self.fs.d[..n * l].copy_from_slice(s);
-        self.c.f.run_dual(&mut self.fs);
+        self.c.f.run_dual(&mut self.fs, &self.plans.0);
         for i in 0..n {
             self.k[stage][i] = self.c.f.out(&self.fs, i);
             self.ks[stage][i * l..(i + 1) * l].copy_from_slice(self.c.f.out_lanes(&self.fs, i));

@@ -748,15 +748,73 @@ impl Tape {
     }
 
     /// The prologue with derivative lanes.
-    pub(crate) fn run_pre_dual(&self, s: &mut Slots) {
-        run_dual(&self.pre, s);
+    pub(crate) fn run_pre_dual(&self, s: &mut Slots, plan: &DualPlan) {
+        run_dual(&self.pre, &plan.pre, &plan.lanes, s);
     }
 
-    /// The input-only and main nodes with derivative lanes.
+    /// The input-only nodes with derivative lanes (after the input slots
+    /// were set; their lanes only hold parameter derivatives).
     #[inline]
-    pub(crate) fn run_dual(&self, s: &mut Slots) {
-        run_dual(&self.input, s);
-        run_dual(&self.main, s);
+    pub(crate) fn run_input_dual(&self, s: &mut Slots, plan: &DualPlan) {
+        run_dual(&self.input, &plan.input, &plan.lanes, s);
+    }
+
+    /// The main nodes with derivative lanes (after
+    /// [`run_input_dual`](Self::run_input_dual) since the inputs changed).
+    #[inline]
+    pub(crate) fn run_dual(&self, s: &mut Slots, plan: &DualPlan) {
+        run_dual(&self.main, &plan.main, &plan.lanes, s);
+    }
+
+    /// The lane work of every node for variable slots laid out as
+    /// `n` states (every lane may be non-zero), `nu` inputs (none) and the
+    /// parameters, `param_lane[p]` the one lane of parameter `p` (`None`:
+    /// fixed, none), `lanes` lanes per slot.
+    pub(crate) fn dual_plan(
+        &self,
+        n: usize,
+        nu: usize,
+        param_lane: &[Option<usize>],
+        lanes: usize,
+    ) -> DualPlan {
+        let mut vars = vec![LaneSet::Zero; (n + nu + param_lane.len()).min(self.n_slots)];
+        if lanes > 0 {
+            vars[..n.min(self.n_slots)].fill(LaneSet::All);
+        }
+        for (p, lane) in param_lane.iter().enumerate() {
+            if let (Some(k), Some(m)) = (lane, vars.get_mut(n + nu + p)) {
+                *m = LaneSet::Some(vec![*k as u32]);
+            }
+        }
+        self.plan_from(vars, lanes)
+    }
+
+    /// The plan for variable slots carrying the lanes `vars` (the other
+    /// slots: constants and nodes).
+    fn plan_from(&self, vars: Vec<LaneSet>, lanes: usize) -> DualPlan {
+        let mut mask = vars;
+        mask.resize(self.n_slots, LaneSet::Zero);
+        let mut list = Vec::new();
+        let mut plan = |nodes: &[Node], mask: &mut Vec<LaneSet>| {
+            nodes
+                .iter()
+                .map(|nd| {
+                    let (ma, mb) = (&mask[nd.a as usize], &mask[nd.b as usize]);
+                    let (work, out) = lane_work(is_binary(nd.op), ma, mb, lanes, &mut list);
+                    mask[nd.out as usize] = out;
+                    work
+                })
+                .collect::<Vec<_>>()
+        };
+        let pre = plan(&self.pre, &mut mask);
+        let input = plan(&self.input, &mut mask);
+        let main = plan(&self.main, &mut mask);
+        DualPlan {
+            pre,
+            input,
+            main,
+            lanes: list,
+        }
     }
 
     /// The slot of output `i` (below the length of the tape's slots).
@@ -817,28 +875,152 @@ fn run(nodes: &[Node], n_slots: usize, v: &mut [f64]) -> f64 {
     r
 }
 
-fn run_dual(nodes: &[Node], s: &mut Slots) {
+/// Which derivative lanes of a slot can be non-zero.
+#[derive(Clone, Debug, PartialEq)]
+enum LaneSet {
+    /// None (constants, inputs, fixed parameters and nodes of them).
+    Zero,
+    /// These lanes (sorted): free parameters and nodes of them only.
+    Some(Vec<u32>),
+    /// Any (the states and nodes of them).
+    All,
+}
+
+/// The derivative work of one node `out = op(a, b)`, `∂out = c_a ∂a + c_b ∂b`,
+/// from the lanes its operands can carry. Lanes a node never writes stay
+/// at their initial 0, which is what the full formula gives there (a
+/// product with a zero lane), so every variant computes the same numbers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum LaneWork {
+    /// No operand carries a lane.
+    Skip,
+    /// Every lane from operand a (`from_a`) or b alone: `∂out = c ∂x`.
+    Scale { from_a: bool },
+    /// Every lane from one operand, then the few lanes `lanes[start..end]`
+    /// of the other added: `∂out = c_x ∂x`, `∂out_k += c_y ∂y_k`.
+    ScaleAdd { from_a: bool, start: u32, end: u32 },
+    /// The few lanes `lanes[start..end]` of both operands.
+    Few { start: u32, end: u32 },
+    /// Every lane of both operands.
+    Full,
+}
+
+/// The lane work of every node of a [`Tape`] for one layout of the
+/// derivative lanes ([`Tape::dual_plan`]).
+#[derive(Clone, Debug, PartialEq)]
+pub(crate) struct DualPlan {
+    pre: Vec<LaneWork>,
+    input: Vec<LaneWork>,
+    main: Vec<LaneWork>,
+    /// The lane lists the `ScaleAdd` and `Few` entries point into.
+    lanes: Vec<u32>,
+}
+
+/// The work of a node whose operands carry the lanes `ma`, `mb` (`mb`
+/// unused by a unary operation), and the lanes its result carries.
+fn lane_work(
+    binary: bool,
+    ma: &LaneSet,
+    mb: &LaneSet,
+    lanes: usize,
+    list: &mut Vec<u32>,
+) -> (LaneWork, LaneSet) {
+    let mut push = |ks: &[u32]| {
+        let start = list.len() as u32;
+        list.extend_from_slice(ks);
+        (start, list.len() as u32)
+    };
+    let mb = if binary { mb } else { &LaneSet::Zero };
+    match (ma, mb) {
+        (LaneSet::Zero, LaneSet::Zero) => (LaneWork::Skip, LaneSet::Zero),
+        (LaneSet::All, LaneSet::Zero) => (LaneWork::Scale { from_a: true }, LaneSet::All),
+        (LaneSet::Zero, LaneSet::All) => (LaneWork::Scale { from_a: false }, LaneSet::All),
+        (LaneSet::All, LaneSet::All) => (LaneWork::Full, LaneSet::All),
+        (LaneSet::All, LaneSet::Some(ks)) | (LaneSet::Some(ks), LaneSet::All) => {
+            let from_a = matches!(ma, LaneSet::All);
+            let (start, end) = push(ks);
+            (LaneWork::ScaleAdd { from_a, start, end }, LaneSet::All)
+        }
+        (LaneSet::Some(x), LaneSet::Some(y)) => {
+            let mut ks: Vec<u32> = x.iter().chain(y).copied().collect();
+            ks.sort_unstable();
+            ks.dedup();
+            if 2 * ks.len() > lanes {
+                (LaneWork::Full, LaneSet::All)
+            } else {
+                let (start, end) = push(&ks);
+                (LaneWork::Few { start, end }, LaneSet::Some(ks))
+            }
+        }
+        (LaneSet::Some(ks), LaneSet::Zero) | (LaneSet::Zero, LaneSet::Some(ks)) => {
+            let (start, end) = push(ks);
+            (LaneWork::Few { start, end }, LaneSet::Some(ks.clone()))
+        }
+    }
+}
+
+/// The nodes with derivative lanes: each value as [`run`] computes it
+/// unfused, each node's lanes `∂out = c_a ∂a + c_b ∂b` (`c` from
+/// [`partials`]; a binary node whose `c_b` is 0 takes `c_a ∂a` alone) as
+/// `work` says.
+fn run_dual(nodes: &[Node], work: &[LaneWork], list: &[u32], s: &mut Slots) {
     let l = s.lanes;
-    for n in nodes {
+    for (n, w) in nodes.iter().zip(work) {
         let (a, b, o) = (n.a as usize, n.b as usize, n.out as usize);
         let (va, vb) = (s.v[a], s.v[b]);
         let out = apply(n.op, va, vb);
         s.v[o] = out;
-        if l == 0 {
+        if l == 0 || *w == LaneWork::Skip {
             continue;
         }
         let (ca, cb) = partials(n.op, va, vb, out);
+        let cb = if is_binary(n.op) { cb } else { 0.0 };
+        // every node writes a slot after its operands' slots
         let (lo, hi) = s.d.split_at_mut(o * l);
         let dout = &mut hi[..l];
         let da = &lo[a * l..a * l + l];
-        if is_binary(n.op) && cb != 0.0 {
-            let db = &lo[b * l..b * l + l];
-            for k in 0..l {
-                dout[k] = ca * da[k] + cb * db[k];
+        let db = &lo[b * l..b * l + l];
+        match *w {
+            LaneWork::Skip => {}
+            LaneWork::Full if cb != 0.0 => {
+                for k in 0..l {
+                    dout[k] = ca * da[k] + cb * db[k];
+                }
             }
-        } else {
-            for k in 0..l {
-                dout[k] = ca * da[k];
+            LaneWork::Full => {
+                for k in 0..l {
+                    dout[k] = ca * da[k];
+                }
+            }
+            LaneWork::Scale { from_a } => {
+                let (c, dx) = if from_a { (ca, da) } else { (cb, db) };
+                for k in 0..l {
+                    dout[k] = c * dx[k];
+                }
+            }
+            LaneWork::ScaleAdd { from_a, start, end } => {
+                let ((cx, dx), (cy, dy)) = if from_a {
+                    ((ca, da), (cb, db))
+                } else {
+                    ((cb, db), (ca, da))
+                };
+                for k in 0..l {
+                    dout[k] = cx * dx[k];
+                }
+                for &k in &list[start as usize..end as usize] {
+                    dout[k as usize] += cy * dy[k as usize];
+                }
+            }
+            LaneWork::Few { start, end } if cb != 0.0 => {
+                for &k in &list[start as usize..end as usize] {
+                    let k = k as usize;
+                    dout[k] = ca * da[k] + cb * db[k];
+                }
+            }
+            LaneWork::Few { start, end } => {
+                for &k in &list[start as usize..end as usize] {
+                    dout[k as usize] = ca * da[k as usize];
+                }
             }
         }
     }
@@ -927,15 +1109,31 @@ mod tests {
             let (t, used) = compile(text);
             let ex = FlatEx::<f64>::parse(text).unwrap();
             let p = point(3);
-            // all variables as lanes
-            let mut s = t.slots(n.len());
-            s.v[..p.len()].copy_from_slice(&p);
-            for i in 0..n.len() {
-                s.d[i * n.len() + i] = 1.0;
-            }
-            t.run_pre_dual(&mut s);
-            t.run_dual(&mut s);
-            let lanes = t.out_lanes(&s, 0).to_vec();
+            // all variables as lanes, each one's lane its own: a plan that
+            // knows it, one that takes the states' lanes (x, v) as any
+            // (as the integrator does), and one that takes every lane as
+            // possibly set (the dense computation)
+            let unit: Vec<LaneSet> = (0..n.len())
+                .map(|i| LaneSet::Some(vec![i as u32]))
+                .collect();
+            let mut states = unit.clone();
+            states[..2].fill(LaneSet::All);
+            let every = vec![LaneSet::All; n.len()];
+            let mut both = [unit, states, every].map(|vars| {
+                let plan = t.plan_from(vars, n.len());
+                let mut s = t.slots(n.len());
+                s.v[..p.len()].copy_from_slice(&p);
+                for i in 0..n.len() {
+                    s.d[i * n.len() + i] = 1.0;
+                }
+                t.run_pre_dual(&mut s, &plan);
+                t.run_input_dual(&mut s, &plan);
+                t.run_dual(&mut s, &plan);
+                t.out_lanes(&s, 0).to_vec()
+            });
+            let lanes = std::mem::take(&mut both[0]);
+            assert_eq!(lanes, both[2], "{text}: the sparse plan differs");
+            assert_eq!(both[1], both[2], "{text}: the states-dense plan differs");
             for (k, name) in used.iter().enumerate() {
                 let i = n.iter().position(|x| x == name).unwrap();
                 // central difference of the expression
@@ -1008,7 +1206,8 @@ mod tests {
                 t.run_input(&mut s);
                 t.run(&mut s);
                 let fast = t.out(&s, 0);
-                t.run_dual(&mut s);
+                let plan = t.dual_plan(2, 1, &[None; 9], 0);
+                t.run_dual(&mut s, &plan);
                 let plain = t.out(&s, 0);
                 assert_eq!(fast.to_bits(), plain.to_bits(), "{text} at {p:?}");
             }
