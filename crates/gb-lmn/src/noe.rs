@@ -251,15 +251,14 @@ pub(crate) struct Prepared {
 /// `fill_x` reads.
 struct OutputHysteresis {
     bank: Option<gb_preisach::PlayOperatorBank>,
-    cells: Option<gb_preisach::RelayCells>,
+    /// The relay cells and their state.
+    cells: Option<(gb_preisach::RelayCells, gb_preisach::RelayCellsState)>,
     play: Vec<f64>,
     /// knots of the output map
     knots: Vec<f64>,
     /// ramp columns of the output map and their slopes ∂r_m/∂ŷ
     ramps: Vec<f64>,
     slopes: Vec<f64>,
-    /// relay states (±1) of the cells' relays
-    relay_states: Option<gb_preisach::RelayCellsState>,
     /// the cell columns
     relays: Vec<f64>,
     ring: Vec<f64>,
@@ -295,8 +294,10 @@ impl OutputHysteresis {
         let nr = net.spec.n_ramps();
         Self {
             bank: net.output_bank().ok().flatten(),
-            relay_states: cells.as_ref().map(|c| c.relay_states(y0)),
-            cells,
+            cells: cells.map(|c| {
+                let st = c.relay_states(y0);
+                (c, st)
+            }),
             moving: vec![false; play.len()],
             play,
             knots: net.spec.output_knots.clone(),
@@ -319,7 +320,7 @@ impl OutputHysteresis {
             bk.step(&mut self.play, y_prev, &mut self.moving);
         }
         ramps_at(&self.knots, y_prev, &mut self.ramps, &mut self.slopes);
-        if let (Some(c), Some(st)) = (&self.cells, &mut self.relay_states) {
+        if let Some((c, st)) = &mut self.cells {
             c.step(st, y_prev, &mut self.relays);
         }
         let (nop, nr) = (self.play.len(), self.ramps.len());

@@ -37,8 +37,8 @@ pub(crate) struct Integrator<'c> {
     c: &'c Compiled,
     fs: Slots,
     gs: Slots,
-    /// The lane work of `f` and `g`.
-    plans: (DualPlan, DualPlan),
+    /// The lane work of `f` and `g` (with lanes only).
+    plans: Option<(DualPlan, DualPlan)>,
     h: f64,
     substeps: usize,
     /// Some state has a finite `min` or `max` (else no clamping).
@@ -82,14 +82,19 @@ impl<'c> Integrator<'c> {
                 }
             }
         }
-        let plan = |t: &Tape| t.dual_plan(n, nu, &lanes.param, l);
-        let plans = (plan(&c.f), plan(&c.g));
-        if l == 0 {
-            c.f.run_pre(&mut fs);
-            c.g.run_pre(&mut gs);
-        } else {
-            c.f.run_pre_dual(&mut fs, &plans.0);
-            c.g.run_pre_dual(&mut gs, &plans.1);
+        let plans = (l > 0).then(|| {
+            let plan = |t: &Tape| t.dual_plan(n, nu, &lanes.param, l);
+            (plan(&c.f), plan(&c.g))
+        });
+        match &plans {
+            None => {
+                c.f.run_pre(&mut fs);
+                c.g.run_pre(&mut gs);
+            }
+            Some((fp, gp)) => {
+                c.f.run_pre_dual(&mut fs, fp);
+                c.g.run_pre_dual(&mut gs, gp);
+            }
         }
         let z = |m: usize| vec![0.0; m];
         let (shift, tau) = c.delay.map_or((0, 0.0), |p| split_delay(theta[p], ts));
@@ -147,12 +152,15 @@ impl<'c> Integrator<'c> {
             self.fs.v[n + j] = v;
             self.gs.v[n + j] = v;
         }
-        if self.fs.lanes == 0 {
-            self.c.f.run_input(&mut self.fs);
-            self.c.g.run_input(&mut self.gs);
-        } else {
-            self.c.f.run_input_dual(&mut self.fs, &self.plans.0);
-            self.c.g.run_input_dual(&mut self.gs, &self.plans.1);
+        match &self.plans {
+            None => {
+                self.c.f.run_input(&mut self.fs);
+                self.c.g.run_input(&mut self.gs);
+            }
+            Some((fp, gp)) => {
+                self.c.f.run_input_dual(&mut self.fs, fp);
+                self.c.g.run_input_dual(&mut self.gs, gp);
+            }
         }
     }
 
@@ -209,7 +217,10 @@ impl<'c> Integrator<'c> {
         let (n, l) = (self.c.n, self.gs.lanes);
         self.gs.v[..n].copy_from_slice(&self.x);
         self.gs.d[..n * l].copy_from_slice(&self.s);
-        self.c.g.run_dual(&mut self.gs, &self.plans.1);
+        match &self.plans {
+            Some((_, gp)) => self.c.g.run_dual(&mut self.gs, gp),
+            None => self.c.g.run_unfused(&mut self.gs),
+        }
         for (o, yo) in y.iter_mut().enumerate() {
             *yo = self.c.g.out(&self.gs, o);
             dy[o * l..(o + 1) * l].copy_from_slice(self.c.g.out_lanes(&self.gs, o));
@@ -343,7 +354,10 @@ impl<'c> Integrator<'c> {
         };
         self.fs.v[..n].copy_from_slice(x);
         self.fs.d[..n * l].copy_from_slice(s);
-        self.c.f.run_dual(&mut self.fs, &self.plans.0);
+        match &self.plans {
+            Some((fp, _)) => self.c.f.run_dual(&mut self.fs, fp),
+            None => self.c.f.run_unfused(&mut self.fs),
+        }
         for i in 0..n {
             self.k[stage][i] = self.c.f.out(&self.fs, i);
             self.ks[stage][i * l..(i + 1) * l].copy_from_slice(self.c.f.out_lanes(&self.fs, i));

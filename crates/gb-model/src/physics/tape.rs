@@ -759,6 +759,12 @@ impl Tape {
         run_dual(&self.input, &plan.input, &plan.lanes, s);
     }
 
+    /// The main nodes unfused, values only (what [`run_dual`](Self::run_dual)
+    /// computes without lanes; the same bits as [`run`](Self::run)).
+    pub(crate) fn run_unfused(&self, s: &mut Slots) {
+        run(&self.main, self.n_slots, &mut s.v);
+    }
+
     /// The main nodes with derivative lanes (after
     /// [`run_input_dual`](Self::run_input_dual) since the inputs changed).
     #[inline]
@@ -981,6 +987,7 @@ fn run_dual(nodes: &[Node], work: &[LaneWork], list: &[u32], s: &mut Slots) {
         let da = &lo[a * l..a * l + l];
         let db = &lo[b * l..b * l + l];
         match *w {
+            // handled above
             LaneWork::Skip => {}
             LaneWork::Full if cb != 0.0 => {
                 for k in 0..l {
