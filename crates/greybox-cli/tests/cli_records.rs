@@ -21,6 +21,20 @@ fn rows(from: &Path, to: &Path, rows: std::ops::Range<usize>) {
     std::fs::write(to, out).unwrap();
 }
 
+/// `greybox diagnose --train a --train b EXTRA --json json --quiet`.
+fn diagnose_two((a, b): (&Path, &Path), extra: &[&str], json: &Path) -> std::process::Output {
+    let mut args = vec![
+        "diagnose",
+        "--train",
+        a.to_str().unwrap(),
+        "--train",
+        b.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    args.extend(["--json", json.to_str().unwrap(), "--quiet"]);
+    run(&args)
+}
+
 #[test]
 fn two_training_records_are_listed_in_the_report() {
     let d = tmp("two");
@@ -42,20 +56,11 @@ fn two_training_records_are_listed_in_the_report() {
     rows(&d.join("train.csv"), &a, 0..1200);
     rows(&d.join("train.csv"), &b, 1200..2000);
     let (v, json) = (d.join("validate.csv"), d.join("r.json"));
-    let o = run(&[
-        "diagnose",
-        "--train",
-        a.to_str().unwrap(),
-        "--train",
-        b.to_str().unwrap(),
-        "--validate",
-        v.to_str().unwrap(),
-        "--max-steps",
-        "1",
-        "--json",
-        json.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let o = diagnose_two(
+        (&a, &b),
+        &["--validate", v.to_str().unwrap(), "--max-steps", "1"],
+        &json,
+    );
     let out = String::from_utf8_lossy(&o.stdout).to_string();
     assert!(
         o.status.success(),
@@ -137,16 +142,7 @@ fn a_record_with_other_columns_is_one_line_naming_the_file() {
     std::fs::write(&a, ta).unwrap();
     std::fs::write(&b, tb).unwrap();
     let json = d.join("r.json");
-    let o = run(&[
-        "diagnose",
-        "--train",
-        a.to_str().unwrap(),
-        "--train",
-        b.to_str().unwrap(),
-        "--json",
-        json.to_str().unwrap(),
-        "--quiet",
-    ]);
+    let o = diagnose_two((&a, &b), &[], &json);
     let e = String::from_utf8_lossy(&o.stderr).to_string();
     assert_eq!(o.status.code(), Some(2), "{e}");
     assert!(!e.contains("panicked"), "{e}");
