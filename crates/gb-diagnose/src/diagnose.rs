@@ -5,7 +5,7 @@ use crate::baseline::{baseline, StructureChoice};
 use crate::decide::{choose, relative_gain_ci, score, Candidate};
 use crate::evaluate::{Evaluated, Lineage};
 use crate::extension::{Context, Extension, Proposal, Role, EXTENSIONS};
-use crate::plan::{assess, core, Plan};
+use crate::plan::{assess_from, core, Plan};
 use crate::report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, Evidence};
 use gb_core::{FittedModel, Init, Observer, Silent};
@@ -154,8 +154,8 @@ pub(crate) fn fit_proposal(
     p: &Proposal,
     ctx: &Context,
 ) -> Result<Evaluated, DiagnoseError> {
-    let mut c = assess(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
-        e.fit(p, &ctx.at(t))
+    let mut c = assess_from(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
+        e.fit(p, &ctx.at_fold(t.map(|(k, whole)| (k, Some(whole)))))
     })?;
     e.rescore(ctx, &mut c)?;
     Ok(c)
@@ -313,6 +313,7 @@ fn iterate(
         plan,
         fold_sims: &fold_sims,
         fold_sims_all: &fold_sims_all,
+        whole_fit: None,
     };
     let props = proposals(&ctx, tried);
     if props.is_empty() {

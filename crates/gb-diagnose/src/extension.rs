@@ -94,14 +94,24 @@ pub struct Context<'a> {
     /// Free-run simulations of the fold refits on every record of their
     /// `fits` (several records).
     pub(crate) fold_sims_all: &'a [Option<Vec<Vec<f64>>>],
+    /// In a fold's fit (cross-validation): the same candidate fitted on the
+    /// whole fit block, where a multi-start fit chose its start.
+    pub(crate) whole_fit: Option<&'a FittedModel>,
 }
 
 impl<'a> Context<'a> {
     /// The context of a fit for fold `t` (`None`: this context): the fold's
     /// fit record and the current structure refitted on it.
     pub(crate) fn at(&self, t: Option<usize>) -> Context<'a> {
+        self.at_fold(t.map(|k| (k, None)))
+    }
+
+    /// [`Context::at`] for fold `k`, with the candidate's fit on the whole
+    /// fit block when there is one.
+    pub(crate) fn at_fold(&self, t: Option<(usize, Option<&'a FittedModel>)>) -> Context<'a> {
         match t {
-            Some(k) if k < self.current.folds.len() => Context {
+            Some((k, whole_fit)) if k < self.current.folds.len() => Context {
+                whole_fit,
                 fit: self.plan.fit_of(Some(k)),
                 fits: self.plan.fits_of(Some(k)),
                 current: &self.current.folds[k],

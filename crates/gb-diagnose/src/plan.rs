@@ -77,6 +77,11 @@ pub(crate) struct Plan {
 /// A fit for the plan's record (`None`) or for fold `k` (`Some(k)`).
 pub(crate) type FitFn<'a> = dyn Fn(Option<usize>) -> Result<FittedModel, DiagnoseError> + Sync + 'a;
 
+/// A fit for the plan's record (`None`, no whole-block fit yet) or for
+/// fold `k` given the fit on the plan's record (`Some((k, whole))`).
+pub(crate) type FoldFitFn<'a> =
+    dyn Fn(Option<(usize, &FittedModel)>) -> Result<FittedModel, DiagnoseError> + Sync + 'a;
+
 impl Plan {
     /// The plan of `d`: cross-validation when the select block has fewer
     /// than the policy's `bootstrap_min_samples`, or when it is not
@@ -488,14 +493,34 @@ pub(crate) fn assess(
     lineage: Lineage,
     fit: &FitFn,
 ) -> Result<Evaluated, DiagnoseError> {
-    let m = plan.finish(fit(None)?, None)?;
+    assess_from(plan, d, lineage, &|t| fit(t.map(|(k, _)| k)))
+}
+
+/// [`assess`] where the fold fits see the fit on the plan's record (an
+/// extension may take a discrete choice there, such as the start of a
+/// multi-start fit, instead of repeating it per fold).
+pub(crate) fn assess_from(
+    plan: &Plan,
+    d: &DiagnoseData,
+    lineage: Lineage,
+    fit: &FoldFitFn,
+) -> Result<Evaluated, DiagnoseError> {
+    let raw = fit(None)?;
     if !plan.cv() {
-        return evaluate_on(m, lineage, d, plan.w, None);
+        return evaluate_on(plan.finish(raw, None)?, lineage, d, plan.w, None);
     }
+    // the folds see the fit as the extension returned it (not wrapped as
+    // an integrating model)
+    let (m, unwrapped) = if plan.integrating {
+        (plan.finish(raw.clone(), None)?, Some(raw))
+    } else {
+        (raw, None)
+    };
+    let whole = unwrapped.as_ref().unwrap_or(&m);
     let folds: Vec<Evaluated> = (0..plan.folds.len())
         .into_par_iter()
         .map(|k| {
-            let mk = plan.finish(fit(Some(k))?, Some(k))?;
+            let mk = plan.finish(fit(Some((k, whole)))?, Some(k))?;
             fold_scores(mk, lineage.clone(), d, plan, k)
         })
         .collect::<Result<_, _>>()?;

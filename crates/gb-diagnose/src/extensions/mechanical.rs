@@ -250,7 +250,7 @@ impl Extension for MechanicalHysteresis {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("mechanical-hysteresis: {m}"));
         let (rec, lin) = fitted_template(ctx, 2)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
-        fit_state(cur, &rec, ("v", "q"), ctx.observer)
+        fit_state(cur, &rec, ("v", "q"), ctx)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()

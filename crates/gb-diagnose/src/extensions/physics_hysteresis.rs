@@ -136,19 +136,27 @@ pub(super) fn extended(
 }
 
 /// `cur` with the hysteretic state of law `eq` driven by `var`, fitted on
-/// `rec` from each start of `b` ([`B_STARTS`]), the best fit kept.
+/// `rec` from each start of `b` ([`B_STARTS`]), the best fit kept; in a
+/// fold of cross-validation (`ctx.whole_fit`) from the whole fit block's
+/// estimate of `b` alone.
 pub(super) fn fit_state(
     cur: &PhysicsModel,
     rec: &gb_core::Record,
     (eq, var): (&str, &str),
-    obs: &dyn gb_core::Observer,
+    ctx: &Context,
 ) -> Result<FittedModel, DiagnoseError> {
+    let b = &names(eq, var)[2];
+    let whole = ctx.whole_fit.and_then(physics_of);
+    let starts = match whole.and_then(|w| w.parameter(b)) {
+        Some(v) => vec![v.clamp(-1000.0, 1000.0)],
+        None => B_STARTS.to_vec(),
+    };
     best_of_starts(
-        B_STARTS
+        starts
             .into_iter()
             .map(|b0| extended(cur, rec, (eq, var), b0)),
         rec,
-        obs,
+        ctx.observer,
     )
 }
 
@@ -191,13 +199,14 @@ impl Extension for PhysicsHysteresis {
             .collect()
     }
     /// Started from the current model's estimates with `w = 0`, `c = 0` and
-    /// each start of `b`; the lowest training RMSE is kept.
+    /// each start of `b` (a fold: the whole block's `b`); the lowest
+    /// training RMSE is kept.
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-hysteresis: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
         let rec = physics_fit_record(ctx, cur);
-        fit_state(cur, &rec, (&eq, &var), ctx.observer)
+        fit_state(cur, &rec, (&eq, &var), ctx)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()

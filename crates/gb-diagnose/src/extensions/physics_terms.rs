@@ -4,7 +4,9 @@
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::physics_row_text;
-use crate::physics::{best_of_starts, current_physics, physics_fit_record, physics_of};
+use crate::physics::{
+    best_of_starts, current_physics, fit_physics, physics_fit_record, physics_of,
+};
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
 use gb_model::physics::{Parameter, PhysicsModel, PhysicsSpec, TermTarget};
@@ -441,7 +443,9 @@ pub(super) fn with_coulomb_law(
 
 /// The quantiles of the simulation a limit starts from (each start is
 /// fitted and the lowest training RMSE wins: the least-squares fit of a
-/// limit has local optima where it stops binding).
+/// limit has local optima where it stops binding). Under cross-validation
+/// only the fit on the whole fit block tries them; each fold starts its
+/// limit at that fit's estimate.
 const LIMIT_STARTS: [f64; 4] = [0.8, 0.9, 0.95, 0.99];
 
 /// What a candidate adds, in words.
@@ -539,16 +543,27 @@ impl Extension for PhysicsTerms {
     }
     /// Started from the current model's estimates (of this fold under
     /// cross-validation) with the new coefficients at 0 and new limits at
-    /// a quantile of the simulation.
+    /// a quantile of the simulation (in a fold: at the whole block's
+    /// estimate).
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-terms: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (kind, at, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
-        let starts: &[f64] = match kind {
-            Kind::Ceiling | Kind::Floor | Kind::Clip => &LIMIT_STARTS,
-            _ => &[1.0],
-        };
+        let limit = matches!(kind, Kind::Ceiling | Kind::Floor | Kind::Clip);
         let rec = physics_fit_record(ctx, cur);
+        if limit {
+            // a fold starts its limit where the whole fit block put it
+            let name = &kind.parameters(&at, &var)[0];
+            let whole = ctx.whole_fit.and_then(physics_of);
+            if let Some(v) = whole.and_then(|w| w.parameter(name)) {
+                let mut s = extended(cur, &rec, (kind, &at, &var), 1.0)?;
+                if let Some(p) = s.parameters.iter_mut().find(|p| &p.name == name) {
+                    p.value = v;
+                }
+                return fit_physics(&s, &rec, ctx.observer);
+            }
+        }
+        let starts: &[f64] = if limit { &LIMIT_STARTS } else { &[1.0] };
         best_of_starts(
             starts
                 .iter()
