@@ -24,11 +24,18 @@
 //!
 //! [outputs]                  # data column = g(x, u, θ)
 //! y = "x"
+//!
+//! # optional: a Preisach operator on a state (cells P0, P1, … in the
+//! # equations); with `into`, free weights w0, w1, … (start 0, with
+//! # `prior_sd` a Gaussian prior N(0, prior_sd²) each) and the force
+//! # w0*P0 + w1*P1 + … are added to the equation of that state
+//! # [preisach]
+//! # P = { state = "x", min = -0.1, max = 0.1, levels = 6, sub = 4, into = "v", weights = "w" }
 //! ```
 use super::error::{Item, Location, PhysicsError, PhysicsResult};
 use super::identify::PhysicsFitParams;
 use super::model::PhysicsModel;
-use super::spec::{Output, Parameter, PhysicsSpec, Prior, State};
+use super::spec::{Output, Parameter, PhysicsSpec, Prior, State, StateHysteresis};
 use gb_core::{Identify, Observer, Records};
 use serde::de::{self, Deserializer, MapAccess, SeqAccess, Visitor};
 use serde::Deserialize;
@@ -104,6 +111,19 @@ struct PriorDoc {
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
+struct PreisachDoc {
+    state: String,
+    min: f64,
+    max: f64,
+    levels: Option<usize>,
+    sub: Option<usize>,
+    into: Option<String>,
+    weights: Option<String>,
+    prior_sd: Option<f64>,
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
 struct ParamDoc {
     value: f64,
     min: Option<f64>,
@@ -126,6 +146,7 @@ struct Doc {
     parameters: Option<Table<ParamDoc>>,
     equations: Option<Table<Terms>>,
     outputs: Option<Table<Terms>>,
+    preisach: Option<Table<PreisachDoc>>,
 }
 
 /// Lines of the items of a model file.
@@ -264,6 +285,48 @@ impl ModelFile {
                 name: n,
                 terms: o.into_inner().0,
             });
+        }
+        for (prefix, h) in doc.preisach.map(|t| t.into_inner().0).unwrap_or_default() {
+            let start = h.span().start;
+            let d = h.into_inner();
+            let bad = |message: String| PhysicsError::Dimension {
+                at: at(start, Item::Model, format!("Preisach operator '{prefix}'")),
+                message,
+            };
+            if !(d.min.is_finite() && d.max.is_finite() && d.max > d.min) {
+                return Err(bad(format!("needs min < max, got {} and {}", d.min, d.max)));
+            }
+            let op = StateHysteresis {
+                driver: d.state.clone(),
+                prefix: prefix.clone(),
+                levels: d.levels.unwrap_or(6),
+                sub: d.sub.unwrap_or(4),
+                center: 0.5 * (d.min + d.max),
+                half_range: 0.5 * (d.max - d.min),
+            };
+            if let Some(into) = &d.into {
+                let i = spec
+                    .states
+                    .iter()
+                    .position(|x| &x.name == into)
+                    .ok_or_else(|| bad(format!("into = '{into}' is not a state")))?;
+                let w = d.weights.clone().unwrap_or_else(|| format!("w{prefix}"));
+                for j in 0..op.n_cells() {
+                    lines.parameters.push(line_of(text, start));
+                    let mut p = Parameter::new(&format!("{w}{j}"), 0.0);
+                    if let Some(sd) = d.prior_sd {
+                        p = p.prior(0.0, sd);
+                    }
+                    spec.parameters.push(p);
+                    spec.equations[i].push(format!("{w}{j}*{}", op.cell_name(j)));
+                }
+            } else if d.weights.is_some() || d.prior_sd.is_some() {
+                return Err(bad(
+                    "weights and prior_sd need into = the state whose equation gets the force"
+                        .into(),
+                ));
+            }
+            spec.hysteresis.push(op);
         }
         if let Some(d) = doc.input_delay {
             let name_ = d.get_ref().clone();

@@ -58,7 +58,7 @@ pub use file::ModelFile;
 pub use fit::{t_quantile_95, Coordinate, Estimate, FitReport, ILL_CONDITIONED, ZERO_SENSITIVITY};
 pub use identify::{PhysicsFit, PhysicsFitParams};
 pub use model::{PhysicsModel, StateNoise, CLASS};
-pub use spec::{Output, Parameter, PhysicsSpec, Prior, State, TermTarget};
+pub use spec::{Output, Parameter, PhysicsSpec, Prior, State, StateHysteresis, TermTarget};
 
 impl PhysicsModel {
     /// The model with its signal names, sample time and Gaussian noise of

@@ -4,7 +4,7 @@
 use super::error::{PhysicsError, PhysicsResult};
 use super::fit::{coordinates, FitReport, OeProblem, Segment};
 use super::simulate::{simulate, Integrator, Lanes};
-use super::spec::{Compiled, PhysicsSpec};
+use super::spec::{Compiled, PhysicsSpec, StateHysteresis};
 use gb_core::solver::LmParams;
 use gb_core::{CoreError, DynamicModel, Init, ModelView, Stepper, ViewData, Workspace};
 use serde::{Deserialize, Serialize};
@@ -14,7 +14,7 @@ use std::any::Any;
 pub const CLASS: &str = "physics";
 /// The encoding version of the class (2: the state noise of the SMC path;
 /// 3: the input delay).
-const CLASS_VERSION: u32 = 3;
+const CLASS_VERSION: u32 = 4;
 
 /// The noise of the stochastic model `x_t = Φ_θ(x_{t−1}, u_{t−1}) + v_t`,
 /// `y_t = g(x_t, u_t, θ) + w_t` that the SMC path identifies
@@ -45,6 +45,19 @@ pub struct PhysicsModel {
 /// What a model file stores (postcard).
 #[derive(Serialize, Deserialize)]
 struct Stored {
+    spec: PhysicsSpec,
+    theta: Vec<f64>,
+    x0: Vec<f64>,
+    fit: Option<FitReport>,
+    source: Option<String>,
+    noise: Option<StateNoise>,
+    input_delay: Option<String>,
+    hysteresis: Vec<StateHysteresis>,
+}
+
+/// What a version-3 model file stores (no Preisach operators on states).
+#[derive(Deserialize)]
+struct StoredV3 {
     spec: PhysicsSpec,
     theta: Vec<f64>,
     x0: Vec<f64>,
@@ -299,6 +312,7 @@ impl PhysicsModel {
                 source: v.source,
                 noise: None,
                 input_delay: None,
+                hysteresis: vec![],
             }
         } else if version < 3 {
             let v: StoredV2 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
@@ -310,6 +324,19 @@ impl PhysicsModel {
                 source: v.source,
                 noise: v.noise,
                 input_delay: None,
+                hysteresis: vec![],
+            }
+        } else if version < 4 {
+            let v: StoredV3 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
+            Stored {
+                spec: v.spec,
+                theta: v.theta,
+                x0: v.x0,
+                fit: v.fit,
+                source: v.source,
+                noise: v.noise,
+                input_delay: v.input_delay,
+                hysteresis: vec![],
             }
         } else {
             gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?
@@ -317,6 +344,7 @@ impl PhysicsModel {
         let bad = |m: String| CoreError::ModelFile(format!("inconsistent '{CLASS}' model ({m})"));
         let mut spec = s.spec;
         spec.input_delay = s.input_delay;
+        spec.hysteresis = s.hysteresis;
         let mut m = Self::new(spec).map_err(|e| bad(e.to_string()))?;
         m = m
             .with_values(s.theta, s.x0)
@@ -491,6 +519,7 @@ impl DynamicModel for PhysicsModel {
             source: self.source.clone(),
             noise: self.noise.clone(),
             input_delay: self.spec.input_delay.clone(),
+            hysteresis: self.spec.hysteresis.clone(),
         };
         postcard::to_allocvec(&s)
             .map_err(|e| CoreError::ModelFile(format!("cannot encode the physics model: {e}")))

@@ -59,6 +59,10 @@ pub(crate) struct Integrator<'c> {
     s: Vec<f64>,
     st: Vec<f64>,
     ks: [Vec<f64>; 4],
+    /// The relay states of the Preisach operators on states, and a
+    /// buffer of one operator's cell outputs.
+    ops: Vec<gb_preisach::RelayCellsState>,
+    cols: Vec<f64>,
 }
 
 impl<'c> Integrator<'c> {
@@ -124,6 +128,8 @@ impl<'c> Integrator<'c> {
             s: z(n * l),
             st: z(n * l),
             ks: [z(n * l), z(n * l), z(n * l), z(n * l)],
+            ops: c.ops.iter().map(|o| o.cells.relay_states(0.0)).collect(),
+            cols: z(c.ops.iter().map(|o| o.cells.n_cells()).max().unwrap_or(0)),
         }
     }
 
@@ -131,6 +137,9 @@ impl<'c> Integrator<'c> {
     /// state's lane.
     pub(crate) fn reset(&mut self, x0: &[f64], lanes: &Lanes) {
         self.x.copy_from_slice(x0);
+        for (o, st) in self.c.ops.iter().zip(&mut self.ops) {
+            *st = o.cells.relay_states(o.grid_input(x0));
+        }
         self.s.fill(0.0);
         for (i, lane) in lanes.state.iter().enumerate() {
             if let Some(k) = lane {
@@ -144,7 +153,8 @@ impl<'c> Integrator<'c> {
         &self.x
     }
 
-    /// Set the held input of this sample (and the tapes' input-only nodes).
+    /// Set the held input of this sample (and the tapes' input-only nodes);
+    /// the Preisach cells switch with the current state.
     #[inline]
     pub(crate) fn set_input(&mut self, u: impl Iterator<Item = f64>) {
         let n = self.c.n;
@@ -152,6 +162,7 @@ impl<'c> Integrator<'c> {
             self.fs.v[n + j] = v;
             self.gs.v[n + j] = v;
         }
+        self.switch_cells(true);
         match &self.plans {
             None => {
                 self.c.f.run_input(&mut self.fs);
@@ -161,6 +172,31 @@ impl<'c> Integrator<'c> {
                 self.c.f.run_input_dual(&mut self.fs, fp);
                 self.c.g.run_input_dual(&mut self.gs, gp);
             }
+        }
+    }
+
+    /// Switch the Preisach cells with the current state and write their
+    /// outputs into the input slots of `f` (and of `g` when `both`).
+    #[inline]
+    fn switch_cells(&mut self, both: bool) {
+        for (o, st) in self.c.ops.iter().zip(&mut self.ops) {
+            let m = o.cells.n_cells();
+            let cols = &mut self.cols[..m];
+            o.cells.step(st, o.grid_input(&self.x), cols);
+            self.fs.v[o.slot..o.slot + m].copy_from_slice(cols);
+            if both {
+                self.gs.v[o.slot..o.slot + m].copy_from_slice(cols);
+            }
+        }
+    }
+
+    /// Between the RK4 sub-steps of a sample: the cells switch with the
+    /// state and `f`'s input-only nodes are recomputed.
+    fn switch_cells_f(&mut self) {
+        self.switch_cells(false);
+        match &self.plans {
+            None => self.c.f.run_input(&mut self.fs),
+            Some((fp, _)) => self.c.f.run_input_dual(&mut self.fs, fp),
         }
     }
 
@@ -259,7 +295,18 @@ impl<'c> Integrator<'c> {
     /// when the state left the finite numbers.
     #[inline]
     pub(crate) fn step(&mut self) -> bool {
-        self.advance(self.h, self.substeps)
+        if self.c.ops.is_empty() {
+            return self.advance(self.h, self.substeps);
+        }
+        for i in 0..self.substeps {
+            if i > 0 {
+                self.switch_cells_f();
+            }
+            if !self.advance(self.h, 1) {
+                return false;
+            }
+        }
+        true
     }
 
     /// `steps` RK4 steps of `h` with the held input: [`advance_n`] for up
@@ -386,7 +433,18 @@ impl<'c> Integrator<'c> {
 
     /// One sample with sensitivities.
     pub(crate) fn step_dual(&mut self) -> bool {
-        self.advance_dual(self.h, self.substeps, None)
+        if self.c.ops.is_empty() {
+            return self.advance_dual(self.h, self.substeps, None);
+        }
+        for i in 0..self.substeps {
+            if i > 0 {
+                self.switch_cells_f();
+            }
+            if !self.advance_dual(self.h, 1, None) {
+                return false;
+            }
+        }
+        true
     }
 
     /// `steps` RK4 steps of `h` on `(x, S)`; with `lane = (l, h')`,

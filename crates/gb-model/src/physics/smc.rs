@@ -300,6 +300,13 @@ impl Smc {
                 spec.states.len()
             ));
         }
+        if !spec.hysteresis.is_empty() {
+            return bad(format!(
+                "the SMC path does not carry the relay states of Preisach operators on states ('{}' has {})",
+                spec.name,
+                spec.hysteresis.len()
+            ));
+        }
         let Some(fit) = oe.fit_report() else {
             return bad("the SMC path starts from an output-error fit".into());
         };
@@ -491,6 +498,13 @@ impl Smc {
             return Err(PhysicsError::Data(format!(
                 "the filter does not handle an input delay yet ('{}')",
                 spec.name
+            )));
+        }
+        if !spec.hysteresis.is_empty() {
+            return Err(PhysicsError::Data(format!(
+                "the filter does not carry the relay states of Preisach operators on states ('{}' has {})",
+                spec.name,
+                spec.hysteresis.len()
             )));
         }
         if spec.outputs.len() != 1 || n > SMC_MAX_STATES {

@@ -113,6 +113,43 @@ pub struct Output {
     pub terms: Vec<String>,
 }
 
+/// A Preisach operator on a state (Hauth 2008, ch. 3): relay cells
+/// ([`gb_preisach::RelayCells`], `levels` intervals per side, `sub`² relays
+/// per cell) over `[center − half_range, center + half_range]` of the state
+/// `driver`. Cell `j`'s output, its mean relay state in `[−1, 1]`, is the
+/// symbol `{prefix}{j}` in the equations; with weights `Σⱼ wⱼ·P_j` is a
+/// discrete Preisach operator whose Everett function is piecewise
+/// constant over the cells. The cells switch with the state after every
+/// RK4 sub-step and are held within it (a hysteretic force inside the
+/// dynamics, such as a Preisach spring). In the sensitivities the cells
+/// are held inputs: `∂P_j/∂θ = 0`, `∂(wⱼ·P_j)/∂wⱼ = P_j` exact.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct StateHysteresis {
+    /// The state the relays switch with.
+    pub driver: String,
+    /// The cells' symbols are `{prefix}0`, `{prefix}1`, ….
+    pub prefix: String,
+    /// Intervals per side of the relay grid (1..=32).
+    pub levels: usize,
+    /// Relays per cell side (1..=16).
+    pub sub: usize,
+    /// Middle of the grid, in the units of `driver`.
+    pub center: f64,
+    /// Half width of the grid (> 0).
+    pub half_range: f64,
+}
+
+impl StateHysteresis {
+    /// Number of cells: `levels·(levels + 1)/2`.
+    pub fn n_cells(&self) -> usize {
+        self.levels * (self.levels + 1) / 2
+    }
+    /// The symbol of cell `j`.
+    pub fn cell_name(&self, j: usize) -> String {
+        format!("{}{j}", self.prefix)
+    }
+}
+
 /// Where a term goes ([`PhysicsSpec::add_term`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[non_exhaustive]
@@ -155,6 +192,10 @@ pub struct PhysicsSpec {
     /// files (class version 3).
     #[serde(skip)]
     pub input_delay: Option<String>,
+    /// Preisach operators on states, their cells symbols the equations
+    /// use. Stored after the spec in model files (class version 4).
+    #[serde(skip)]
+    pub hysteresis: Vec<StateHysteresis>,
 }
 
 impl PhysicsSpec {
@@ -170,6 +211,7 @@ impl PhysicsSpec {
             substeps: 1,
             sample_time: None,
             input_delay: None,
+            hysteresis: vec![],
         }
     }
 
@@ -220,6 +262,18 @@ impl PhysicsSpec {
         self
     }
 
+    /// Add a Preisach operator on a state ([`StateHysteresis`]; its cells
+    /// enter the equations through terms such as `w0*P0`).
+    pub fn with_hysteresis(mut self, h: StateHysteresis) -> Self {
+        self.hysteresis.push(h);
+        self
+    }
+
+    /// Number of cell symbols of all Preisach operators.
+    pub(crate) fn n_cells(&self) -> usize {
+        self.hysteresis.iter().map(StateHysteresis::n_cells).sum()
+    }
+
     /// The index of the input-delay parameter (after [`check`](Self::check)).
     pub(crate) fn input_delay_index(&self) -> Option<usize> {
         let name = self.input_delay.as_deref()?;
@@ -247,8 +301,17 @@ impl PhysicsSpec {
     pub(crate) fn var_names(&self) -> Vec<String> {
         let mut v: Vec<String> = self.states.iter().map(|s| s.name.clone()).collect();
         v.extend(self.inputs.iter().cloned());
+        v.extend(self.cell_names());
         v.extend(self.parameters.iter().map(|p| p.name.clone()));
         v
+    }
+
+    /// The symbols of every Preisach cell, operator by operator.
+    fn cell_names(&self) -> Vec<String> {
+        self.hysteresis
+            .iter()
+            .flat_map(|h| (0..h.n_cells()).map(|j| h.cell_name(j)))
+            .collect()
     }
 
     /// What an item is, in words.
@@ -314,6 +377,7 @@ impl PhysicsSpec {
 
     fn check_names(&self) -> PhysicsResult<()> {
         let mut seen: Vec<(&str, Item)> = vec![];
+        let cells = self.cell_names();
         let items = self
             .states
             .iter()
@@ -323,6 +387,11 @@ impl PhysicsSpec {
                 self.inputs
                     .iter()
                     .map(|n| (n.as_str(), Item::Model, "input")),
+            )
+            .chain(
+                cells
+                    .iter()
+                    .map(|n| (n.as_str(), Item::Model, "Preisach cell")),
             )
             .chain(
                 self.parameters
@@ -362,6 +431,27 @@ impl PhysicsSpec {
                     at: self.at(Item::Output(i)),
                     message: format!("output '{}' is given twice", o.name),
                 });
+            }
+        }
+        for h in &self.hysteresis {
+            let bad = |message: String| PhysicsError::Dimension {
+                at: self.at(Item::Model),
+                message: format!("Preisach operator '{}': {message}", h.prefix),
+            };
+            if !self.states.iter().any(|s| s.name == h.driver) {
+                return Err(bad(format!("'{}' is not a state", h.driver)));
+            }
+            if !(1..=32).contains(&h.levels) || !(1..=16).contains(&h.sub) {
+                return Err(bad(format!(
+                    "levels must be 1..=32 and sub 1..=16, got {} and {}",
+                    h.levels, h.sub
+                )));
+            }
+            if !(h.center.is_finite() && h.half_range.is_finite() && h.half_range > 0.0) {
+                return Err(bad(format!(
+                    "center must be finite and half_range > 0, got {} and {}",
+                    h.center, h.half_range
+                )));
             }
         }
         if let Some(d) = &self.input_delay {
@@ -447,7 +537,8 @@ impl PhysicsSpec {
     pub(crate) fn compile(&self) -> PhysicsResult<Compiled> {
         self.check()?;
         let names = self.var_names();
-        let (n, nu) = (self.states.len(), self.inputs.len());
+        // the Preisach cells are held inputs of the tapes
+        let (n, nu) = (self.states.len(), self.inputs.len() + self.n_cells());
         let known = format!(
             "states: {}; inputs: {}; parameters: {}",
             list(self.states.iter().map(|s| s.name.as_str())),
@@ -514,7 +605,35 @@ impl PhysicsSpec {
             g_used,
             range: self.states.iter().map(|s| (s.lower, s.upper)).collect(),
             delay: self.input_delay_index(),
+            ops: self.compile_hysteresis()?,
         })
+    }
+
+    /// The relay cells of every Preisach operator and their input slots.
+    fn compile_hysteresis(&self) -> PhysicsResult<Vec<CompiledHysteresis>> {
+        let mut slot = self.states.len() + self.inputs.len();
+        let mut out = vec![];
+        for h in &self.hysteresis {
+            let cells = gb_preisach::RelayCells::uniform(h.levels, 1.0, h.sub).map_err(|e| {
+                PhysicsError::Dimension {
+                    at: self.at(Item::Model),
+                    message: format!("Preisach operator '{}': {e}", h.prefix),
+                }
+            })?;
+            out.push(CompiledHysteresis {
+                driver: self
+                    .states
+                    .iter()
+                    .position(|s| s.name == h.driver)
+                    .unwrap_or(0),
+                slot,
+                center: h.center,
+                inv_half: 1.0 / h.half_range,
+                cells,
+            });
+            slot += h.n_cells();
+        }
+        Ok(out)
     }
 
     /// The text of an equation or output (terms joined by ` + `).
@@ -565,8 +684,29 @@ pub(crate) struct Compiled {
     pub(crate) range: Vec<(f64, f64)>,
     /// The index of the input-delay parameter, when there is one.
     pub(crate) delay: Option<usize>,
+    /// The Preisach operators on states.
+    pub(crate) ops: Vec<CompiledHysteresis>,
 }
 
+/// A compiled [`StateHysteresis`]: cells on the unit grid, driven by
+/// `(x[driver] − center)/half_range`, their outputs in the input slots
+/// from `slot`.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct CompiledHysteresis {
+    pub(crate) driver: usize,
+    pub(crate) slot: usize,
+    pub(crate) center: f64,
+    pub(crate) inv_half: f64,
+    pub(crate) cells: gb_preisach::RelayCells,
+}
+
+impl CompiledHysteresis {
+    /// The driver in grid units.
+    #[inline]
+    pub(crate) fn grid_input(&self, x: &[f64]) -> f64 {
+        (x[self.driver] - self.center) * self.inv_half
+    }
+}
 impl Compiled {
     /// Check that every equation and output is finite at `(x, u, θ)`;
     /// the error names the expression and the values of its symbols.
@@ -580,6 +720,12 @@ impl Compiled {
         let names = spec.var_names();
         let mut vals = x.to_vec();
         vals.extend_from_slice(u);
+        for op in &self.ops {
+            let st = op.cells.relay_states(op.grid_input(x));
+            let mut cols = vec![0.0; op.cells.n_cells()];
+            op.cells.columns(&st, &mut cols);
+            vals.extend_from_slice(&cols);
+        }
         vals.extend_from_slice(theta);
         for (tape, used, is_f) in [
             (&self.f, &self.f_used, true),
