@@ -155,7 +155,7 @@ pub(crate) fn fit_proposal(
     ctx: &Context,
 ) -> Result<Evaluated, DiagnoseError> {
     let mut c = assess_from(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
-        e.fit(p, &ctx.at_fold(t.map(|(k, whole)| (k, Some(whole)))))
+        e.fit_choosing(p, &ctx.at_fold(t))
     })?;
     e.rescore(ctx, &mut c)?;
     Ok(c)
@@ -313,7 +313,7 @@ fn iterate(
         plan,
         fold_sims: &fold_sims,
         fold_sims_all: &fold_sims_all,
-        whole_fit: None,
+        start_choice: None,
     };
     let props = proposals(&ctx, tried);
     if props.is_empty() {

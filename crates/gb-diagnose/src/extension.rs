@@ -94,9 +94,10 @@ pub struct Context<'a> {
     /// Free-run simulations of the fold refits on every record of their
     /// `fits` (several records).
     pub(crate) fold_sims_all: &'a [Option<Vec<Vec<f64>>>],
-    /// In a fold's fit (cross-validation): the same candidate fitted on the
-    /// whole fit block, where a multi-start fit chose its start.
-    pub(crate) whole_fit: Option<&'a FittedModel>,
+    /// In a fold's fit (cross-validation): the start a multi-start fit of
+    /// the same candidate chose on the whole fit block
+    /// ([`Extension::fit_choosing`]).
+    pub(crate) start_choice: Option<usize>,
 }
 
 impl<'a> Context<'a> {
@@ -106,12 +107,12 @@ impl<'a> Context<'a> {
         self.at_fold(t.map(|k| (k, None)))
     }
 
-    /// [`Context::at`] for fold `k`, with the candidate's fit on the whole
-    /// fit block when there is one.
-    pub(crate) fn at_fold(&self, t: Option<(usize, Option<&'a FittedModel>)>) -> Context<'a> {
+    /// [`Context::at`] for fold `k`, with the start the candidate's fit on
+    /// the whole fit block chose, when it had several.
+    pub(crate) fn at_fold(&self, t: Option<(usize, Option<usize>)>) -> Context<'a> {
         match t {
-            Some((k, whole_fit)) if k < self.current.folds.len() => Context {
-                whole_fit,
+            Some((k, start_choice)) if k < self.current.folds.len() => Context {
+                start_choice,
                 fit: self.plan.fit_of(Some(k)),
                 fits: self.plan.fits_of(Some(k)),
                 current: &self.current.folds[k],
@@ -157,6 +158,16 @@ pub trait Extension: Sync {
     fn propose(&self, ctx: &Context) -> Vec<Proposal>;
     /// Fit a proposal on the fit block.
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError>;
+    /// [`fit`](Self::fit), saying which of several starts won (a
+    /// multi-start fit): under cross-validation the folds then refit only
+    /// that start ([`Context::start_choice`]). Default: `fit`, no choice.
+    fn fit_choosing(
+        &self,
+        p: &Proposal,
+        ctx: &Context,
+    ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
+        self.fit(p, ctx).map(|m| (m, None))
+    }
     /// An acceptance condition beyond a significant gain.
     fn admits(&self, ctx: &Context, candidate: &Evaluated) -> bool {
         let _ = (ctx, candidate);

@@ -187,30 +187,30 @@ pub(crate) fn physics_fit_record(
 }
 
 /// Of the specs `starts` (one model from several starts), each fitted on
-/// `rec`, the one with the lowest training RMSE; the last error when none
-/// fits.
+/// `rec`, the one with the lowest training RMSE and its index in `starts`;
+/// the last error when none fits.
 pub(crate) fn best_of_starts(
     starts: impl Iterator<Item = Result<PhysicsSpec, DiagnoseError>>,
     rec: &Record,
     obs: &dyn Observer,
-) -> Result<FittedModel, DiagnoseError> {
-    let mut best: Option<(f64, FittedModel)> = None;
+) -> Result<(FittedModel, usize), DiagnoseError> {
+    let mut best: Option<(f64, FittedModel, usize)> = None;
     let mut last_err = None;
-    for spec in starts {
+    for (i, spec) in starts.enumerate() {
         match spec.and_then(|s| fit_physics(&s, rec, obs)) {
             Ok(m) => {
                 let rmse = physics_of(&m)
                     .and_then(PhysicsModel::fit_report)
                     .map_or(f64::INFINITY, |r| r.rmse);
-                if best.as_ref().is_none_or(|(b, _)| rmse < *b) {
-                    best = Some((rmse, m));
+                if best.as_ref().is_none_or(|(b, _, _)| rmse < *b) {
+                    best = Some((rmse, m, i));
                 }
             }
             Err(e) => last_err = Some(e),
         }
     }
     match (best, last_err) {
-        (Some((_, m)), _) => Ok(m),
+        (Some((_, m, i)), _) => Ok((m, i)),
         (None, Some(e)) => Err(e),
         (None, None) => Err(DiagnoseError::InvalidArgument("no start to fit".into())),
     }

@@ -77,10 +77,14 @@ pub(crate) struct Plan {
 /// A fit for the plan's record (`None`) or for fold `k` (`Some(k)`).
 pub(crate) type FitFn<'a> = dyn Fn(Option<usize>) -> Result<FittedModel, DiagnoseError> + Sync + 'a;
 
-/// A fit for the plan's record (`None`, no whole-block fit yet) or for
-/// fold `k` given the fit on the plan's record (`Some((k, whole))`).
+/// A fitted model and, for a multi-start fit, the index of the start that
+/// won.
+pub(crate) type Chosen = (FittedModel, Option<usize>);
+
+/// A fit for the plan's record (`None`) or for fold `k` given the start
+/// the fit on the plan's record chose (`Some((k, start))`).
 pub(crate) type FoldFitFn<'a> =
-    dyn Fn(Option<(usize, &FittedModel)>) -> Result<FittedModel, DiagnoseError> + Sync + 'a;
+    dyn Fn(Option<(usize, Option<usize>)>) -> Result<Chosen, DiagnoseError> + Sync + 'a;
 
 impl Plan {
     /// The plan of `d`: cross-validation when the select block has fewer
@@ -493,34 +497,29 @@ pub(crate) fn assess(
     lineage: Lineage,
     fit: &FitFn,
 ) -> Result<Evaluated, DiagnoseError> {
-    assess_from(plan, d, lineage, &|t| fit(t.map(|(k, _)| k)))
+    assess_from(plan, d, lineage, &|t| {
+        fit(t.map(|(k, _)| k)).map(|m| (m, None))
+    })
 }
 
-/// [`assess`] where the fold fits see the fit on the plan's record (an
-/// extension may take a discrete choice there, such as the start of a
-/// multi-start fit, instead of repeating it per fold).
+/// [`assess`] where the fit on the plan's record may say which of several
+/// starts won, and each fold's fit gets that choice (a multi-start fit
+/// then refits only that start per fold).
 pub(crate) fn assess_from(
     plan: &Plan,
     d: &DiagnoseData,
     lineage: Lineage,
     fit: &FoldFitFn,
 ) -> Result<Evaluated, DiagnoseError> {
-    let raw = fit(None)?;
+    let (raw, start) = fit(None)?;
+    let m = plan.finish(raw, None)?;
     if !plan.cv() {
-        return evaluate_on(plan.finish(raw, None)?, lineage, d, plan.w, None);
+        return evaluate_on(m, lineage, d, plan.w, None);
     }
-    // the folds see the fit as the extension returned it (not wrapped as
-    // an integrating model)
-    let (m, unwrapped) = if plan.integrating {
-        (plan.finish(raw.clone(), None)?, Some(raw))
-    } else {
-        (raw, None)
-    };
-    let whole = unwrapped.as_ref().unwrap_or(&m);
     let folds: Vec<Evaluated> = (0..plan.folds.len())
         .into_par_iter()
         .map(|k| {
-            let mk = plan.finish(fit(Some((k, whole)))?, Some(k))?;
+            let mk = plan.finish(fit(Some((k, start)))?.0, Some(k))?;
             fold_scores(mk, lineage.clone(), d, plan, k)
         })
         .collect::<Result<_, _>>()?;

@@ -136,28 +136,27 @@ pub(super) fn extended(
 }
 
 /// `cur` with the hysteretic state of law `eq` driven by `var`, fitted on
-/// `rec` from each start of `b` ([`B_STARTS`]), the best fit kept; in a
-/// fold of cross-validation (`ctx.whole_fit`) from the whole fit block's
-/// estimate of `b` alone.
+/// `rec` from each start of `b` ([`B_STARTS`]), the best fit kept, and the
+/// index of its start; in a fold of cross-validation only the start the
+/// whole fit block chose (`ctx.start_choice`).
 pub(super) fn fit_state(
     cur: &PhysicsModel,
     rec: &gb_core::Record,
     (eq, var): (&str, &str),
     ctx: &Context,
-) -> Result<FittedModel, DiagnoseError> {
-    let b = &names(eq, var)[2];
-    let whole = ctx.whole_fit.and_then(physics_of);
-    let starts = match whole.and_then(|w| w.parameter(b)) {
-        Some(v) => vec![v.clamp(-1000.0, 1000.0)],
-        None => B_STARTS.to_vec(),
+) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
+    let chosen: Vec<usize> = match ctx.start_choice {
+        Some(i) if i < B_STARTS.len() => vec![i],
+        _ => (0..B_STARTS.len()).collect(),
     };
-    best_of_starts(
-        starts
-            .into_iter()
-            .map(|b0| extended(cur, rec, (eq, var), b0)),
+    let (m, i) = best_of_starts(
+        chosen
+            .iter()
+            .map(|&i| extended(cur, rec, (eq, var), B_STARTS[i])),
         rec,
         ctx.observer,
-    )
+    )?;
+    Ok((m, Some(chosen[i])))
 }
 
 impl Extension for PhysicsHysteresis {
@@ -198,10 +197,17 @@ impl Extension for PhysicsHysteresis {
             })
             .collect()
     }
-    /// Started from the current model's estimates with `w = 0`, `c = 0` and
-    /// each start of `b` (a fold: the whole block's `b`); the lowest
-    /// training RMSE is kept.
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        self.fit_choosing(p, ctx).map(|(m, _)| m)
+    }
+    /// Started from the current model's estimates with `w = 0`, `c = 0` and
+    /// each start of `b` (a fold: the one the whole block chose); the
+    /// lowest training RMSE is kept.
+    fn fit_choosing(
+        &self,
+        p: &Proposal,
+        ctx: &Context,
+    ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-hysteresis: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (eq, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;

@@ -444,8 +444,8 @@ pub(super) fn with_coulomb_law(
 /// The quantiles of the simulation a limit starts from (each start is
 /// fitted and the lowest training RMSE wins: the least-squares fit of a
 /// limit has local optima where it stops binding). Under cross-validation
-/// only the fit on the whole fit block tries them; each fold starts its
-/// limit at that fit's estimate.
+/// only the fit on the whole fit block tries them all; each fold refits
+/// the one that won there.
 const LIMIT_STARTS: [f64; 4] = [0.8, 0.9, 0.95, 0.99];
 
 /// What a candidate adds, in words.
@@ -541,36 +541,38 @@ impl Extension for PhysicsTerms {
         }
         out
     }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        self.fit_choosing(p, ctx).map(|(m, _)| m)
+    }
     /// Started from the current model's estimates (of this fold under
     /// cross-validation) with the new coefficients at 0 and new limits at
-    /// a quantile of the simulation (in a fold: at the whole block's
-    /// estimate).
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+    /// each quantile of [`LIMIT_STARTS`] of the simulation (in a fold only
+    /// at the one the whole fit block chose).
+    fn fit_choosing(
+        &self,
+        p: &Proposal,
+        ctx: &Context,
+    ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
         let bad = |m: &str| DiagnoseError::InvalidArgument(format!("physics-terms: {m}"));
         let cur = physics_of(&ctx.current.model).ok_or_else(|| bad("not a physics model"))?;
         let (kind, at, var) = target(p).ok_or_else(|| bad("no target in the proposal"))?;
-        let limit = matches!(kind, Kind::Ceiling | Kind::Floor | Kind::Clip);
         let rec = physics_fit_record(ctx, cur);
-        if limit {
-            // a fold starts its limit where the whole fit block put it
-            let name = &kind.parameters(&at, &var)[0];
-            let whole = ctx.whole_fit.and_then(physics_of);
-            if let Some(v) = whole.and_then(|w| w.parameter(name)) {
-                let mut s = extended(cur, &rec, (kind, &at, &var), 1.0)?;
-                if let Some(p) = s.parameters.iter_mut().find(|p| &p.name == name) {
-                    p.value = v;
-                }
-                return fit_physics(&s, &rec, ctx.observer);
-            }
+        if !matches!(kind, Kind::Ceiling | Kind::Floor | Kind::Clip) {
+            let s = extended(cur, &rec, (kind, &at, &var), 1.0)?;
+            return Ok((fit_physics(&s, &rec, ctx.observer)?, None));
         }
-        let starts: &[f64] = if limit { &LIMIT_STARTS } else { &[1.0] };
-        best_of_starts(
-            starts
+        let chosen: Vec<usize> = match ctx.start_choice {
+            Some(i) if i < LIMIT_STARTS.len() => vec![i],
+            _ => (0..LIMIT_STARTS.len()).collect(),
+        };
+        let (m, i) = best_of_starts(
+            chosen
                 .iter()
-                .map(|&q| extended(cur, &rec, (kind, &at, &var), q)),
+                .map(|&i| extended(cur, &rec, (kind, &at, &var), LIMIT_STARTS[i])),
             &rec,
             ctx.observer,
-        )
+        )?;
+        Ok((m, Some(chosen[i])))
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()
