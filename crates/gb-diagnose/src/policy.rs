@@ -22,7 +22,7 @@ use crate::DiagnoseError;
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
 /// | `memory_priority_p` | 0.01 | when the best new cause is a plain order increase and a paying hysteresis candidate's gain interval overlaps its interval, the hysteresis candidate is chosen if the direction-of-motion memory test rejects at this level (its model nests the order increase, and the residual's loop is evidence an order increase cannot explain) |
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
-/// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial and block-oriented (Hammerstein, Wiener) candidates are fitted on (their cost is linear in the samples) |
+/// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial, block-oriented (Hammerstein, Wiener) and Preisach-column candidates are fitted on (their cost is linear in the samples) |
 /// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
 /// | `init_window_max`, `init_window_min`, `init_window_divisor` | 50, 10, 8 | leading samples of every evaluated record (report block, cross-validation fold) that set the initial state and are not scored: `clamp(shortest such block / 8, 10, 50)`, the benchmark's 50 on long records, 12 of a 100-sample block |
 /// | `min_block` | 40 | fewest samples of the select and report blocks |
@@ -93,7 +93,8 @@ pub struct DecisionPolicy {
     pub memory_priority_p: f64,
     /// Most fit samples of the hidden-state model.
     pub hidden_state_fit_samples: usize,
-    /// Most fit samples of the polynomial and block-oriented candidates.
+    /// Most fit samples of the polynomial, block-oriented and Preisach-column
+    /// candidates.
     pub nonlinear_fit_samples: usize,
     /// Most fit samples of the tree and Wiener–Hammerstein networks.
     pub expensive_fit_samples: usize,

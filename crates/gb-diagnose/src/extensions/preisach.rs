@@ -74,8 +74,25 @@ impl Extension for PreisachColumns {
             })
             .collect()
     }
+    /// On one training record longer than the policy's
+    /// `nonlinear_fit_samples`, fitted on that many leading samples of the
+    /// fit block (each relay column is stepped per sample and fit).
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)
+        let io = p.lineage.io().ok_or_else(|| {
+            DiagnoseError::InvalidArgument("preisach-columns: not an input-output proposal".into())
+        })?;
+        let n = ctx.policy().nonlinear_fit_samples;
+        if ctx.fits.len() > 1 || ctx.fit.len() <= n {
+            return super::fit_io(io, ctx);
+        }
+        let rec = ctx.fit.slice(0..n);
+        let sub = Context {
+            fit: &rec,
+            fits: std::slice::from_ref(&rec),
+            simulated_fit: ctx.simulated_fit.map(|s| &s[..n.min(s.len())]),
+            ..*ctx
+        };
+        super::fit_io(io, &sub)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()
