@@ -186,18 +186,25 @@ pub(crate) fn physics_fit_record(
     }
 }
 
-/// Of the specs `starts` (one model from several starts), each fitted on
-/// `rec`, the one with the lowest training RMSE and its index in `starts`;
-/// the last error when none fits.
+/// Of the starts `0..n` of one model (`spec_of(i)`; only `choice` when it
+/// is one of them: a fold of cross-validation refitting the start its
+/// whole fit block chose), each fitted on `rec`, the fit with the lowest
+/// training RMSE and the index of its start; the last error when none fits.
 pub(crate) fn best_of_starts(
-    starts: impl Iterator<Item = Result<PhysicsSpec, DiagnoseError>>,
+    n: usize,
+    choice: Option<usize>,
+    spec_of: impl Fn(usize) -> Result<PhysicsSpec, DiagnoseError>,
     rec: &Record,
     obs: &dyn Observer,
-) -> Result<(FittedModel, usize), DiagnoseError> {
+) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
+    let chosen: Vec<usize> = match choice {
+        Some(i) if i < n => vec![i],
+        _ => (0..n).collect(),
+    };
     let mut best: Option<(f64, FittedModel, usize)> = None;
     let mut last_err = None;
-    for (i, spec) in starts.enumerate() {
-        match spec.and_then(|s| fit_physics(&s, rec, obs)) {
+    for &i in &chosen {
+        match spec_of(i).and_then(|s| fit_physics(&s, rec, obs)) {
             Ok(m) => {
                 let rmse = physics_of(&m)
                     .and_then(PhysicsModel::fit_report)
@@ -210,7 +217,7 @@ pub(crate) fn best_of_starts(
         }
     }
     match (best, last_err) {
-        (Some((_, m, i)), _) => Ok((m, i)),
+        (Some((_, m, i)), _) => Ok((m, Some(i))),
         (None, Some(e)) => Err(e),
         (None, None) => Err(DiagnoseError::InvalidArgument("no start to fit".into())),
     }

@@ -145,18 +145,13 @@ pub(super) fn fit_state(
     (eq, var): (&str, &str),
     ctx: &Context,
 ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
-    let chosen: Vec<usize> = match ctx.start_choice {
-        Some(i) if i < B_STARTS.len() => vec![i],
-        _ => (0..B_STARTS.len()).collect(),
-    };
-    let (m, i) = best_of_starts(
-        chosen
-            .iter()
-            .map(|&i| extended(cur, rec, (eq, var), B_STARTS[i])),
+    best_of_starts(
+        B_STARTS.len(),
+        ctx.start_choice,
+        |i| extended(cur, rec, (eq, var), B_STARTS[i]),
         rec,
         ctx.observer,
-    )?;
-    Ok((m, Some(chosen[i])))
+    )
 }
 
 impl Extension for PhysicsHysteresis {

@@ -561,18 +561,13 @@ impl Extension for PhysicsTerms {
             let s = extended(cur, &rec, (kind, &at, &var), 1.0)?;
             return Ok((fit_physics(&s, &rec, ctx.observer)?, None));
         }
-        let chosen: Vec<usize> = match ctx.start_choice {
-            Some(i) if i < LIMIT_STARTS.len() => vec![i],
-            _ => (0..LIMIT_STARTS.len()).collect(),
-        };
-        let (m, i) = best_of_starts(
-            chosen
-                .iter()
-                .map(|&i| extended(cur, &rec, (kind, &at, &var), LIMIT_STARTS[i])),
+        best_of_starts(
+            LIMIT_STARTS.len(),
+            ctx.start_choice,
+            |i| extended(cur, &rec, (kind, &at, &var), LIMIT_STARTS[i]),
             &rec,
             ctx.observer,
-        )?;
-        Ok((m, Some(chosen[i])))
+        )
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()
