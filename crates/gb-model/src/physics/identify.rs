@@ -193,11 +193,7 @@ impl PhysicsFit {
             lm: self.lm,
         }
         .identify_outputs(data, obs);
-        if rmse_of(&forced) < rmse_of(&plain) {
-            forced
-        } else {
-            plain
-        }
+        better_of(forced, plain)
     }
 
     /// With Preisach operators on one state `x_d` that the output measures
@@ -372,11 +368,7 @@ impl PhysicsFit {
             lm: self.lm,
         }
         .identify_outputs(data, obs);
-        if rmse_of(&grown) < rmse_of(&direct) {
-            grown
-        } else {
-            direct
-        }
+        better_of(grown, direct)
     }
 }
 
@@ -513,12 +505,23 @@ impl PhysicsFit {
     }
 }
 
-/// The training RMSE of a fit (infinite for a failed one).
-fn rmse_of(m: &PhysicsResult<PhysicsModel>) -> f64 {
-    m.as_ref()
-        .ok()
-        .and_then(PhysicsModel::fit_report)
-        .map_or(f64::INFINITY, |r| r.rmse)
+/// `a` when its training RMSE is below `b`'s (a failed fit: infinite),
+/// else `b`.
+fn better_of(
+    a: PhysicsResult<PhysicsModel>,
+    b: PhysicsResult<PhysicsModel>,
+) -> PhysicsResult<PhysicsModel> {
+    let rmse = |m: &PhysicsResult<PhysicsModel>| {
+        m.as_ref()
+            .ok()
+            .and_then(PhysicsModel::fit_report)
+            .map_or(f64::INFINITY, |r| r.rmse)
+    };
+    if rmse(&a) < rmse(&b) {
+        a
+    } else {
+        b
+    }
 }
 
 fn termination_text(t: Option<Termination>) -> String {

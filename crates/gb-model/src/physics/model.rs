@@ -42,50 +42,28 @@ pub struct PhysicsModel {
     compiled: Compiled,
 }
 
-/// What a model file stores (postcard).
+/// What every model-file version stores first (version 1 stores only
+/// this).
 #[derive(Serialize, Deserialize)]
-struct Stored {
+struct StoredBase {
     spec: PhysicsSpec,
     theta: Vec<f64>,
     x0: Vec<f64>,
     fit: Option<FitReport>,
     source: Option<String>,
+}
+
+/// What a model file stores (postcard): the base, then the state noise
+/// (version 2), the input delay (version 3) and the Preisach operators on
+/// states (version 4). Postcard writes a nested struct or tuple as its
+/// fields in order, so an older version is the base followed by a
+/// shorter tail.
+#[derive(Serialize, Deserialize)]
+struct Stored {
+    base: StoredBase,
     noise: Option<StateNoise>,
     input_delay: Option<String>,
     hysteresis: Vec<StateHysteresis>,
-}
-
-/// What a version-3 model file stores (no Preisach operators on states).
-#[derive(Deserialize)]
-struct StoredV3 {
-    spec: PhysicsSpec,
-    theta: Vec<f64>,
-    x0: Vec<f64>,
-    fit: Option<FitReport>,
-    source: Option<String>,
-    noise: Option<StateNoise>,
-    input_delay: Option<String>,
-}
-
-/// What a version-2 model file stores (no input delay).
-#[derive(Deserialize)]
-struct StoredV2 {
-    spec: PhysicsSpec,
-    theta: Vec<f64>,
-    x0: Vec<f64>,
-    fit: Option<FitReport>,
-    source: Option<String>,
-    noise: Option<StateNoise>,
-}
-
-/// What a version-1 model file stores (no state noise).
-#[derive(Deserialize)]
-struct StoredV1 {
-    spec: PhysicsSpec,
-    theta: Vec<f64>,
-    x0: Vec<f64>,
-    fit: Option<FitReport>,
-    source: Option<String>,
 }
 
 impl PhysicsModel {
@@ -302,54 +280,39 @@ impl PhysicsModel {
 
     /// Decode a model-file body (checked).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
-        let s: Stored = if version < 2 {
-            let v: StoredV1 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
-            Stored {
-                spec: v.spec,
-                theta: v.theta,
-                x0: v.x0,
-                fit: v.fit,
-                source: v.source,
+        let s: Stored = match version {
+            0 | 1 => Stored {
+                base: gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?,
                 noise: None,
                 input_delay: None,
                 hysteresis: vec![],
+            },
+            2 | 3 => {
+                let (base, noise, input_delay): (StoredBase, _, Option<String>) = if version == 2 {
+                    let (b, n) = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
+                    (b, n, None)
+                } else {
+                    gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?
+                };
+                Stored {
+                    base,
+                    noise,
+                    input_delay,
+                    hysteresis: vec![],
+                }
             }
-        } else if version < 3 {
-            let v: StoredV2 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
-            Stored {
-                spec: v.spec,
-                theta: v.theta,
-                x0: v.x0,
-                fit: v.fit,
-                source: v.source,
-                noise: v.noise,
-                input_delay: None,
-                hysteresis: vec![],
-            }
-        } else if version < 4 {
-            let v: StoredV3 = gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?;
-            Stored {
-                spec: v.spec,
-                theta: v.theta,
-                x0: v.x0,
-                fit: v.fit,
-                source: v.source,
-                noise: v.noise,
-                input_delay: v.input_delay,
-                hysteresis: vec![],
-            }
-        } else {
-            gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?
+            _ => gb_core::decode_postcard(CLASS, version, CLASS_VERSION, body)?,
         };
         let bad = |m: String| CoreError::ModelFile(format!("inconsistent '{CLASS}' model ({m})"));
-        let mut spec = s.spec;
+        let b = s.base;
+        let mut spec = b.spec;
         spec.input_delay = s.input_delay;
         spec.hysteresis = s.hysteresis;
         let mut m = Self::new(spec).map_err(|e| bad(e.to_string()))?;
         m = m
-            .with_values(s.theta, s.x0)
+            .with_values(b.theta, b.x0)
             .map_err(|e| bad(e.to_string()))?;
-        if let Some(f) = &s.fit {
+        if let Some(f) = &b.fit {
             let l = f.free.len();
             if f.covariance.len() != l * l
                 || f.free.iter().any(|c| match *c {
@@ -360,8 +323,8 @@ impl PhysicsModel {
                 return Err(bad("covariance of the wrong size".into()));
             }
         }
-        m.fit = s.fit;
-        m.source = s.source;
+        m.fit = b.fit;
+        m.source = b.source;
         if let Some(n) = s.noise {
             m = m.with_state_noise(n).map_err(|e| bad(e.to_string()))?;
         }
@@ -512,11 +475,13 @@ impl DynamicModel for PhysicsModel {
 
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         let s = Stored {
-            spec: self.spec.clone(),
-            theta: self.theta.clone(),
-            x0: self.x0.clone(),
-            fit: self.fit.clone(),
-            source: self.source.clone(),
+            base: StoredBase {
+                spec: self.spec.clone(),
+                theta: self.theta.clone(),
+                x0: self.x0.clone(),
+                fit: self.fit.clone(),
+                source: self.source.clone(),
+            },
             noise: self.noise.clone(),
             input_delay: self.spec.input_delay.clone(),
             hysteresis: self.spec.hysteresis.clone(),

@@ -205,6 +205,18 @@ fn state_noise_round_trips_and_version_1_files_load() {
     let old = PhysicsModel::decode(&v1, 1).unwrap();
     assert!(old.state_noise().is_none());
     assert_eq!(old.parameters(), m.parameters());
+    // version 2: the state noise after the base
+    let v2 = postcard::to_allocvec(&(
+        m.spec(),
+        m.parameters(),
+        m.initial_state(),
+        None::<super::FitReport>,
+        None::<String>,
+        m.state_noise(),
+    ))
+    .unwrap();
+    let old = PhysicsModel::decode(&v2, 2).unwrap();
+    assert_eq!(old.state_noise(), m.state_noise());
     // malformed levels are refused
     for bad in [vec![None, None, None], vec![Some(-1.0), None, None]] {
         let r = PhysicsModel::new(bouc_wen())
