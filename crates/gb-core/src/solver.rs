@@ -134,6 +134,9 @@ pub enum Termination {
     DampingOverflow,
     /// The problem could not be linearised at the current point.
     Infeasible,
+    /// The last `stall_window` iterations together lowered the cost by
+    /// less than `stall_tol` (relative): a crawl along a flat valley.
+    Stalled,
 }
 
 /// Settings of [`LevenbergMarquardt`]; validate with [`check`](Self::check).
@@ -154,6 +157,8 @@ pub enum Termination {
 /// | `diag_add` | 0 | a: added to the scaling (absolute) |
 /// | `jitter` | 1e-12 | ε: added to the diagonal, relative to `max Gⱼⱼ` |
 /// | `jitter_abs` | 0 | ε₀: added to the diagonal (absolute) |
+/// | `stall_window` | 0 | W: iterations over which progress is judged (0: never) |
+/// | `stall_tol` | 0 | stop when `(S_{k−W} − S_k)/S_k < stall_tol` after iteration k |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmParams {
     /// Most iterations.
@@ -184,6 +189,11 @@ pub struct LmParams {
     pub jitter: f64,
     /// Absolute jitter ε₀ added to the diagonal.
     pub jitter_abs: f64,
+    /// Iterations over which progress is judged by `stall_tol` (0: never).
+    pub stall_window: usize,
+    /// Relative cost decrease over `stall_window` iterations below which the
+    /// run stops ([`Termination::Stalled`]).
+    pub stall_tol: f64,
 }
 
 impl Default for LmParams {
@@ -203,6 +213,8 @@ impl Default for LmParams {
             diag_add: 0.0,
             jitter: 1e-12,
             jitter_abs: 0.0,
+            stall_window: 0,
+            stall_tol: 0.0,
         }
     }
 }
@@ -221,6 +233,14 @@ impl LmParams {
     /// Initial damping.
     pub fn lambda_init(mut self, l: f64) -> Self {
         self.lambda_init = l;
+        self
+    }
+    /// Stop when `window` iterations together lower the cost by less than
+    /// `tol` (relative): `(S_{k−W} − S_k)/S_k < tol`. Cheap insurance
+    /// against crawling along a flat valley until `max_iter`.
+    pub fn stall(mut self, window: usize, tol: f64) -> Self {
+        self.stall_window = window;
+        self.stall_tol = tol;
         self
     }
 
@@ -260,10 +280,11 @@ impl LmParams {
             self.diag_add,
             self.jitter,
             self.jitter_abs,
+            self.stall_tol,
         ];
         if nonneg.iter().any(|v| !(*v >= 0.0 && v.is_finite())) {
             return Err(CoreError::InvalidArgument(
-                "Levenberg-Marquardt: tol, diag_floor(_abs), diag_add and jitter(_abs) must be >= 0"
+                "Levenberg-Marquardt: tol, diag_floor(_abs), diag_add, jitter(_abs) and stall_tol must be >= 0"
                     .into(),
             ));
         }
@@ -493,12 +514,27 @@ impl LevenbergMarquardt {
         ws: &mut LmWorkspace,
         observer: &dyn Observer,
     ) {
+        let w = self.p.stall_window;
+        let mut costs = Vec::with_capacity(if w > 0 { self.p.max_iter + 1 } else { 0 });
+        if w > 0 {
+            costs.push(state.cost);
+        }
         while state.termination.is_none() {
             if state.iterations >= self.p.max_iter {
                 state.termination = Some(Termination::MaxIterations);
                 break;
             }
             self.next_iter(problem, state, ws);
+            if w > 0 {
+                costs.push(state.cost);
+                let k = costs.len() - 1;
+                if state.termination.is_none()
+                    && k >= w
+                    && costs[k - w] - state.cost < self.p.stall_tol * state.cost.max(1e-300)
+                {
+                    state.termination = Some(Termination::Stalled);
+                }
+            }
             observer.iteration(&IterationInfo {
                 solver: "levenberg-marquardt",
                 iteration: state.iterations,
@@ -548,6 +584,60 @@ mod tests {
             self.admissible_calls += 1;
             t[0] <= self.bound
         }
+    }
+
+    /// S(θ) = 1 + e^(−θ) with a Gram matrix 10⁶ times too large: every
+    /// step is accepted but lowers the cost by about 10⁻⁷ (relative), above
+    /// `tol`, so only the iteration limit or the stall rule stops it.
+    struct Crawl;
+    impl LeastSquaresProblem for Crawl {
+        fn n_params(&self) -> usize {
+            1
+        }
+        fn cost(&mut self, t: &[f64]) -> Option<f64> {
+            Some(1.0 + (-t[0]).exp())
+        }
+        fn linearize(&mut self, t: &[f64], g: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+            g[0] = 1e6;
+            grad[0] = 0.5 * (-t[0]).exp();
+            Some(1.0 + (-t[0]).exp())
+        }
+    }
+
+    #[test]
+    fn a_crawl_stops_after_the_stall_window() {
+        let plain = LmParams::default().max_iter(100).check().unwrap();
+        let s = plain.minimize(&mut Crawl, &[0.0], &crate::Silent).unwrap();
+        assert_eq!(s.termination, Some(Termination::MaxIterations));
+        let stalled = LmParams::default()
+            .max_iter(100)
+            .stall(10, 1e-4)
+            .check()
+            .unwrap();
+        let t = stalled
+            .minimize(&mut Crawl, &[0.0], &crate::Silent)
+            .unwrap();
+        assert_eq!(t.termination, Some(Termination::Stalled));
+        assert_eq!(t.iterations, 10);
+        assert!(t.cost < t.initial_cost);
+        // a run that makes progress is not cut short by the same rule
+        let lm = LmParams::default()
+            .tol(1e-14)
+            .stall(10, 1e-4)
+            .check()
+            .unwrap();
+        let mut p = Rosenbrock {
+            admissible_calls: 0,
+            bound: f64::INFINITY,
+        };
+        let r = lm.minimize(&mut p, &[-1.2, 1.0], &crate::Silent).unwrap();
+        assert!(
+            (r.theta[0] - 1.0).abs() < 1e-6,
+            "{:?} {:?}",
+            r.theta,
+            r.termination
+        );
+        assert!(LmParams::default().stall(5, -1.0).check().is_err());
     }
 
     #[test]

@@ -553,6 +553,8 @@ fn optimise_oblique(
         diag_add: 0.0,
         jitter: 0.0,
         jitter_abs: 1e-12,
+        stall_window: 0,
+        stall_tol: 0.0,
     }
     .check()
     .ok()?;

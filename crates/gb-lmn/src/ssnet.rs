@@ -752,6 +752,8 @@ fn lm_fd(
         diag_add: 1e-9,
         jitter: 0.0,
         jitter_abs: 0.0,
+        stall_window: 0,
+        stall_tol: 0.0,
     }
     .check()
     .ok()?;

@@ -1134,18 +1134,18 @@ impl LeastSquaresProblem for JointProblem<'_> {
         let (nf, skip) = (self.lay.n_filter(), self.skip);
         let ns = self.e.len();
         // Jacobian of ŷ: filters by forward differences
+        let s0: Vec<f64> = self.y[skip..]
+            .iter()
+            .zip(&self.e)
+            .map(|(y, e)| y - e)
+            .collect();
+        let mut mj = self.model.clone();
         for j in 0..nf {
             let h = 1e-6 * (1.0 + p[j].abs());
             let mut pj = p.to_vec();
             pj[j] += h;
-            let mut mj = self.model.clone();
             self.lay.unpack(&pj, &mut mj);
             let s = mj.simulate(self.u);
-            let s0: Vec<f64> = self.y[skip..]
-                .iter()
-                .zip(&self.e)
-                .map(|(y, e)| y - e)
-                .collect();
             for t in 0..ns {
                 self.jac[(t, j)] = (s[skip + t] - s0[t]) / h;
             }
@@ -1156,15 +1156,7 @@ impl LeastSquaresProblem for JointProblem<'_> {
                 self.jac[(t, nf + k)] = c[skip + t];
             }
         }
-        let jtj = self.jac.tr_mul(&self.jac);
-        let jte = self.jac.tr_mul(&DVector::from_column_slice(&self.e));
-        let n = jtj.nrows();
-        for i in 0..n {
-            for j in 0..n {
-                gram[i * n + j] = jtj[(i, j)];
-            }
-        }
-        grad.copy_from_slice(jte.as_slice());
+        normal_equations(&self.jac, &self.e, gram, grad);
         Some(cost)
     }
     fn admissible(&mut self, p: &[f64]) -> bool {
@@ -1196,6 +1188,8 @@ fn wh_solver(iters: usize, tol: f64) -> LevenbergMarquardt {
         diag_add: 1e-12,
         jitter: 0.0,
         jitter_abs: 0.0,
+        stall_window: 0,
+        stall_tol: 0.0,
     }
     .check()
     .expect("valid Wiener-Hammerstein solver settings")
@@ -1246,16 +1240,45 @@ impl LeastSquaresProblem for ResidualProblem<'_> {
                 self.jac[(t, j)] = (e[t] - ej[t]) / h;
             }
         }
-        let jtj = self.jac.tr_mul(&self.jac);
-        let jte = self.jac.tr_mul(&DVector::from_column_slice(e));
-        let np = self.np;
-        for i in 0..np {
-            for j in 0..np {
-                gram[i * np + j] = jtj[(i, j)];
-            }
-        }
-        grad.copy_from_slice(jte.as_slice());
+        normal_equations(&self.jac, e, gram, grad);
         Some(e.iter().map(|v| v * v).sum::<f64>())
+    }
+}
+
+/// `JᵀJ` (row-major into `gram`) and `Jᵀe` of a column-major `J` (rows =
+/// samples): one blocked matrix product instead of a dot product per
+/// entry.
+fn normal_equations(jac: &DMatrix<f64>, e: &[f64], gram: &mut [f64], grad: &mut [f64]) {
+    let (ns, np) = jac.shape();
+    assert!(gram.len() == np * np && grad.len() == np && e.len() == ns);
+    let a = jac.as_slice();
+    // SAFETY: A = Jᵀ is np × ns with strides (ns, 1) and B = J is ns × np
+    // with strides (1, ns), both inside J's ns·np column-major storage; C
+    // is np × np with strides (np, 1) inside `gram`, which aliases neither.
+    unsafe {
+        matrixmultiply::dgemm(
+            np,
+            ns,
+            np,
+            1.0,
+            a.as_ptr(),
+            ns as isize,
+            1,
+            a.as_ptr(),
+            1,
+            ns as isize,
+            0.0,
+            gram.as_mut_ptr(),
+            np as isize,
+            1,
+        );
+    }
+    for (j, g) in grad.iter_mut().enumerate() {
+        *g = a[j * ns..(j + 1) * ns]
+            .iter()
+            .zip(e)
+            .map(|(x, y)| x * y)
+            .sum();
     }
 }
 

@@ -903,6 +903,8 @@ impl OutputError {
             jitter: 1e-14,
             diag_floor_abs: 0.0,
             jitter_abs: 0.0,
+            stall_window: 0,
+            stall_tol: 0.0,
         }
     }
 

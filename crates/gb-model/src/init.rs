@@ -149,6 +149,8 @@ impl SparseStateSpace {
             jitter: 0.0,
             diag_floor_abs: 0.0,
             jitter_abs: 0.0,
+            stall_window: 0,
+            stall_tol: 0.0,
         }
         .check()?;
         x = solver.minimize(&mut problem, &x, &Silent)?.theta;

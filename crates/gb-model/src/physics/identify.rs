@@ -13,6 +13,7 @@ use gb_core::{Identify, Observer, Record, Records};
 /// |---|---|---|
 /// | `max_iter` | 200 | Levenberg–Marquardt iterations |
 /// | `tol` | 1e-10 | relative cost decrease that counts as converged |
+/// | `stall` | (10, 1e-4) | stop when 10 iterations together lower the cost by less than 0.01 % (a crawl along a flat valley: the parameters there are not determined by the data anyway) |
 #[derive(Debug, Clone)]
 pub struct PhysicsFitParams {
     spec: PhysicsSpec,
@@ -26,7 +27,7 @@ impl PhysicsFitParams {
         Self {
             spec,
             source: None,
-            lm: LmParams::default().max_iter(200).tol(1e-10),
+            lm: LmParams::default().max_iter(200).tol(1e-10).stall(10, 1e-4),
         }
     }
     /// Most iterations.
@@ -37,6 +38,12 @@ impl PhysicsFitParams {
     /// Convergence tolerance.
     pub fn tol(mut self, t: f64) -> Self {
         self.lm = self.lm.tol(t);
+        self
+    }
+    /// Stop when `window` iterations together lower the cost by less than
+    /// `tol` (relative; window 0: never).
+    pub fn stall(mut self, window: usize, tol: f64) -> Self {
+        self.lm = self.lm.stall(window, tol);
         self
     }
     /// The model file's text, stored with the fitted model.
@@ -531,6 +538,7 @@ fn termination_text(t: Option<Termination>) -> String {
         Some(Termination::NoImprovement) => "converged (no further decrease)".into(),
         Some(Termination::DampingOverflow) => "converged (damping limit)".into(),
         Some(Termination::Infeasible) => "stopped: infeasible point".into(),
+        Some(Termination::Stalled) => "stopped: progress below the stall threshold".into(),
         _ => "stopped".into(),
     }
 }
