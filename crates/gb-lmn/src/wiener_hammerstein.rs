@@ -25,7 +25,9 @@
 //! 3. the best splits, each with 1, 2, … `extra_g1` further free poles and
 //!    zeros in G₁, are refined by Levenberg–Marquardt on the simulation error
 //!    over all filter coefficients and local-model parameters jointly (poles
-//!    kept inside |z| < 0.999); the one with the smallest error on a
+//!    kept inside |z| < 0.999), in two rounds: each for a third of the
+//!    iterations, then the best `candidates` by the held-out error for the
+//!    rest (successive halving); the one with the smallest error on a
 //!    held-out tail of the training data is kept and trained on all of it.
 use crate::LmnError;
 use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
@@ -864,9 +866,12 @@ impl WhFitter {
     }
 
     /// Refine every start network with each extra G₁ order (zero
-    /// coefficients appended to b₁ and a₁) by LM on `..n_fit`; returns the
-    /// refined networks with their hold-out RMSE (0 without a hold-out), and
-    /// those RMSEs in order (start-major).
+    /// coefficients appended to b₁ and a₁) by LM on `..n_fit`, in two
+    /// rounds (successive halving): every one for a third of `max_iter`
+    /// iterations, then the `candidates` best by the hold-out error (by the
+    /// fit error without a hold-out) for the rest. Returns the refined
+    /// networks with their hold-out RMSE (0 without a hold-out), and those
+    /// RMSEs in order (start-major).
     #[allow(clippy::too_many_arguments)]
     fn refine_starts(
         &self,
@@ -880,12 +885,20 @@ impl WhFitter {
         observer: &dyn Observer,
     ) -> Result<(Vec<ScoredNetwork>, Vec<f64>)> {
         let n = u.len();
-        let mut refined = vec![];
-        let mut holdout_rmse = vec![];
+        let holdout = |m: &WienerHammersteinNetwork| {
+            if n_fit < n {
+                tail_rms(&m.simulate(u), y, n_fit)
+            } else {
+                0.0
+            }
+        };
+        let first = self.p.max_iter.div_ceil(3);
+        // (hold-out RMSE, fit RMSE, network) after the first round
+        let mut round: Vec<(f64, f64, WienerHammersteinNetwork)> = vec![];
         for m0 in starts {
             for &extra in extras {
                 observer.progress(
-                    2 + refined.len(),
+                    2 + round.len(),
                     total,
                     "Wiener-Hammerstein: joint Levenberg-Marquardt of a split",
                 );
@@ -894,17 +907,28 @@ impl WhFitter {
                     m.b1.push(0.0);
                     m.a1.push(0.0);
                 }
-                let (m, _, _) =
-                    self.refine(m, &u[..n_fit], &y[..n_fit], self.p.max_iter, skip, observer)?;
-                let e = if n_fit < n {
-                    tail_rms(&m.simulate(u), y, n_fit)
-                } else {
-                    0.0
-                };
-                holdout_rmse.push(e);
-                refined.push((e, m));
+                let (m, fit, _) =
+                    self.refine(m, &u[..n_fit], &y[..n_fit], first, skip, observer)?;
+                round.push((holdout(&m), fit, m));
             }
         }
+        let score = |r: &(f64, f64, WienerHammersteinNetwork)| if n_fit < n { r.0 } else { r.1 };
+        let mut order: Vec<usize> = (0..round.len()).collect();
+        order.sort_by(|&a, &b| score(&round[a]).total_cmp(&score(&round[b])));
+        let rest = self.p.max_iter.saturating_sub(first);
+        for &i in order.iter().take(self.p.candidates) {
+            if rest == 0 {
+                break;
+            }
+            let m = round[i].2.clone();
+            let (m, fit, _) = self.refine(m, &u[..n_fit], &y[..n_fit], rest, skip, observer)?;
+            round[i] = (holdout(&m), fit, m);
+        }
+        let holdout_rmse = round.iter().map(|r| r.0).collect();
+        let refined = round
+            .into_iter()
+            .map(|(e, fit, m)| (if n_fit < n { e } else { fit }, m))
+            .collect();
         Ok((refined, holdout_rmse))
     }
 
