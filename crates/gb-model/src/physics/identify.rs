@@ -13,7 +13,7 @@ use gb_core::{Identify, Observer, Record, Records};
 /// |---|---|---|
 /// | `max_iter` | 200 | Levenberg–Marquardt iterations |
 /// | `tol` | 1e-10 | relative cost decrease that counts as converged |
-/// | `stall` | (10, 1e-4) | stop when 10 iterations together lower the cost by less than 0.01 % (a crawl along a flat valley: the parameters there are not determined by the data anyway) |
+/// | `stall` | (10, 1e-5) | stop when 10 iterations together lower the cost by less than 0.001 % (a crawl along a flat valley; 1e-4 also stopped the overflow limit of the tanks test while it was still on its way) |
 #[derive(Debug, Clone)]
 pub struct PhysicsFitParams {
     spec: PhysicsSpec,
@@ -27,7 +27,7 @@ impl PhysicsFitParams {
         Self {
             spec,
             source: None,
-            lm: LmParams::default().max_iter(200).tol(1e-10).stall(10, 1e-4),
+            lm: LmParams::default().max_iter(200).tol(1e-10).stall(10, 1e-5),
         }
     }
     /// Most iterations.
