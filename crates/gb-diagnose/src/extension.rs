@@ -6,7 +6,7 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
+    Backlash, Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
     MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
     PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
 };
@@ -223,6 +223,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &Wiener,
     &WienerHammerstein,
     &PreisachColumns,
+    &Backlash,
     &MechanicalHysteresis,
     &MechanicalNonlinearity,
     &LinearOrder,

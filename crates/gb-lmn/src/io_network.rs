@@ -11,6 +11,7 @@
 //! | `hysteresis` | false | play operators and a relay grid on the simulated output, play operators per input |
 //! | `separable_hysteresis` | false | the hysteresis weights at lags 1..L as one shape times one lag filter (one hysteretic force; W + L − 1 weights instead of W·L) |
 //! | `hysteresis_on` | both | which signals carry those columns: both, the input plays only (hysteresis before the dynamics, a backlash) or the output plays only (a Prandtl–Ishlinskii force on the state, no relay grid: shift-invariant) |
+//! | `input_play_at` | none | play thresholds per input (normalised units) instead of the grid of input plays: a backlash of fitted width |
 //! | `relay_sub` | 4 | relays per cell side of the output relay grid ([`gb_preisach::RelayCells`]): its columns move in 16 steps per cell, not one jump (1 = hard relays) |
 //! | `output_map` | 0 | ramp columns of a static map g(ŷ) of the simulated output fed back at lags 1..n+1 (a nonlinear spring or friction force of the output state; knots at quantiles of the output; 0: none) |
 //! | `robust` | false | Student-t noise model, IRLS output-error fit |
@@ -65,6 +66,10 @@ pub struct IoNetworkParams {
     /// Relays per cell side of the output relay grid (≥ 1; 1 = one hard
     /// relay per cell).
     pub relay_sub: usize,
+    /// Play thresholds per input in normalised (unit-variance) units,
+    /// replacing the grid of input plays (`None`: the grid): a backlash of
+    /// fitted half-width is one threshold on one input.
+    pub input_play_at: Option<Vec<Vec<f64>>>,
     /// Intervals of a static map of the simulated output inside the loop
     /// (0: none): g(ŷ) piecewise linear, its ramp columns at lags 1..n+1.
     pub output_map: usize,
@@ -90,6 +95,7 @@ impl IoNetworkParams {
             hysteresis_on: HysteresisOn::Both,
             separable_hysteresis: false,
             relay_sub: 4,
+            input_play_at: None,
             output_map: 0,
             robust: false,
             detail: 0,
@@ -145,8 +151,10 @@ impl IoNetworkParams {
             // continuous dynamics and varies between samples
             spec.hysteresis_lags = self.order + 1;
             if self.hysteresis_on != HysteresisOn::Output {
-                spec.input_play =
-                    vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs];
+                spec.input_play = match &self.input_play_at {
+                    Some(at) if at.len() == n_inputs => at.clone(),
+                    _ => vec![(1..=ni).map(|i| 2.4 * i as f64 / ni as f64).collect(); n_inputs],
+                };
             }
         }
         if self.output_map > 0 {
@@ -400,8 +408,9 @@ fn quantile_knots(y: &[f64], m: usize) -> Option<Vec<f64>> {
 }
 
 /// Half the 1 %–99 % quantile range of `u` in units of its standard
-/// deviation (NaN for a constant or too short signal).
-fn half_range(u: &[f64]) -> f64 {
+/// deviation (NaN for a constant or too short signal): the largest play
+/// threshold (normalised units) that still moves on `u`.
+pub fn half_range(u: &[f64]) -> f64 {
     normalised_sorted(u).map_or(f64::NAN, |z| {
         (quantile(&z, 0.99) - quantile(&z, 0.01)) / 2.0
     })

@@ -80,7 +80,7 @@ mod wiener_hammerstein;
 pub use block::{BlockModel, BlockParams, MapBasis, StaticMap, ValidBlockParams};
 pub use hilomot::{LmnParams, SplitKind, ValidLmnParams};
 pub use io_network::{
-    HysteresisOn, IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER,
+    half_range, HysteresisOn, IoNetworkParams, ValidIoNetworkParams, WarmStart, MAX_IO_ORDER,
 };
 pub use lmn::{Criterion, FitSummary, Focus, LmnModel, SplitInfo};
 pub use lolimot::{

@@ -1,4 +1,5 @@
 //! The candidate extensions, one file each (see [`crate::Extension`]).
+mod backlash;
 mod capacity;
 mod hammerstein;
 mod hidden_state;
@@ -17,6 +18,7 @@ mod student_t;
 mod wiener;
 mod wiener_hammerstein;
 
+pub use backlash::Backlash;
 pub use capacity::Capacity;
 pub use hammerstein::Hammerstein;
 pub use hidden_state::HiddenState;

@@ -1,0 +1,240 @@
+//! `hysteresis` before the dynamics: one play operator (a backlash) on one
+//! input, its half-width fitted on the training data.
+use crate::evaluate::{residuals_on, Evaluated, Lineage};
+use crate::extension::{Context, Extension, Proposal};
+use crate::plan::core;
+use crate::{Cause, DiagnoseError};
+use gb_core::FittedModel;
+use gb_lmn::{HysteresisOn, IoNetworkParams, LocalModelNetwork};
+use rayon::prelude::*;
+
+/// Half-widths scanned, in units of the input's standard deviation
+/// (ratio 1.5 from 0.04 σ to 1.5 σ; those above the input's half range
+/// `(q₉₉ − q₁)/2` are dropped).
+const SCAN: [f64; 10] = [0.04, 0.06, 0.09, 0.135, 0.2, 0.3, 0.45, 0.68, 1.0, 1.5];
+
+/// Fine steps around the scan's best: `r·1.5^(k/FINE)` for
+/// `k = −FINE+1 … FINE−1` (a grid ratio of 1.07).
+const FINE: i32 = 6;
+
+/// The half-width of choice `c` ([`Extension::fit_choosing`]): scan index
+/// `c / (2·FINE − 1)`, fine step `c mod (2·FINE − 1) − (FINE − 1)`.
+fn half_width_of(c: usize) -> Option<f64> {
+    let per = (2 * FINE - 1) as usize;
+    let base = SCAN.get(c / per)?;
+    let k = (c % per) as i32 - (FINE - 1);
+    Some(base * 1.5f64.powf(f64::from(k) / f64::from(FINE)))
+}
+
+/// A backlash (play operator `P_r`, half-width `r`) on input `j`, then the
+/// current linear dynamics, the input itself kept as a regressor:
+///
+/// ```text
+/// ŷ(k) = −Σ aᵢ ŷ(k−i) + Σ bᵢ u_j(k−d−i) + Σ cₗ P_r[u_j](k−d−l) + …
+/// ```
+///
+/// `r` is chosen by the fit block's free-run error (a scan, then finer
+/// steps around its best; a best at or below the scan's lowest value, where
+/// the play is the input itself, is no backlash and the candidate is
+/// dropped); every other coefficient is fitted output-error for
+/// each `r`. The grid of [`super::PreisachColumns`]' input plays (steps of
+/// 0.3 σ) can only interpolate a gear play of, say, 0.2 σ; this fits it.
+pub struct Backlash;
+
+/// The input a proposal's play sits on.
+fn input_of(p: &Proposal) -> Option<usize> {
+    let io = p.lineage.io()?;
+    let at = io.input_play_at.as_ref()?;
+    at.iter().position(|t| !t.is_empty())
+}
+
+impl Backlash {
+    /// Fit the proposal with half-width `r` on input `j`; its free-run
+    /// NRMSE on the fit block (after the init window) as the score.
+    fn fit_at(io: &IoNetworkParams, j: usize, r: f64, ctx: &Context) -> Option<(f64, FittedModel)> {
+        let mut at = vec![vec![]; ctx.fit.n_inputs()];
+        at[j] = vec![r];
+        let p = IoNetworkParams {
+            input_play_at: Some(at),
+            ..io.clone()
+        };
+        let m = super::fit_io(&p, ctx).ok()?;
+        let w = ctx.plan.w.min(ctx.fit.len() / 4);
+        let res = residuals_on(&m, ctx.fit, &(0..ctx.fit.len()), w).ok()?;
+        let sd = gb_core::metrics::std(ctx.fit.output.get(w..)?);
+        let score = gb_core::metrics::rms(&res.e) / sd.max(1e-300);
+        score.is_finite().then_some((score, m))
+    }
+
+    /// Scan [`SCAN`], then the fine steps around its best; the best fit
+    /// and its choice index (see [`half_width_of`]).
+    fn search(io: &IoNetworkParams, j: usize, ctx: &Context) -> Option<(usize, FittedModel)> {
+        let top = gb_lmn::half_range(&ctx.fit.inputs[j]);
+        let per = (2 * FINE - 1) as usize;
+        let centre = (FINE - 1) as usize;
+        let coarse: Vec<usize> = (0..SCAN.len())
+            .filter(|&i| !top.is_finite() || i == 0 || SCAN[i] <= top)
+            .map(|i| i * per + centre)
+            .collect();
+        let fit_all = |choices: &[usize]| -> Vec<(usize, f64, FittedModel)> {
+            choices
+                .par_iter()
+                .filter_map(|&c| {
+                    let (s, m) = Self::fit_at(io, j, half_width_of(c)?, ctx)?;
+                    Some((c, s, m))
+                })
+                .collect()
+        };
+        let best =
+            |v: Vec<(usize, f64, FittedModel)>| v.into_iter().min_by(|a, b| a.1.total_cmp(&b.1));
+        let first = best(fit_all(&coarse))?;
+        let base = first.0 - centre;
+        let fine: Vec<usize> = (0..per)
+            .filter(|&k| k != centre)
+            .map(|k| base + k)
+            .collect();
+        let mut all = fit_all(&fine);
+        all.push(first);
+        // at the scan's lower end the play is the input itself: no
+        // backlash, and any gain would be the delay variant's alone
+        best(all)
+            .filter(|(c, _, _)| half_width_of(*c).is_some_and(|r| r > SCAN[0]))
+            .map(|(c, _, m)| (c, m))
+    }
+}
+
+impl Extension for Backlash {
+    fn name(&self) -> &'static str {
+        "backlash"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Hysteresis
+    }
+    /// When the current model is a plain linear input–output model: with
+    /// one input, one proposal per delay variant ([`super::delay_variants`]:
+    /// the current delay, one sample either side, the plain one-sample
+    /// delay; a backlash holds the response at every reversal, which a
+    /// linear fit takes for extra dead time); with several, one per input
+    /// at the current delays.
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        let Some(p) = ctx
+            .current
+            .lineage
+            .io()
+            .filter(|p| !p.hysteresis && !p.network && p.output_map == 0)
+        else {
+            return vec![];
+        };
+        let n = ctx.fit.n_inputs();
+        let (_, delay) = super::io_structure(p, n);
+        let delays = if n == 1 {
+            super::delay_variants(&delay)
+        } else {
+            vec![delay]
+        };
+        let mut out = vec![];
+        for d in delays {
+            let Some(dv) = d
+                .split('/')
+                .map(|v| v.parse().ok())
+                .collect::<Option<Vec<usize>>>()
+            else {
+                continue;
+            };
+            for j in 0..n {
+                let mut at = vec![vec![]; n];
+                at[j] = vec![f64::NAN];
+                out.push(Proposal {
+                    cause: Cause::Hysteresis,
+                    lineage: Lineage::Io(IoNetworkParams {
+                        hysteresis: true,
+                        hysteresis_on: HysteresisOn::Inputs,
+                        separable_hysteresis: false,
+                        input_play_at: Some(at),
+                        delay: dv.clone(),
+                        ..p.clone()
+                    }),
+                    text: format!(
+                        "a backlash on input '{}' (one play operator, its half-width fitted on the training data), the input kept as well, then the linear dynamics of order {} (input delay {d}), trained output-error",
+                        ctx.fit.input_names.get(j).map_or("?", String::as_str),
+                        p.order
+                    ),
+                });
+            }
+        }
+        out
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        self.fit_choosing(p, ctx).map(|(m, _)| m)
+    }
+    /// The half-width is searched on the fit block (on one training record
+    /// longer than the policy's `nonlinear_fit_samples`, on that many
+    /// leading samples); a fold of cross-validation refits at the chosen
+    /// half-width only, as the current model's order and delay are kept.
+    fn fit_choosing(
+        &self,
+        p: &Proposal,
+        ctx: &Context,
+    ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
+        let bad = || DiagnoseError::InvalidArgument("backlash: not a backlash proposal".into());
+        let io = p.lineage.io().ok_or_else(bad)?;
+        let j = input_of(p).ok_or_else(bad)?;
+        let n = ctx.policy().nonlinear_fit_samples;
+        let rec;
+        let sub;
+        let c = if ctx.fits.len() > 1 || ctx.fit.len() <= n {
+            ctx
+        } else {
+            rec = ctx.fit.slice(0..n);
+            sub = Context {
+                fit: &rec,
+                fits: std::slice::from_ref(&rec),
+                simulated_fit: ctx.simulated_fit.map(|s| &s[..n.min(s.len())]),
+                ..*ctx
+            };
+            &sub
+        };
+        let found = match ctx.start_choice {
+            Some(k) => half_width_of(k)
+                .and_then(|r| Self::fit_at(io, j, r, c))
+                .map(|(_, m)| (k, m)),
+            None => Self::search(io, j, c),
+        };
+        found.map(|(k, m)| (m, Some(k))).ok_or_else(|| {
+            DiagnoseError::Core(gb_core::CoreError::Unstable(
+                "backlash: no half-width could be fitted".into(),
+            ))
+        })
+    }
+    /// The fitted half-width goes into the lineage: later steps (an order
+    /// increase) keep this play, not the grid.
+    fn rescore(&self, _ctx: &Context, c: &mut Evaluated) -> Result<(), DiagnoseError> {
+        let at = fitted_plays(&c.model);
+        if let (Lineage::Io(p), Some(at)) = (&mut c.lineage, at) {
+            p.input_play_at = Some(at);
+        }
+        Ok(())
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.hysteresis_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        let r = fitted_plays(fitted)
+            .and_then(|at| at.into_iter().flatten().next())
+            .map_or(String::new(), |r| {
+                format!(" -> half-width {r:.3} standard deviations of the input")
+            });
+        format!("{}{r}", p.text)
+    }
+    fn input(&self, p: &Proposal, ctx: &Context) -> Option<String> {
+        input_of(p).and_then(|j| ctx.fit.input_names.get(j).cloned())
+    }
+}
+
+/// The input play thresholds of a fitted input–output network.
+fn fitted_plays(m: &FittedModel) -> Option<Vec<Vec<f64>>> {
+    core(m)
+        .as_any()
+        .downcast_ref::<LocalModelNetwork>()
+        .map(|n| n.spec.input_play.clone())
+}
