@@ -142,6 +142,8 @@ impl Extension for Backlash {
                 continue;
             };
             for j in 0..n {
+                // NaN marks the input whose half-width the fit chooses
+                // (`input_of`); `rescore` writes the fitted one
                 let mut at = vec![vec![]; n];
                 at[j] = vec![f64::NAN];
                 out.push(Proposal {
@@ -179,27 +181,14 @@ impl Extension for Backlash {
         let bad = || DiagnoseError::InvalidArgument("backlash: not a backlash proposal".into());
         let io = p.lineage.io().ok_or_else(bad)?;
         let j = input_of(p).ok_or_else(bad)?;
-        let n = ctx.policy().nonlinear_fit_samples;
-        let rec;
-        let sub;
-        let c = if ctx.fits.len() > 1 || ctx.fit.len() <= n {
-            ctx
-        } else {
-            rec = ctx.fit.slice(0..n);
-            sub = Context {
-                fit: &rec,
-                fits: std::slice::from_ref(&rec),
-                simulated_fit: ctx.simulated_fit.map(|s| &s[..n.min(s.len())]),
-                ..*ctx
-            };
-            &sub
-        };
-        let found = match ctx.start_choice {
-            Some(k) => half_width_of(k)
-                .and_then(|r| Self::fit_at(io, j, r, c))
-                .map(|(_, m)| (k, m)),
-            None => Self::search(io, j, c),
-        };
+        let found = super::on_leading(ctx, ctx.policy().nonlinear_fit_samples, |c| {
+            match ctx.start_choice {
+                Some(k) => half_width_of(k)
+                    .and_then(|r| Self::fit_at(io, j, r, c))
+                    .map(|(_, m)| (k, m)),
+                None => Self::search(io, j, c),
+            }
+        });
         found.map(|(k, m)| (m, Some(k))).ok_or_else(|| {
             DiagnoseError::Core(gb_core::CoreError::Unstable(
                 "backlash: no half-width could be fitted".into(),

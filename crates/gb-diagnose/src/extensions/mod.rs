@@ -94,6 +94,23 @@ pub(crate) fn delay_variants(d: &str) -> Vec<String> {
     out
 }
 
+/// `f` on the context whose fit block is the first `n` samples of `ctx`'s
+/// when there is one training record longer than `n` (the fits whose cost
+/// is linear in the samples, capped by the policy), else on `ctx` itself.
+pub(crate) fn on_leading<T>(ctx: &Context, n: usize, f: impl FnOnce(&Context) -> T) -> T {
+    if ctx.fits.len() > 1 || ctx.fit.len() <= n {
+        return f(ctx);
+    }
+    let rec = ctx.fit.slice(0..n);
+    let sub = Context {
+        fit: &rec,
+        fits: std::slice::from_ref(&rec),
+        simulated_fit: ctx.simulated_fit.map(|s| &s[..n.min(s.len())]),
+        ..*ctx
+    };
+    f(&sub)
+}
+
 /// Fit the recipe of a proposal's spec (`greybox fit --model SPEC`) on at
 /// most `cap` samples of the fit block (the recipes the diagnosis proposes
 /// are single-record: with several training records, the longest fit

@@ -81,18 +81,9 @@ impl Extension for PreisachColumns {
         let io = p.lineage.io().ok_or_else(|| {
             DiagnoseError::InvalidArgument("preisach-columns: not an input-output proposal".into())
         })?;
-        let n = ctx.policy().nonlinear_fit_samples;
-        if ctx.fits.len() > 1 || ctx.fit.len() <= n {
-            return super::fit_io(io, ctx);
-        }
-        let rec = ctx.fit.slice(0..n);
-        let sub = Context {
-            fit: &rec,
-            fits: std::slice::from_ref(&rec),
-            simulated_fit: ctx.simulated_fit.map(|s| &s[..n.min(s.len())]),
-            ..*ctx
-        };
-        super::fit_io(io, &sub)
+        super::on_leading(ctx, ctx.policy().nonlinear_fit_samples, |c| {
+            super::fit_io(io, c)
+        })
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()
