@@ -88,7 +88,9 @@ pub(crate) fn score(
         GainMetric::Nrmse => {
             let (g, ci) =
                 relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
-            let pays = ci[0] > 0.0 && g >= pol.min_gain;
+            let large =
+                g >= pol.min_gain || answers_missing_dynamics(proposal.cause, &fitted, ctx, g);
+            let pays = ci[0] > 0.0 && large;
             let pays = pays && pays_from_a_fresh_start(&fitted, ctx, seed);
             let pays = pays && wins_on_most_folds(&fitted, ctx);
             (g, ci, pays && realised_by_the_refit(&fitted, ctx))
@@ -103,6 +105,28 @@ pub(crate) fn score(
         ci,
         pays,
     }
+}
+
+/// A `dynamics` candidate whose gain is significant but below the policy's
+/// `min_gain` is large enough when it answers the residual evidence of
+/// missing dynamics: the current model's input–residual cross-correlation
+/// test (the verdict's prewhitened `r_ue`) rejects at the verdict level on
+/// some input, the candidate's passes on every input, and the gain is at
+/// least `evidenced_dynamics_gain` (a second mode of small amplitude moves
+/// the NRMSE by a few per cent but leaves the input in the residual).
+fn answers_missing_dynamics(cause: Cause, fitted: &Evaluated, ctx: &Context, g: f64) -> bool {
+    let pol = ctx.policy();
+    if cause != Cause::Dynamics || g < pol.evidenced_dynamics_gain {
+        return false;
+    }
+    let u = ctx.plan.decision_inputs(ctx.data);
+    let before = crate::verdict::input_cross_p(&ctx.current.select.e, &u);
+    let after = crate::verdict::input_cross_p(&fitted.select.e, &u);
+    let level = pol.verdict_level;
+    !after.is_empty()
+        && after.len() == before.len()
+        && before.iter().any(|&p| p < level)
+        && after.iter().all(|&p| p >= level)
 }
 
 /// Under the select-block plan, whether `cand` also pays against the

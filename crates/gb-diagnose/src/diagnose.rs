@@ -403,6 +403,25 @@ pub fn diagnose(
     search(d, opts, obs, Some(Instant::now() + budget))
 }
 
+/// Whether the residuals of `cur` on the decision data show no hint of
+/// structure: no test of the verdict ([`crate::verdict::verdict`]) rejects
+/// with each run at the policy's `search_stop_level` (uncorrected), the
+/// residual is within `verdict_noise_ratio` times the white-noise level,
+/// and the Jarque–Bera test does not reject normality at that level
+/// either (heavy tails are the `noise` cause's evidence). The search for
+/// a cause runs where the residual shows one.
+fn adequate(cur: &Evaluated, inputs: &[Vec<f64>], pol: &DecisionPolicy) -> bool {
+    let normal = crate::stats::jarque_bera(&cur.select.e).3 >= pol.search_stop_level;
+    normal
+        && crate::verdict::quiet(
+            &cur.select.e,
+            &cur.select.yhat,
+            inputs,
+            pol.search_stop_level,
+            pol.verdict_noise_ratio,
+        )
+}
+
 /// The diagnosis loop; with a `deadline`, no step starts after it.
 pub(crate) fn search(
     d: &DiagnoseData,
@@ -430,6 +449,7 @@ pub(crate) fn search(
     let mut steps = vec![];
     let mut causes: Vec<Cause> = vec![];
     let mut tried = HashSet::new();
+    let inputs = plan.decision_inputs(d);
     for it in 1..=opts.max_steps {
         if deadline.is_some_and(|t| Instant::now() > t) {
             choice.decision.push_str(&format!(
@@ -444,6 +464,14 @@ pub(crate) fn search(
             &format!("step {it}: fitting candidate extensions"),
         );
         let cur = chain.last().expect("the chain holds the baseline");
+        if opts.policy.stop_when_adequate && adequate(cur, &inputs, &opts.policy) {
+            choice.decision.push_str(&format!(
+                "; before step {it} every residual test passed at the {} % level (each test, uncorrected; normality too) and the residual was within {}× the white-noise level: no extension was searched",
+                100.0 * opts.policy.search_stop_level,
+                opts.policy.verdict_noise_ratio
+            ));
+            break;
+        }
         let run = Run {
             d,
             plan: &plan,

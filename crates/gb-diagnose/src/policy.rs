@@ -8,6 +8,7 @@ use crate::DiagnoseError;
 /// | field | default | rationale |
 /// |---|---|---|
 /// | `min_gain` | 0.05 | a structural extension must lower the select-block NRMSE by ≥ 5 % (an effect size, on top of significance) |
+/// | `evidenced_dynamics_gain` | 0.01 | a `dynamics` candidate (an order increase) with a significant gain below `min_gain` still pays when it lowers the select-block NRMSE by ≥ 1 % and answers the evidence of missing dynamics: the current model's input–residual cross-correlation test rejects at `verdict_level`, the candidate's passes on every input |
 /// | `min_nll_gain` | 0.02 | a noise model must lower the select-block negative log-likelihood by ≥ 0.02 nats/sample |
 /// | `bootstrap` | 400 | moving-block bootstrap replicates of every gain interval (95 %) |
 /// | `seed` | 1 | seed of the bootstrap streams (a diagnosis is reproducible) |
@@ -52,11 +53,15 @@ use crate::DiagnoseError;
 /// | `process_noise_particles`, `process_noise_iterations` | 100, 100 | particles and PMMH iterations (a quarter burn-in) of that fit: two noise levels started at their Gaussian estimate need few |
 /// | `process_noise_filter_particles` | 1000 | particles of the filter that scores a non-Gaussian process-noise model's predictive likelihood on held-out data |
 /// | `prediction_horizon` | 10 | the k of the k-step prediction RMSE reported (with 1-step) for a process-noise model |
+/// | `stop_when_adequate`, `search_stop_level` | true, 0.05 | before each step the current model's residuals on the decision data get the verdict's tests, each at 5 % without the Bonferroni correction (a lenient reading: any hint of structure counts), and the Jarque–Bera normality test (heavy tails: the `noise` cause); when none rejects and the residual is within `verdict_noise_ratio` × the white-noise level, no extension is searched — the search runs where the residual shows a cause (clean data: the baseline alone) |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
     /// Smallest relative NRMSE gain on the select block that counts.
     pub min_gain: f64,
+    /// Smallest select-block gain of a `dynamics` candidate that turns a
+    /// rejecting input cross-correlation test into a passing one.
+    pub evidenced_dynamics_gain: f64,
     /// Smallest nll gain per sample (nats) that counts for `noise`.
     pub min_nll_gain: f64,
     /// Bootstrap replicates.
@@ -173,12 +178,19 @@ pub struct DecisionPolicy {
     /// Largest residual RMS, in units of the output's white-noise level,
     /// that "adequate" or "coloured noise" may leave.
     pub verdict_noise_ratio: f64,
+    /// Search no extension while the current model's residuals pass the
+    /// verdict's tests.
+    pub stop_when_adequate: bool,
+    /// Level of each residual test (uncorrected) below which the search
+    /// goes on.
+    pub search_stop_level: f64,
 }
 
 impl Default for DecisionPolicy {
     fn default() -> Self {
         Self {
             min_gain: 0.05,
+            evidenced_dynamics_gain: 0.01,
             min_nll_gain: 0.02,
             bootstrap: 400,
             seed: 1,
@@ -232,6 +244,8 @@ impl Default for DecisionPolicy {
             process_noise_filter_particles: 1000,
             prediction_horizon: 10,
             verdict_noise_ratio: 3.0,
+            stop_when_adequate: true,
+            search_stop_level: 0.05,
         }
     }
 }
@@ -244,8 +258,11 @@ impl DecisionPolicy {
                 "decision policy: {m}"
             )))
         };
-        if !(0.0..1.0).contains(&self.min_gain) || self.bootstrap < 50 {
-            return bad("min_gain in [0,1), bootstrap >= 50");
+        if !(0.0..1.0).contains(&self.min_gain)
+            || !(0.0..1.0).contains(&self.evidenced_dynamics_gain)
+            || self.bootstrap < 50
+        {
+            return bad("min_gain and evidenced_dynamics_gain in [0,1), bootstrap >= 50");
         }
         if !(self.min_nll_gain >= 0.0 && self.min_nll_gain.is_finite()) {
             return bad("min_nll_gain >= 0");
@@ -271,6 +288,7 @@ impl DecisionPolicy {
         if !p_ok(self.heavy_tail_p)
             || !p_ok(self.unexplained_p)
             || !p_ok(self.verdict_level)
+            || !p_ok(self.search_stop_level)
             || !p_ok(self.memory_priority_p)
         {
             return bad("p-value levels in (0,1)");

@@ -107,6 +107,26 @@ fn cross_test(a: &[f64], e: &[f64]) -> (f64, f64) {
     (q, stats::chi2_sf(q, r.len() as f64))
 }
 
+/// Whether no test of [`verdict`] rejects with each test run at
+/// `per_test` (no Bonferroni correction: a lenient reading, any hint of
+/// structure counts) and the residual is within `ratio` times the
+/// white-noise level.
+pub(crate) fn quiet(e: &[f64], yhat: &[f64], u: &[Vec<f64>], per_test: f64, ratio: f64) -> bool {
+    // the verdict runs each of its 3 + 3·inputs tests at level / k
+    let k = (3 + 3 * u.len()) as f64;
+    verdict(e, yhat, u, (per_test * k, ratio), &[]).kind == VerdictKind::Adequate
+}
+
+/// p-values of the prewhitened input–residual cross-correlation test
+/// (the verdict's `r_ue`), one per input; `e` and the inputs `u` over the
+/// same samples.
+pub(crate) fn input_cross_p(e: &[f64], u: &[Vec<f64>]) -> Vec<f64> {
+    u.iter()
+        .filter(|uj| uj.len() == e.len())
+        .map(|uj| cross_test(uj, e).1)
+        .collect()
+}
+
 /// White-noise level of `y`: `median(|d₁|)/0.6745` of its finest db4
 /// detail coefficients (`None` for fewer than 16 samples).
 ///
