@@ -420,7 +420,7 @@ fn summary_section(body: &mut String, r: &Report, title: &str) {
         body,
         "<h1>{}</h1>\n<p class=\"lead\">Causes: <b>{}</b>. Validation NRMSE (free-run simulation) \
          {:.4} &rarr; {:.4}.</p>\n<p class=\"verdict\">Verdict: {}.</p>\n<p>Data: inputs {} &rarr; output {}; {} fit / {} select / {} \
-         report samples; {}.</p>\n",
+         report samples; {}.</p>\n<p>Decisions: {}.</p>\n",
         esc(title),
         esc(&causes),
         r.baseline.nrmse,
@@ -431,7 +431,8 @@ fn summary_section(body: &mut String, r: &Report, title: &str) {
         r.data.samples_fit,
         r.data.samples_select,
         r.data.samples_validate,
-        esc(&r.data.split)
+        esc(&r.data.split),
+        esc(&r.data.decision)
     );
     body.push_str("<h2>Steps and gains</h2>\n<table>\n<tr><th>step</th><th>cause</th><th>extension</th><th>NRMSE before</th><th>NRMSE after</th><th>gain</th><th>select gain [95 % CI]</th><th>nll before</th><th>nll after</th><th>accepted</th></tr>\n");
     let _ = writeln!(

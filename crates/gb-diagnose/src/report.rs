@@ -265,11 +265,13 @@ impl Report {
             r.baseline.model, r.baseline.nrmse, r.baseline.nll
         );
         let _ = writeln!(s, "          {}\n", r.structure.text());
-        let _ = writeln!(
-            s,
-            "{:<4} {:<14} {:>8} {:>8} {:>8} {:>25} {:<8} extension / evidence",
-            "step", "cause", "NRMSE", "->", "gain", "select gain [95%]", "accepted"
-        );
+        if !r.steps.is_empty() {
+            let _ = writeln!(
+                s,
+                "{:<4} {:<14} {:>8} {:>8} {:>8} {:>25} {:<8} extension / evidence",
+                "step", "cause", "NRMSE", "->", "gain", "select gain [95%]", "accepted"
+            );
+        }
         for st in &r.steps {
             let gain = if st.gain_metric == "nll" {
                 format!("{:+.3}nll", st.gain)
