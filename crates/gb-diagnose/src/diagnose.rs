@@ -410,7 +410,7 @@ pub fn diagnose(
 /// and the Jarque–Bera test does not reject normality at that level
 /// either (heavy tails are the `noise` cause's evidence). The search for
 /// a cause runs where the residual shows one.
-fn adequate(cur: &Evaluated, inputs: &[Vec<f64>], pol: &DecisionPolicy) -> bool {
+fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], pol: &DecisionPolicy) -> bool {
     let normal = crate::stats::jarque_bera(&cur.select.e).3 >= pol.search_stop_level;
     normal
         && crate::verdict::quiet(
@@ -464,7 +464,7 @@ pub(crate) fn search(
             &format!("step {it}: fitting candidate extensions"),
         );
         let cur = chain.last().expect("the chain holds the baseline");
-        if opts.policy.stop_when_adequate && adequate(cur, &inputs, &opts.policy) {
+        if opts.policy.stop_when_adequate && residual_quiet(cur, &inputs, &opts.policy) {
             choice.decision.push_str(&format!(
                 "; before step {it} every residual test passed at the {} % level (each test, uncorrected; normality too) and the residual was within {}× the white-noise level: no extension was searched",
                 100.0 * opts.policy.search_stop_level,
