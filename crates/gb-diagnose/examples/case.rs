@@ -1,11 +1,12 @@
 //! Diagnose one generated case and print the text report.
 //!
 //! ```sh
-//! cargo run --release -p gb-diagnose --example case -- linear 3 [--n-train N] [--order auto|N] [--csv DIR]
+//! cargo run --release -p gb-diagnose --example case -- linear 3 [--n-train N] [--order auto|N] [--csv DIR] [--noise-free]
 //! ```
 //!
 //! `--csv DIR` also writes the case as `DIR/train.csv` and `DIR/validate.csv`
-//! (for `greybox fit` / `greybox diagnose` on the same data).
+//! (for `greybox fit` / `greybox diagnose` on the same data); `--noise-free`
+//! draws the same case without noise (what a model class can reach).
 use gb_diagnose::generator::{draw_with, Knobs};
 use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice};
 use std::error::Error;
@@ -14,14 +15,22 @@ use std::time::Instant;
 fn main() -> Result<(), Box<dyn Error>> {
     let a: Vec<String> = std::env::args().skip(1).collect();
     if a.len() < 2 {
-        eprintln!("usage: case FAMILY SEED [--n-train N] [--n-validate N] [--order auto|N]");
+        eprintln!("usage: case FAMILY SEED [--n-train N] [--n-validate N] [--order auto|N] [--csv DIR] [--noise-free]");
         std::process::exit(2);
     }
     let mut knobs = Knobs::default();
     let mut order = None;
     let mut csv_dir = None;
     let mut i = 2;
-    while i + 1 < a.len() {
+    while i < a.len() {
+        if a[i] == "--noise-free" {
+            knobs.noise_free = true;
+            i += 1;
+            continue;
+        }
+        if i + 1 >= a.len() {
+            return Err(format!("flag {} needs a value", a[i]).into());
+        }
         match a[i].as_str() {
             "--n-train" => knobs.n_train = Some(a[i + 1].parse()?),
             "--n-validate" => knobs.n_validate = Some(a[i + 1].parse()?),

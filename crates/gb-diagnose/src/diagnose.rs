@@ -95,7 +95,7 @@ pub struct Diagnosis {
 /// What one iteration decided.
 struct Iteration {
     rows: Vec<Step>,
-    chosen: Option<(Cause, Evaluated)>,
+    chosen: Option<(Evaluated, crate::refit::Pick)>,
 }
 
 /// The proposals of the regular extensions (not the escalation).
@@ -259,7 +259,7 @@ struct Run<'a> {
 
 /// Free-run simulation of the dynamics `m` extends on `rec`, started from
 /// its measured history (the warm start of output-error constructions).
-fn simulated_on(m: &FittedModel, rec: &gb_core::Record) -> Option<Vec<f64>> {
+pub(crate) fn simulated_on(m: &FittedModel, rec: &gb_core::Record) -> Option<Vec<f64>> {
     let c = core(m);
     let hist = c.history_len().min(rec.len());
     c.simulate(&rec.inputs, Init::History(&rec.output[..hist]))
@@ -349,7 +349,7 @@ fn iterate(
     let rows = rows(&cands, chosen, note.as_deref(), &ctx, it);
     let chosen = chosen.map(|i| {
         let c = cands.swap_remove(i);
-        (c.cause(), c.fitted)
+        (c.fitted, (c.proposal.cause, c.ext, c.proposal))
     });
     Some(Iteration { rows, chosen })
 }
@@ -400,7 +400,7 @@ pub fn diagnose(
         return crate::long::diagnose_long(d, opts, obs);
     }
     let budget = Duration::from_secs_f64(pol.search_budget_s);
-    search(d, opts, obs, Some(Instant::now() + budget))
+    search(d, opts, obs, Some(Instant::now() + budget), true)
 }
 
 /// Whether the residuals of `cur` on the decision data show no hint of
@@ -422,12 +422,15 @@ fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], pol: &DecisionPolicy) ->
         )
 }
 
-/// The diagnosis loop; with a `deadline`, no step starts after it.
+/// The diagnosis loop; with a `deadline`, no step starts after it. With
+/// `refit`, the chosen chain is refitted on the whole training record
+/// ([`crate::refit`]).
 pub(crate) fn search(
     d: &DiagnoseData,
     opts: &DiagnoseOptions,
     obs: &dyn Observer,
     deadline: Option<Instant>,
+    refit: bool,
 ) -> Result<Diagnosis, DiagnoseError> {
     let total = 1 + opts.max_steps;
     obs.progress(0, total, "fitting the baseline");
@@ -449,6 +452,7 @@ pub(crate) fn search(
     let mut steps = vec![];
     let mut causes: Vec<Cause> = vec![];
     let mut tried = HashSet::new();
+    let mut picks: Vec<crate::refit::Pick> = vec![];
     let inputs = plan.decision_inputs(d);
     for it in 1..=opts.max_steps {
         if deadline.is_some_and(|t| Instant::now() > t) {
@@ -483,20 +487,31 @@ pub(crate) fn search(
         };
         steps.extend(step.rows);
         match step.chosen {
-            Some((cause, model)) => {
-                if !causes.contains(&cause) {
-                    causes.push(cause);
+            Some((model, pick)) => {
+                if !causes.contains(&pick.0) {
+                    causes.push(pick.0);
                 }
                 chain.push(model);
+                picks.push(pick);
             }
             None => break,
         }
     }
+    let refitted = refit
+        .then(|| crate::refit::refit_chain(d, &plan, &chain, &picks, opts, obs))
+        .flatten();
     obs.progress(total, total, "done");
+    let (reported, judged) = match refitted {
+        Some((r, note)) => {
+            choice.decision.push_str(&note);
+            (r, Some(chain))
+        }
+        None => (chain, None),
+    };
     Ok(assemble(
         d,
         &plan,
-        chain,
+        (reported, judged.as_deref()),
         steps,
         causes,
         choice,
@@ -504,19 +519,23 @@ pub(crate) fn search(
     ))
 }
 
-/// The diagnosis from its chain of models and its rows.
+/// The diagnosis from its chain of models and its rows: `(chain, judged)`,
+/// the models reported and, when they were refitted on the whole training
+/// record, the chain as the search fitted it, whose held-out residuals the
+/// evidence and the verdict read.
 pub(crate) fn assemble(
     d: &DiagnoseData,
     plan: &Plan,
-    chain: Vec<Evaluated>,
+    (chain, judged): (Vec<Evaluated>, Option<&[Evaluated]>),
     steps: Vec<Step>,
     causes: Vec<Cause>,
     structure: StructureChoice,
     pol: &DecisionPolicy,
 ) -> Diagnosis {
     let inputs = plan.decision_inputs(d);
-    let base = &chain[0];
-    let last = chain.last().expect("the chain holds the baseline");
+    let held = judged.unwrap_or(&chain);
+    let (base, last) = (&held[0], &held[held.len() - 1]);
+    let (base_model, final_model) = (&chain[0], &chain[chain.len() - 1]);
     let final_evidence = Evidence::compute(&last.select.e, &last.select.yhat, &inputs);
     let noise = chain.iter().rev().find_map(|e| e.finding.clone());
     // a noise model that paid on held-out data explains the residual's
@@ -551,11 +570,11 @@ pub(crate) fn assemble(
             decision: structure.decision.clone(),
             records: d.record_summaries(),
         },
-        baseline: ModelSummary::of(base),
+        baseline: ModelSummary::of(base_model),
         structure,
         steps,
         causes,
-        final_model: ModelSummary::of(last),
+        final_model: ModelSummary::of(final_model),
         evidence: Evidence::compute(&base.select.e, &base.select.yhat, &inputs),
         final_evidence,
         verdict,
@@ -563,7 +582,7 @@ pub(crate) fn assemble(
     };
     Diagnosis {
         report,
-        model: last.model.clone(),
+        model: final_model.model.clone(),
         chain,
     }
 }

@@ -41,6 +41,7 @@ mod long;
 mod physics;
 mod plan;
 mod policy;
+mod refit;
 mod report;
 mod select;
 pub mod stats;

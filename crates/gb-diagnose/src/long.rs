@@ -60,7 +60,7 @@ pub(crate) fn diagnose_long(
     let pol = &opts.policy;
     let sub = subsample(d, pol.search_samples);
     let deadline = Instant::now() + Duration::from_secs_f64(pol.search_budget_s);
-    let found = search(&sub, opts, obs, Some(deadline))?;
+    let found = search(&sub, opts, obs, Some(deadline), false)?;
     let integrating = found.report.baseline.integrating;
     let plan = Plan::new(d, pol).integrating(integrating);
     let last = found.chain.len() - 1;
@@ -91,7 +91,7 @@ pub(crate) fn diagnose_long(
     let mut dg = assemble(
         d,
         &plan,
-        chain,
+        (chain, None),
         found.report.steps,
         found.report.causes,
         structure,

@@ -1,0 +1,227 @@
+//! The final refit: the search chooses every structure on the fit block
+//! and judges it on the held-out select block; the model a user keeps is
+//! that structure fitted on the whole training record (fit and select
+//! blocks: the usual hold-out protocol — choose on held-out data, then fit
+//! the choice on everything the training record holds). On a short record
+//! the fit block alone may not cover the input range the select block
+//! reaches (a cubic input map then extrapolates linearly), or hold too few
+//! periods of the slowest mode.
+//!
+//! The chain is refitted in order: the baseline (input–output models and
+//! the engineer's equations), then each accepted extension fitted by its
+//! own [`Extension`] on the refitted model before it. The refitted chain
+//! replaces the fit-block fits only when every refit succeeded and the
+//! final model's free-run squared error over the whole training record is
+//! not larger,
+//!
+//! ```text
+//! Σₖ (y_k − ŷ_k^refit)² ≤ Σₖ (y_k − ŷ_k^fit block)²,   k over fit ∪ select (after the init window),
+//! ```
+//!
+//! which a refit that converged always satisfies (it minimises the left
+//! side, the fit-block model is one of its candidates' neighbours) and a
+//! refit that fell into a worse local minimum does not: a training-data
+//! rule, the report block is not read. A chain with a noise model
+//! (process noise, Student-t) is kept as fitted: that model's criterion is
+//! not the squared simulation error.
+use crate::evaluate::{evaluate_on, residuals_on, Evaluated, Lineage};
+use crate::evidence::Evidence;
+use crate::extension::{Context, Extension, Proposal};
+use crate::plan::Plan;
+use crate::{Cause, DiagnoseData, DiagnoseOptions};
+use gb_core::{FittedModel, Observer, Record};
+
+/// An accepted step of the search: its cause, the extension and the
+/// proposal it fitted.
+pub(crate) type Pick = (Cause, &'static dyn Extension, Proposal);
+
+/// The chain refitted on the whole training record, and a sentence for the
+/// report's decisions line; `None` when the refit does not apply (the
+/// policy turns it off, decisions used cross-validation, which already
+/// fits on the whole record, or there are several training records).
+pub(crate) fn refit_chain(
+    d: &DiagnoseData,
+    plan: &Plan,
+    chain: &[Evaluated],
+    picks: &[Pick],
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+) -> Option<(Vec<Evaluated>, String)> {
+    if !opts.policy.refit_on_training || plan.cv() || d.multi() || d.select.is_empty() {
+        return None;
+    }
+    let whole_y = d.train.slice(d.fit.start..d.select.end);
+    let whole = Plan {
+        w: plan.w,
+        integrating: false,
+        fit: whole_y.clone(),
+        fit_y: whole_y.clone(),
+        fits: vec![whole_y.clone()],
+        fits_y: vec![whole_y.clone()],
+        folds: vec![],
+        shift: None,
+    }
+    .integrating(plan.integrating);
+    let sse = |m: &FittedModel| -> f64 {
+        residuals_on(m, &whole_y, &(0..whole_y.len()), plan.w)
+            .map_or(f64::INFINITY, |r| r.e.iter().map(|e| e * e).sum())
+    };
+    let kept = |why: &str| {
+        Some((
+            chain.to_vec(),
+            format!(
+                "; the chain refitted on all {} training samples (fit and select blocks) was not kept ({why}): the final model is the fit-block fit",
+                whole_y.len()
+            ),
+        ))
+    };
+    if picks.iter().any(|(c, _, _)| *c == Cause::Noise) {
+        // a noise model's criterion is not the squared simulation error
+        return None;
+    }
+    let Some(base) = refit_baseline(&chain[0], &whole, d, opts, obs) else {
+        return kept("the baseline's refit failed");
+    };
+    let mut out: Vec<Evaluated> = vec![base];
+    let mut causes: Vec<Cause> = vec![];
+    for (i, (cause, ext, p)) in picks.iter().enumerate() {
+        let run = Refit {
+            whole: &whole,
+            d,
+            causes: &causes,
+            opts,
+            obs,
+        };
+        let Some(next) = run.step(*ext, p, &out[i], &chain[i]) else {
+            return kept(&format!("the refit of step {} failed", i + 1));
+        };
+        out.push(next);
+        if !causes.contains(cause) {
+            causes.push(*cause);
+        }
+    }
+    let n = chain.len();
+    let (before, after) = (sse(&chain[n - 1].model), sse(&out[n - 1].model));
+    let scored = whole_y.len() - plan.w.min(whole_y.len());
+    if after > before {
+        return kept(&format!(
+            "its free-run RMSE over them {:.4e} exceeds the fit-block fit's {:.4e}",
+            rms_of(after, scored),
+            rms_of(before, scored)
+        ));
+    }
+    let note = format!(
+        "; the chosen structure refitted on all {} training samples (fit and select blocks), the baseline and each accepted step in turn (free-run RMSE of the final model over them {:.4e} -> {:.4e}); the decisions and the verdict use the fit-block fits' held-out residuals",
+        whole_y.len(),
+        rms_of(before, scored),
+        rms_of(after, scored),
+    );
+    Some((out, note))
+}
+
+/// `√(sse / n)`.
+fn rms_of(sse: f64, n: usize) -> f64 {
+    (sse / n.max(1) as f64).sqrt()
+}
+
+/// The baseline refitted on the whole plan's record: an input–output
+/// network by its own parameters (warm-started from itself), the
+/// engineer's equations from their estimates; `None` for other classes.
+fn refit_baseline(
+    base: &Evaluated,
+    whole: &Plan,
+    d: &DiagnoseData,
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+) -> Option<Evaluated> {
+    let m = match &base.lineage {
+        Lineage::Io(p) => {
+            let inputs = d.select_inputs(whole.w);
+            let ev = Evidence::compute(&base.select.e, &base.select.yhat, &inputs);
+            let sims = simulated(&base.model, &whole.fit);
+            let run = Refit {
+                whole,
+                d,
+                causes: &[],
+                opts,
+                obs,
+            };
+            crate::extensions::fit_io(p, &run.context(base, &ev, sims.as_deref())).ok()?
+        }
+        Lineage::Other { .. } => {
+            let phys = crate::physics::physics_of(&base.model)?;
+            let spec = phys.with_start_at_values().ok()?.spec().clone();
+            crate::physics::fit_physics(&spec, &whole.fit, obs).ok()?
+        }
+        Lineage::HiddenState { .. } => return None,
+    };
+    let m = whole.finish(m, None).ok()?;
+    let mut e = evaluate_on(m, base.lineage.clone(), d, whole.w, None).ok()?;
+    e.finding = base.finding.clone();
+    Some(e)
+}
+
+/// What the refits of one chain share.
+struct Refit<'a> {
+    /// The plan whose fit record is the whole training record.
+    whole: &'a Plan,
+    d: &'a DiagnoseData,
+    /// Causes named before the step.
+    causes: &'a [Cause],
+    opts: &'a DiagnoseOptions,
+    obs: &'a dyn Observer,
+}
+
+impl<'a> Refit<'a> {
+    /// Step `p` of extension `ext` refitted on the whole record on top of
+    /// the refitted model `prev` (`judged`: the model before the step as
+    /// the search fitted it, whose held-out residuals the extension's
+    /// evidence reads).
+    fn step(
+        &self,
+        ext: &'static dyn Extension,
+        p: &Proposal,
+        prev: &Evaluated,
+        judged: &Evaluated,
+    ) -> Option<Evaluated> {
+        let inputs = self.d.select_inputs(self.whole.w);
+        let ev = Evidence::compute(&judged.select.e, &judged.select.yhat, &inputs);
+        let sims = simulated(&prev.model, &self.whole.fit);
+        let ctx = self.context(prev, &ev, sims.as_deref());
+        let (m, _) = ext.fit_choosing(p, &ctx).ok()?;
+        let m = self.whole.finish(m, None).ok()?;
+        let mut e = evaluate_on(m, p.lineage.clone(), self.d, self.whole.w, None).ok()?;
+        ext.rescore(&ctx, &mut e).ok()?;
+        Some(e)
+    }
+
+    /// The context of a refit on the whole record.
+    fn context<'b>(
+        &'b self,
+        current: &'b Evaluated,
+        evidence: &'b Evidence,
+        simulated_fit: Option<&'b [f64]>,
+    ) -> Context<'b> {
+        Context {
+            data: self.d,
+            fit: &self.whole.fit,
+            fits: &self.whole.fits,
+            current,
+            causes: self.causes,
+            evidence,
+            options: self.opts,
+            simulated_fit,
+            simulated_fits: None,
+            observer: self.obs,
+            plan: self.whole,
+            fold_sims: &[],
+            fold_sims_all: &[],
+            start_choice: None,
+        }
+    }
+}
+
+/// The free-run simulation of the dynamics `m` extends on `rec`.
+fn simulated(m: &FittedModel, rec: &Record) -> Option<Vec<f64>> {
+    crate::diagnose::simulated_on(m, rec)
+}
