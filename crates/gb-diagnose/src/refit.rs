@@ -70,7 +70,7 @@ pub(crate) fn refit_chain(
         Some((
             chain.to_vec(),
             format!(
-                "; the chain refitted on all {} training samples (fit and select blocks) was not kept ({why}): the final model is the fit-block fit",
+                "; the chain refitted on the whole training record ({} samples: fit and select blocks) was not kept ({why}): the final model is the fit-block fit",
                 whole_y.len()
             ),
         ))
@@ -105,13 +105,13 @@ pub(crate) fn refit_chain(
     let scored = whole_y.len() - plan.w.min(whole_y.len());
     if after > before {
         return kept(&format!(
-            "its free-run RMSE over them {:.4e} exceeds the fit-block fit's {:.4e}",
+            "its free-run RMSE over the record {:.4e} exceeds the fit-block fit's {:.4e}",
             rms_of(after, scored),
             rms_of(before, scored)
         ));
     }
     let note = format!(
-        "; the chosen structure refitted on all {} training samples (fit and select blocks), the baseline and each accepted step in turn (free-run RMSE of the final model over them {:.4e} -> {:.4e}); the decisions and the verdict use the fit-block fits' held-out residuals",
+        "; the chosen structure refitted on the whole training record ({} samples: fit and select blocks, each extension within its own sample cap), the baseline and each accepted step in turn (free-run RMSE of the final model over the record {:.4e} -> {:.4e}); the decisions and the verdict use the fit-block fits' held-out residuals",
         whole_y.len(),
         rms_of(before, scored),
         rms_of(after, scored),

@@ -38,7 +38,7 @@ fn the_chosen_structure_refitted_on_all_training_samples_reaches_the_floor() {
     assert!(
         with.data
             .decision
-            .contains("refitted on all 1425 training samples"),
+            .contains("refitted on the whole training record (1425 samples:"),
         "{}",
         with.data.decision
     );
