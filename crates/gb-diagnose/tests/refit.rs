@@ -45,3 +45,33 @@ fn the_chosen_structure_refitted_on_all_training_samples_reaches_the_floor() {
     assert_eq!(with.steps.len(), without.steps.len());
     assert_eq!(with.causes, without.causes);
 }
+
+/// Under cross-validation (`saturation` seed 1: 608 training samples, too
+/// few for a select block) the models are already fitted on the whole
+/// training record: the refit does not run, and the final model is the
+/// same with the policy on or off.
+#[test]
+fn cross_validated_decisions_are_not_refitted() {
+    let c = draw("saturation", 1).unwrap();
+    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
+    let run = |refit: bool| {
+        let mut o = DiagnoseOptions {
+            order: OrderChoice::Fixed(c.model_order),
+            ..DiagnoseOptions::default()
+        };
+        o.policy.refit_on_training = refit;
+        diagnose(&d, &o, None).unwrap().report
+    };
+    let (with, without) = (run(true), run(false));
+    assert!(
+        with.data.decision.starts_with("blocked cross-validation")
+            && !with
+                .data
+                .decision
+                .contains("refitted on the whole training record"),
+        "{}",
+        with.data.decision
+    );
+    assert_eq!(with.final_model.nrmse, without.final_model.nrmse);
+    assert_eq!(with.final_model.model, without.final_model.model);
+}
