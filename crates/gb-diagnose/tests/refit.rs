@@ -1,8 +1,25 @@
 //! The final refit on the whole training record: the structure is chosen
 //! on the fit block and judged on the select block, then refitted on both
 //! for the model the user keeps.
-use gb_diagnose::generator::draw;
-use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice};
+use gb_diagnose::generator::{draw, Case};
+use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice, Report};
+
+/// The case `family seed` and its diagnosis with the refit policy on and
+/// off (the engineer's order).
+fn with_and_without_refit(family: &str, seed: u64) -> (Case, Report, Report) {
+    let c = draw(family, seed).unwrap();
+    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
+    let run = |refit: bool| {
+        let mut o = DiagnoseOptions {
+            order: OrderChoice::Fixed(c.model_order),
+            ..DiagnoseOptions::default()
+        };
+        o.policy.refit_on_training = refit;
+        diagnose(&d, &o, None).unwrap().report
+    };
+    let (with, without) = (run(true), run(false));
+    (c, with, without)
+}
 
 /// `two-input` seed 9 (1425 training samples of filtered noise; a cubic
 /// map on input 1, input 2 linear, one first-order block): the
@@ -14,18 +31,8 @@ use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice};
 /// nothing.
 #[test]
 fn the_chosen_structure_refitted_on_all_training_samples_reaches_the_floor() {
-    let c = draw("two-input", 9).unwrap();
-    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
-    let run = |refit: bool| {
-        let mut o = DiagnoseOptions {
-            order: OrderChoice::Fixed(c.model_order),
-            ..DiagnoseOptions::default()
-        };
-        o.policy.refit_on_training = refit;
-        diagnose(&d, &o, None).unwrap().report
-    };
-    let (with, without) = (run(true), run(false));
-    let ratio = |r: &gb_diagnose::Report| r.final_model.nrmse / c.noise_floor_nrmse;
+    let (c, with, without) = with_and_without_refit("two-input", 9);
+    let ratio = |r: &Report| r.final_model.nrmse / c.noise_floor_nrmse;
     let causes: Vec<String> = with.cause_names().iter().map(|s| s.to_string()).collect();
     assert!(
         c.causes_right(&causes) && ratio(&with) <= 1.1 && ratio(&without) >= 2.0,
@@ -52,17 +59,7 @@ fn the_chosen_structure_refitted_on_all_training_samples_reaches_the_floor() {
 /// same with the policy on or off.
 #[test]
 fn cross_validated_decisions_are_not_refitted() {
-    let c = draw("saturation", 1).unwrap();
-    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
-    let run = |refit: bool| {
-        let mut o = DiagnoseOptions {
-            order: OrderChoice::Fixed(c.model_order),
-            ..DiagnoseOptions::default()
-        };
-        o.policy.refit_on_training = refit;
-        diagnose(&d, &o, None).unwrap().report
-    };
-    let (with, without) = (run(true), run(false));
+    let (_, with, without) = with_and_without_refit("saturation", 1);
     assert!(
         with.data.decision.starts_with("blocked cross-validation")
             && !with
