@@ -501,11 +501,12 @@ pub(crate) fn search(
         .then(|| crate::refit::refit_chain(d, &plan, &chain, &picks, opts, obs))
         .flatten();
     obs.progress(total, total, "done");
+    let refitted = refitted.and_then(|(r, note)| {
+        choice.decision.push_str(&note);
+        r
+    });
     let (reported, judged) = match refitted {
-        Some((r, note)) => {
-            choice.decision.push_str(&note);
-            (r, Some(chain))
-        }
+        Some(r) => (r, Some(chain)),
         None => (chain, None),
     };
     Ok(assemble(

@@ -29,16 +29,17 @@ use crate::evidence::Evidence;
 use crate::extension::{Context, Extension, Proposal};
 use crate::plan::Plan;
 use crate::{Cause, DiagnoseData, DiagnoseOptions};
-use gb_core::{FittedModel, Observer, Record};
+use gb_core::{FittedModel, Observer};
 
 /// An accepted step of the search: its cause, the extension and the
 /// proposal it fitted.
 pub(crate) type Pick = (Cause, &'static dyn Extension, Proposal);
 
-/// The chain refitted on the whole training record, and a sentence for the
-/// report's decisions line; `None` when the refit does not apply (the
-/// policy turns it off, decisions used cross-validation, which already
-/// fits on the whole record, or there are several training records).
+/// The chain refitted on the whole training record (`None` inside when it
+/// was not kept) and a sentence for the report's decisions line; `None`
+/// when the refit does not apply (the policy turns it off, decisions used
+/// cross-validation, which already fits on the whole record, there are
+/// several training records, or the chain holds a noise model).
 pub(crate) fn refit_chain(
     d: &DiagnoseData,
     plan: &Plan,
@@ -46,7 +47,7 @@ pub(crate) fn refit_chain(
     picks: &[Pick],
     opts: &DiagnoseOptions,
     obs: &dyn Observer,
-) -> Option<(Vec<Evaluated>, String)> {
+) -> Option<(Option<Vec<Evaluated>>, String)> {
     if !opts.policy.refit_on_training || plan.cv() || d.multi() || d.select.is_empty() {
         return None;
     }
@@ -68,7 +69,7 @@ pub(crate) fn refit_chain(
     };
     let kept = |why: &str| {
         Some((
-            chain.to_vec(),
+            None,
             format!(
                 "; the chain refitted on the whole training record ({} samples: fit and select blocks) was not kept ({why}): the final model is the fit-block fit",
                 whole_y.len()
@@ -116,7 +117,7 @@ pub(crate) fn refit_chain(
         rms_of(before, scored),
         rms_of(after, scored),
     );
-    Some((out, note))
+    Some((Some(out), note))
 }
 
 /// `√(sse / n)`.
@@ -138,7 +139,7 @@ fn refit_baseline(
         Lineage::Io(p) => {
             let inputs = d.select_inputs(whole.w);
             let ev = Evidence::compute(&base.select.e, &base.select.yhat, &inputs);
-            let sims = simulated(&base.model, &whole.fit);
+            let sims = crate::diagnose::simulated_on(&base.model, &whole.fit);
             let run = Refit {
                 whole,
                 d,
@@ -186,7 +187,7 @@ impl<'a> Refit<'a> {
     ) -> Option<Evaluated> {
         let inputs = self.d.select_inputs(self.whole.w);
         let ev = Evidence::compute(&judged.select.e, &judged.select.yhat, &inputs);
-        let sims = simulated(&prev.model, &self.whole.fit);
+        let sims = crate::diagnose::simulated_on(&prev.model, &self.whole.fit);
         let ctx = self.context(prev, &ev, sims.as_deref());
         let (m, _) = ext.fit_choosing(p, &ctx).ok()?;
         let m = self.whole.finish(m, None).ok()?;
@@ -219,9 +220,4 @@ impl<'a> Refit<'a> {
             start_choice: None,
         }
     }
-}
-
-/// The free-run simulation of the dynamics `m` extends on `rec`.
-fn simulated(m: &FittedModel, rec: &Record) -> Option<Vec<f64>> {
-    crate::diagnose::simulated_on(m, rec)
 }
