@@ -9,7 +9,8 @@
 //!
 //! Flags: `--families a,b,..` (default all), `--seeds N` (seeds 1..=N,
 //! default 10), `--first-seed S`, `--quick` (a fixed small subset),
-//! `--markdown FILE`, `--json FILE`, `--order case|auto|N` (default: the
+//! `--cases fam:seed,..` (just these cases; overrides `--families` and
+//! `--seeds`), `--markdown FILE`, `--json FILE`, `--order case|auto|N` (default: the
 //! case's engineer order), `--sequential`, `--dry-run` (list the cases),
 //! knob overrides `--n-train N`, `--snr DB`, `--excitation multisine|noise|prbs|sweep`,
 //! `--spp X`.
@@ -19,6 +20,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 struct Args {
     families: Vec<String>,
+    cases: Vec<(String, u64)>,
     seeds: u64,
     first_seed: u64,
     quick: bool,
@@ -32,6 +34,7 @@ struct Args {
 fn parse() -> Result<Args, String> {
     let mut a = Args {
         families: FAMILIES.iter().map(|s| s.to_string()).collect(),
+        cases: vec![],
         seeds: 10,
         first_seed: 1,
         quick: false,
@@ -50,6 +53,14 @@ fn parse() -> Result<Args, String> {
         };
         match f.as_str() {
             "--families" => a.families = val()?.split(',').map(str::to_string).collect(),
+            "--cases" => {
+                for c in val()?.split(',') {
+                    let (f, s) = c
+                        .split_once(':')
+                        .ok_or(format!("--cases: '{c}' is not family:seed"))?;
+                    a.cases.push((f.to_string(), num(s.to_string())? as u64));
+                }
+            }
             "--seeds" => a.seeds = num(val()?)? as u64,
             "--first-seed" => a.first_seed = num(val()?)? as u64,
             "--quick" => a.quick = true,
@@ -75,7 +86,7 @@ fn parse() -> Result<Args, String> {
             other => return Err(format!("unknown flag '{other}'")),
         }
     }
-    for f in &a.families {
+    for f in a.families.iter().chain(a.cases.iter().map(|(f, _)| f)) {
         if !FAMILIES.contains(&f.as_str()) {
             return Err(format!(
                 "unknown family '{f}' (known: {})",
@@ -103,6 +114,17 @@ fn specs(a: &Args) -> Vec<CaseSpec> {
                     seed: s,
                     knobs: k.clone(),
                 })
+            })
+            .collect();
+    }
+    if !a.cases.is_empty() {
+        return a
+            .cases
+            .iter()
+            .map(|(f, s)| CaseSpec {
+                family: f.clone(),
+                seed: *s,
+                knobs: a.knobs.clone(),
             })
             .collect();
     }

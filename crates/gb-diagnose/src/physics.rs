@@ -171,19 +171,33 @@ pub(crate) const TEMPLATE_NAME: &str = "mechanical-template";
 
 /// The record a physics extension of `cur` is fitted on: the whole fit
 /// block for the engineer's model (its parameters are the point), the
-/// first `hidden_state_fit_samples` of it for the blind mechanical template
-/// (its fits, with RK4 sensitivities and several starts, are the costliest;
-/// the select block judges as usual).
+/// leading [`template_fit_len`] samples of it for the blind mechanical
+/// template (its fits, with RK4 sensitivities and several starts, are the
+/// costliest; the select block judges as usual).
 pub(crate) fn physics_fit_record(
     ctx: &crate::extension::Context<'_>,
     cur: &PhysicsModel,
 ) -> Record {
     if cur.spec().name == TEMPLATE_NAME {
-        let n = ctx.fit.len().min(ctx.policy().hidden_state_fit_samples);
-        ctx.fit.slice(0..n)
+        ctx.fit.slice(0..template_fit_len(ctx.fit, ctx.policy()))
     } else {
         ctx.fit.clone()
     }
+}
+
+/// How many leading samples of the fit record `fit` the blind mechanical
+/// template is fitted on: `n = template_fit_samples`, doubled while the
+/// rest `fit[n..]` is not represented by `fit[..n]` (the level, pace or
+/// range test of the select block, [`crate::plan::record_shift`]: a sweep
+/// that the leading samples see only the start of, a changing amplitude),
+/// up to `template_fit_max`; never more than the record.
+pub(crate) fn template_fit_len(fit: &Record, pol: &crate::DecisionPolicy) -> usize {
+    let cap = fit.len().min(pol.template_fit_max.max(pol.template_fit_samples));
+    let mut n = fit.len().min(pol.template_fit_samples);
+    while n < cap && crate::plan::record_shift(fit, 0..n, n..fit.len(), pol).is_some() {
+        n = (2 * n).min(cap);
+    }
+    n
 }
 
 /// Of the starts `0..n` of one model (`spec_of(i)`; only `choice` when it

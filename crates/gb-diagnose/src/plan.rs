@@ -426,20 +426,25 @@ impl Plan {
 /// A ratio beyond `block_shift_ratio` (either way) or a share above
 /// `block_shift_outside` names the signal and the figure.
 pub(crate) fn block_shift(d: &DiagnoseData, pol: &DecisionPolicy) -> Option<String> {
-    let (f, s) = (d.fit.clone(), d.select.clone());
-    if f.len() < 20 || s.len() < 20 {
+    record_shift(&d.train, d.fit.clone(), d.select.clone(), pol)
+}
+
+/// [`block_shift`] of the samples `s` of `rec` against its samples `f`
+/// (`f` plays the fit block).
+pub(crate) fn record_shift(
+    rec: &gb_core::Record,
+    f: std::ops::Range<usize>,
+    s: std::ops::Range<usize>,
+    pol: &DecisionPolicy,
+) -> Option<String> {
+    if f.len() < 20 || s.len() < 20 || f.end > rec.len() || s.end > rec.len() {
         return None;
     }
-    let names = d
-        .train
+    let names = rec
         .input_names
         .iter()
-        .chain(std::iter::once(&d.train.output_name));
-    let signals = d
-        .train
-        .inputs
-        .iter()
-        .chain(std::iter::once(&d.train.output));
+        .chain(std::iter::once(&rec.output_name));
+    let signals = rec.inputs.iter().chain(std::iter::once(&rec.output));
     for (name, x) in names.zip(signals) {
         let (xf, xs) = (&x[f.clone()], &x[s.clone()]);
         let (mf, sf) = (metrics::mean(xf), metrics::std(xf));
@@ -680,6 +685,31 @@ mod tests {
             .collect();
         let why = block_shift(&data(drift), &pol).expect("a drift shifts");
         assert!(why.contains("level") || why.contains("outside"), "{why}");
+    }
+
+    #[test]
+    fn the_template_sees_more_of_a_sweep_than_of_a_stationary_record() {
+        let pol = DecisionPolicy::default();
+        let mut rng = gb_core::rng::seeded(4);
+        let n = 15_000;
+        let rec = |u: Vec<f64>| data(u).train.slice(0..n);
+        let noise: Vec<f64> = (0..n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let len = crate::physics::template_fit_len(&rec(noise), &pol);
+        assert_eq!(len, pol.template_fit_samples);
+        // a chirp 0.002 -> 0.2 cycles/sample over the record: no leading
+        // part but the whole record represents it
+        let sweep: Vec<f64> = (0..n)
+            .map(|k| {
+                let t = k as f64;
+                (2.0 * std::f64::consts::PI * (0.002 * t + 0.099 * t * t / n as f64)).sin()
+            })
+            .collect();
+        assert_eq!(crate::physics::template_fit_len(&rec(sweep.clone()), &pol), n);
+        let capped = DecisionPolicy {
+            template_fit_max: 10_000,
+            ..pol.clone()
+        };
+        assert_eq!(crate::physics::template_fit_len(&rec(sweep), &capped), 10_000);
     }
 
     #[test]

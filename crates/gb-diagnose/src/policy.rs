@@ -23,6 +23,7 @@ use crate::DiagnoseError;
 /// | `unexplained_p` | 1e-3 | residuals are still unexplained when Ljung–Box or the memory test reject at this level; then the hidden-state model is tried |
 /// | `memory_priority_p` | 0.01 | when the best new cause is a plain order increase and a paying hysteresis candidate's gain interval overlaps its interval, the hysteresis candidate is chosen if the direction-of-motion memory test rejects at this level (its model nests the order increase, and the residual's loop is evidence an order increase cannot explain) |
 /// | `hidden_state_fit_samples` | 4000 | most fit-block samples the hidden-state model is fitted on (its fit is the costliest) |
+/// | `template_fit_samples`, `template_fit_max` | 4000, 20000 | leading fit-block samples the blind mechanical template and its physics extensions are fitted on: 4000, doubled while the rest of the fit block is not represented by them (the level or pace test of `block_shift_ratio`: a sweep, a changing amplitude), up to 20000 (their RK4 fits cost linear in the samples) |
 /// | `nonlinear_fit_samples` | 20000 | most fit-block samples the polynomial, block-oriented (Hammerstein, Wiener) and Preisach-column candidates are fitted on (their cost is linear in the samples) |
 /// | `expensive_fit_samples` | 8000 | most fit-block samples the tree network and the Wiener–Hammerstein network are fitted on (their fits cost seconds per thousand samples) |
 /// | `init_window_max`, `init_window_min`, `init_window_divisor` | 50, 10, 8 | leading samples of every evaluated record (report block, cross-validation fold) that set the initial state and are not scored: `clamp(shortest such block / 8, 10, 50)`, the benchmark's 50 on long records, 12 of a 100-sample block |
@@ -99,6 +100,12 @@ pub struct DecisionPolicy {
     pub memory_priority_p: f64,
     /// Most fit samples of the hidden-state model.
     pub hidden_state_fit_samples: usize,
+    /// Leading fit samples of the blind mechanical template and its physics
+    /// extensions when they represent the fit block.
+    pub template_fit_samples: usize,
+    /// Most fit samples of the blind mechanical template when the leading
+    /// ones do not represent the fit block.
+    pub template_fit_max: usize,
     /// Most fit samples of the polynomial, block-oriented and Preisach-column
     /// candidates.
     pub nonlinear_fit_samples: usize,
@@ -212,6 +219,8 @@ impl Default for DecisionPolicy {
             unexplained_p: 1e-3,
             memory_priority_p: 0.01,
             hidden_state_fit_samples: 4000,
+            template_fit_samples: 4000,
+            template_fit_max: 20_000,
             nonlinear_fit_samples: 20_000,
             expensive_fit_samples: 8000,
             init_window_max: 50,
@@ -278,6 +287,9 @@ impl DecisionPolicy {
             || self.block_count_min == 0
         {
             return bad("block_divisor >= 1, 1 <= block_min <= block_max, block_count_min >= 1");
+        }
+        if self.template_fit_samples == 0 || self.template_fit_max < self.template_fit_samples {
+            return bad("1 <= template_fit_samples <= template_fit_max");
         }
         if self.auto_orders.is_empty() || *self.auto_orders.start() == 0 {
             return bad("auto_orders must be a non-empty range of orders >= 1");

@@ -29,8 +29,9 @@ use gb_model::physics::{Parameter, PhysicsSpec, State};
 /// other than one sample becomes a free input delay), then the hysteretic
 /// state of `physics-hysteresis` is added (`b` started at 2 and 8).
 /// Once chosen, the diagnosis goes on with the physics extensions (static
-/// laws, limits, input delay), all fitted on the first
-/// `hidden_state_fit_samples` of the fit block. Sample time: the record's,
+/// laws, limits, input delay), all fitted on the leading
+/// [`crate::physics::template_fit_len`] samples of the fit block (more
+/// than `template_fit_samples` when those do not represent it). Sample time: the record's,
 /// else 1.
 pub struct MechanicalHysteresis;
 
@@ -105,7 +106,8 @@ fn template(rec: &gb_core::Record, order: usize, nk: usize) -> Result<PhysicsSpe
     Ok(s)
 }
 
-/// The fit record (the first `hidden_state_fit_samples` of the fit block)
+/// The fit record (the leading [`crate::physics::template_fit_len`]
+/// samples of the fit block)
 /// and the linear template of `order` fitted on it.
 fn fitted_template(
     ctx: &Context,
@@ -117,8 +119,9 @@ fn fitted_template(
         .io()
         .and_then(|p| p.delay.first().copied())
         .unwrap_or(1);
-    let n = ctx.fit.len().min(ctx.policy().hidden_state_fit_samples);
-    let rec = ctx.fit.slice(0..n);
+    let rec = ctx
+        .fit
+        .slice(0..crate::physics::template_fit_len(ctx.fit, ctx.policy()));
     let spec = template(&rec, order, nk)?;
     let lin = fit_physics(&spec, &rec, ctx.observer)?;
     Ok((rec, lin))
