@@ -195,14 +195,14 @@ pub static RECIPES: &[Recipe] = &[
     Recipe {
         name: "hammerstein",
         components: &[],
-        summary: "Hammerstein: static maps of the inputs (cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out) before linear dynamics of order n, trained output-error",
+        summary: "Hammerstein: static maps of the inputs (cubic polynomial, cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out) before linear dynamics of order n, trained output-error",
         options: &["order=2", "delay=1 (list)", "maps=1: which inputs get a map, 0 or 1 per input (list)"],
         fit: fit_block,
     },
     Recipe {
         name: "wiener",
         components: &[],
-        summary: "Wiener: linear dynamics of order n, then a static map of the output (cubic spline or piecewise linear, chosen on a hold-out), trained output-error",
+        summary: "Wiener: linear dynamics of order n, then a static map of the output (cubic polynomial, cubic spline or piecewise linear, chosen on a hold-out), trained output-error",
         options: &["order=2", "delay=1 (list)"],
         fit: fit_block,
     },

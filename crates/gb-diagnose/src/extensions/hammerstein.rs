@@ -7,7 +7,7 @@ use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
 
-/// Static maps of the inputs (cubic spline or piecewise linear, knots at
+/// Static maps of the inputs (cubic polynomial, cubic spline or piecewise linear, knots at
 /// quantiles, the structure chosen on a hold-out of the fit block) before
 /// the current linear dynamics, trained output-error, with the current
 /// input delay, the delays one sample either side and the plain one-sample
@@ -63,7 +63,7 @@ impl Extension for Hammerstein {
         };
         let tail = |d: &str| {
             format!(
-                "(cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order} (input delay {d}), trained output-error"
+                "(cubic polynomial, cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order} (input delay {d}), trained output-error"
             )
         };
         if ni == 1 {

@@ -7,7 +7,7 @@ use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
 
 /// The current linear dynamics followed by a static map of the output
-/// (cubic spline or piecewise linear, knots at quantiles, the structure
+/// (cubic polynomial, cubic spline or piecewise linear, knots at quantiles, the structure
 /// chosen on a hold-out of the fit block), trained output-error; one
 /// candidate per delay of [`delay_variants`].
 pub struct Wiener;
@@ -32,7 +32,7 @@ impl Extension for Wiener {
                     order,
                 },
                 text: format!(
-                    "Wiener: the linear dynamics of order {order} (input delay {d}), then a static map of the output (cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
+                    "Wiener: the linear dynamics of order {order} (input delay {d}), then a static map of the output (cubic polynomial, cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
                 ),
             })
             .collect()
