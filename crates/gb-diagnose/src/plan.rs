@@ -704,12 +704,18 @@ mod tests {
                 (2.0 * std::f64::consts::PI * (0.002 * t + 0.099 * t * t / n as f64)).sin()
             })
             .collect();
-        assert_eq!(crate::physics::template_fit_len(&rec(sweep.clone()), &pol), n);
+        assert_eq!(
+            crate::physics::template_fit_len(&rec(sweep.clone()), &pol),
+            n
+        );
         let capped = DecisionPolicy {
             template_fit_max: 10_000,
             ..pol.clone()
         };
-        assert_eq!(crate::physics::template_fit_len(&rec(sweep), &capped), 10_000);
+        assert_eq!(
+            crate::physics::template_fit_len(&rec(sweep), &capped),
+            10_000
+        );
     }
 
     #[test]

@@ -1706,7 +1706,11 @@ mod tests {
         let (u, v) = (input(3000, 41), input(2000, 43));
         let y0 = law(&u);
         let sd = 0.01 * gb_core::metrics::std(&y0);
-        let y: Vec<f64> = y0.iter().zip(noise(3000, sd, 42)).map(|(a, b)| a + b).collect();
+        let y: Vec<f64> = y0
+            .iter()
+            .zip(noise(3000, sd, 42))
+            .map(|(a, b)| a + b)
+            .collect();
         let d = Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
         let big: Vec<f64> = v.iter().map(|x| 1.6 * x).collect();
         let yv = law(&big);
@@ -1716,7 +1720,9 @@ mod tests {
                 ..BlockParams::hammerstein(2, 1)
             };
             let m = p.check().unwrap().fit(&d).unwrap();
-            let sim = m.simulate(std::slice::from_ref(&big), Init::Window(&yv[..100])).unwrap();
+            let sim = m
+                .simulate(std::slice::from_ref(&big), Init::Window(&yv[..100]))
+                .unwrap();
             (m, rms_err(&sim, &yv))
         };
         let (m, e) = fit(BlockParams::linear(2).maps);
@@ -1724,7 +1730,10 @@ mod tests {
         assert_eq!(basis, Some(MapBasis::Cubic), "{}", m.describe());
         let (_, e_spline) = fit(vec![(MapBasis::Spline, 4), (MapBasis::Spline, 8)]);
         let scale = gb_core::metrics::std(&yv);
-        assert!(e < 0.02 * scale, "cubic beyond the range: {e} (output sd {scale})");
+        assert!(
+            e < 0.02 * scale,
+            "cubic beyond the range: {e} (output sd {scale})"
+        );
         assert!(e_spline > 3.0 * e, "spline {e_spline} vs cubic {e}");
     }
 
