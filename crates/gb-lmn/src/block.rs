@@ -1547,6 +1547,19 @@ mod tests {
         x
     }
 
+    /// The record of input `u` and output `y0` plus white noise of 1 % of
+    /// its sd (seed `seed`), and that sd.
+    fn noisy_record(u: Vec<f64>, y0: &[f64], seed: u64) -> (Record, f64) {
+        let sd = 0.01 * gb_core::metrics::std(y0);
+        let y: Vec<f64> = y0
+            .iter()
+            .zip(noise(y0.len(), sd, seed))
+            .map(|(a, b)| a + b)
+            .collect();
+        let d = Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        (d, sd)
+    }
+
     fn rms_err(a: &[f64], b: &[f64]) -> f64 {
         let e: Vec<f64> = a.iter().zip(b).skip(100).map(|(x, y)| x - y).collect();
         gb_core::metrics::rms(&e)
@@ -1705,13 +1718,7 @@ mod tests {
         };
         let (u, v) = (input(3000, 41), input(2000, 43));
         let y0 = law(&u);
-        let sd = 0.01 * gb_core::metrics::std(&y0);
-        let y: Vec<f64> = y0
-            .iter()
-            .zip(noise(3000, sd, 42))
-            .map(|(a, b)| a + b)
-            .collect();
-        let d = Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        let (d, _) = noisy_record(u, &y0, 42);
         let big: Vec<f64> = v.iter().map(|x| 1.6 * x).collect();
         let yv = law(&big);
         let fit = |maps: Vec<(MapBasis, usize)>| {
@@ -1754,13 +1761,7 @@ mod tests {
         let truth = |u: &[f64]| filter(&u.iter().map(|&v| dz(v)).collect::<Vec<_>>());
         let u = input(3000, 11);
         let y0 = truth(&u);
-        let sd = 0.01 * gb_core::metrics::std(&y0);
-        let y: Vec<f64> = y0
-            .iter()
-            .zip(noise(3000, sd, 12))
-            .map(|(a, b)| a + b)
-            .collect();
-        let d = Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        let (d, sd) = noisy_record(u, &y0, 12);
         let m = BlockParams {
             input_maps: vec![true],
             maps: vec![(MapBasis::Hinge, 2)],
