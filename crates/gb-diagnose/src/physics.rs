@@ -192,9 +192,7 @@ pub(crate) fn physics_fit_record(
 /// that the leading samples see only the start of, a changing amplitude),
 /// up to `template_fit_max`; never more than the record.
 pub(crate) fn template_fit_len(fit: &Record, pol: &crate::DecisionPolicy) -> usize {
-    let cap = fit
-        .len()
-        .min(pol.template_fit_max.max(pol.template_fit_samples));
+    let cap = fit.len().min(pol.template_fit_max);
     let mut n = fit.len().min(pol.template_fit_samples);
     while n < cap && crate::plan::record_shift(fit, 0..n, n..fit.len(), pol).is_some() {
         n = (2 * n).min(cap);
