@@ -146,6 +146,11 @@ pub struct Evaluated {
     pub folds: Vec<Evaluated>,
     /// The noise a `noise` candidate found (`None` for the other models).
     pub finding: Option<crate::report::NoiseFound>,
+    /// The start or map structure a multi-start fit chose on the fit block
+    /// ([`crate::Extension::fit_choosing`]): the folds of the
+    /// cross-validation and the final refit on the whole training record
+    /// fit that one only.
+    pub start_choice: Option<usize>,
 }
 
 /// Residuals of `model` on `range` of `data`, simulating in free run from
@@ -240,5 +245,6 @@ pub(crate) fn evaluate_on(
         report,
         folds: vec![],
         finding: None,
+        start_choice: None,
     })
 }

@@ -207,7 +207,7 @@ pub(crate) fn template_fit_len(fit: &Record, pol: &crate::DecisionPolicy) -> usi
 pub(crate) fn best_of_starts(
     n: usize,
     choice: Option<usize>,
-    spec_of: impl Fn(usize) -> Result<PhysicsSpec, DiagnoseError>,
+    spec_of: impl Fn(usize) -> Result<PhysicsSpec, DiagnoseError> + Sync,
     rec: &Record,
     obs: &dyn Observer,
 ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
@@ -215,10 +215,18 @@ pub(crate) fn best_of_starts(
         Some(i) if i < n => vec![i],
         _ => (0..n).collect(),
     };
+    // the starts are independent: fitted side by side, chosen in order
+    let fits: Vec<Result<FittedModel, DiagnoseError>> = {
+        use rayon::prelude::*;
+        chosen
+            .par_iter()
+            .map(|&i| spec_of(i).and_then(|s| fit_physics(&s, rec, obs)))
+            .collect()
+    };
     let mut best: Option<(f64, FittedModel, usize)> = None;
     let mut last_err = None;
-    for &i in &chosen {
-        match spec_of(i).and_then(|s| fit_physics(&s, rec, obs)) {
+    for (&i, fit) in chosen.iter().zip(fits) {
+        match fit {
             Ok(m) => {
                 let rmse = physics_of(&m)
                     .and_then(PhysicsModel::fit_report)

@@ -519,7 +519,9 @@ pub(crate) fn assess_from(
     let (raw, start) = fit(None)?;
     let m = plan.finish(raw, None)?;
     if !plan.cv() {
-        return evaluate_on(m, lineage, d, plan.w, None);
+        let mut e = evaluate_on(m, lineage, d, plan.w, None)?;
+        e.start_choice = start;
+        return Ok(e);
     }
     let folds: Vec<Evaluated> = (0..plan.folds.len())
         .into_par_iter()
@@ -539,6 +541,7 @@ pub(crate) fn assess_from(
     let sd = metrics::std(&y);
     let mut e = evaluate_on(m, lineage, d, plan.w, Some((pooled, sd)))?;
     e.folds = folds;
+    e.start_choice = start;
     Ok(e)
 }
 
@@ -587,6 +590,7 @@ fn fold_scores(
         report: Residuals::default(),
         folds: vec![],
         finding: None,
+        start_choice: None,
     })
 }
 

@@ -9,7 +9,9 @@
 //!
 //! The chain is refitted in order: the baseline (input–output models and
 //! the engineer's equations), then each accepted extension fitted by its
-//! own [`Extension`] on the refitted model before it. The refitted chain
+//! own [`Extension`] on the refitted model before it, with the start or
+//! map structure its fit on the fit block chose (the structure judged on
+//! the select block is the one refitted). The refitted chain
 //! replaces the fit-block fits only when every refit succeeded and the
 //! final model's free-run squared error over the whole training record is
 //! not larger,
@@ -93,7 +95,8 @@ pub(crate) fn refit_chain(
             opts,
             obs,
         };
-        let Some(next) = run.step(*ext, p, &out[i], &chain[i]) else {
+        let choice = chain.get(i + 1).and_then(|e| e.start_choice);
+        let Some(next) = run.step(*ext, p, &out[i], &chain[i], choice) else {
             return kept(&format!("the refit of step {} failed", i + 1));
         };
         out.push(next);
@@ -177,18 +180,23 @@ impl<'a> Refit<'a> {
     /// Step `p` of extension `ext` refitted on the whole record on top of
     /// the refitted model `prev` (`judged`: the model before the step as
     /// the search fitted it, whose held-out residuals the extension's
-    /// evidence reads).
+    /// evidence reads; `choice`: the start or map structure the search's
+    /// fit chose, refitted alone).
     fn step(
         &self,
         ext: &'static dyn Extension,
         p: &Proposal,
         prev: &Evaluated,
         judged: &Evaluated,
+        choice: Option<usize>,
     ) -> Option<Evaluated> {
         let inputs = self.d.select_inputs(self.whole.w);
         let ev = Evidence::compute(&judged.select.e, &judged.select.yhat, &inputs);
         let sims = crate::diagnose::simulated_on(&prev.model, &self.whole.fit);
-        let ctx = self.context(prev, &ev, sims.as_deref());
+        let ctx = Context {
+            start_choice: choice,
+            ..self.context(prev, &ev, sims.as_deref())
+        };
         let (m, _) = ext.fit_choosing(p, &ctx).ok()?;
         let m = self.whole.finish(m, None).ok()?;
         let mut e = evaluate_on(m, p.lineage.clone(), self.d, self.whole.w, None).ok()?;

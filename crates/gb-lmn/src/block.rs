@@ -76,6 +76,18 @@ pub enum MapBasis {
     Cubic,
 }
 
+impl MapBasis {
+    /// The name of the map structure `(self, knots)` as model specs write
+    /// it: `cubic`, `spline8`, `pwl4` (piecewise linear).
+    pub fn structure_name(self, knots: usize) -> String {
+        match self {
+            MapBasis::Cubic => "cubic".into(),
+            MapBasis::Spline => format!("spline{knots}"),
+            MapBasis::Hinge => format!("pwl{knots}"),
+        }
+    }
+}
+
 /// A static map `f(v) = Σₘ cₘ φₘ(v)` (no constant: the linear block has one),
 /// linear beyond `[lo, hi]`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -100,6 +112,11 @@ impl StaticMap {
             MapBasis::Hinge => 1 + knots,
             MapBasis::Cubic => 3,
         }
+    }
+
+    /// Its structure: the basis and the number of knots.
+    pub fn structure(&self) -> (MapBasis, usize) {
+        (self.basis, self.knots.len())
     }
 
     /// The identity on the range of `v`, knots at its quantiles.
@@ -1252,6 +1269,20 @@ fn sse(m: &BlockModel, un: &[Vec<f64>], yn: &[f64]) -> Option<f64> {
     let y = m.simulate_norm(&mp, &m.start_history(&mp, yn), n)?;
     let e: f64 = (k0..n).map(|k| (yn[k] - y[k]).powi(2)).sum();
     e.is_finite().then_some(e)
+}
+
+impl BlockModel {
+    /// The structure of its static maps (the fit chooses one for all of
+    /// them): the first input map's, else the output map's; `None` for the
+    /// linear model.
+    pub fn map_structure(&self) -> Option<(MapBasis, usize)> {
+        self.input_maps
+            .iter()
+            .flatten()
+            .next()
+            .or(self.output_map.as_ref().map(|(g, _)| g))
+            .map(StaticMap::structure)
+    }
 }
 
 impl DynamicModel for BlockModel {

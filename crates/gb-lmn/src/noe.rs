@@ -980,9 +980,13 @@ impl LocalModelNetwork {
     /// by Gauss–Newton on the simulation error over the first `min(n, 400)`
     /// samples, the history's own samples included (which keeps it near the
     /// measurements); started from [`smoothed_start`]. For a linear network
-    /// the simulated output is affine in the starting values, so one step is
-    /// exact (variable projection: output-error training calls this for
-    /// every trial model). Leaves the start when the simulation diverges.
+    /// (input plays allowed) the simulated output is affine in the starting
+    /// values, so one step with the free-response Jacobian is exact
+    /// (variable projection: output-error training calls this for every
+    /// trial model); with output-side hysteresis columns, up to three steps
+    /// with that Jacobian ([`free_response`](Self::free_response)); with
+    /// several local models, up to three with finite differences. Leaves
+    /// the start when the simulation diverges.
     pub(crate) fn estimate_init(&self, p: &mut Prepared) {
         let n = p.yn.len();
         let k0 = self.spec.max_lag().min(n);
@@ -995,7 +999,7 @@ impl LocalModelNetwork {
         if k0 == 0 || w <= k0 + 1 {
             return;
         }
-        let steps = if self.leaves.len() == 1 && self.spec.n_hysteresis() == 0 {
+        let steps = if self.leaves.len() == 1 && self.spec.output_block() == 0 {
             1
         } else {
             3
@@ -1012,19 +1016,26 @@ impl LocalModelNetwork {
             return;
         };
         let mut c0: f64 = r0.iter().map(|v| v * v).sum();
+        let free = self.free_response(w, k0);
         for _ in 0..steps {
-            let h = 1e-3;
-            let mut jac = DMatrix::<f64>::zeros(w, k0);
-            for i in 0..k0 {
-                let mut t = init.clone();
-                t[i] += h;
-                let Some(ri) = resid(&t, &mut buf) else {
-                    return;
-                };
-                for k in 0..w {
-                    jac[(k, i)] = (ri[k] - r0[k]) / h;
+            let jac = match &free {
+                Some(j) => j.clone(),
+                None => {
+                    let h = 1e-3;
+                    let mut jac = DMatrix::<f64>::zeros(w, k0);
+                    for i in 0..k0 {
+                        let mut t = init.clone();
+                        t[i] += h;
+                        let Some(ri) = resid(&t, &mut buf) else {
+                            return;
+                        };
+                        for k in 0..w {
+                            jac[(k, i)] = (ri[k] - r0[k]) / h;
+                        }
+                    }
+                    jac
                 }
-            }
+            };
             let jtj = jac.transpose() * &jac;
             let jtr = jac.transpose() * DVector::from_column_slice(&r0);
             let Some(ch) = (jtj + DMatrix::<f64>::identity(k0, k0) * 1e-9).cholesky() else {
@@ -1032,6 +1043,11 @@ impl LocalModelNetwork {
             };
             let delta = ch.solve(&(-jtr));
             let t: Vec<f64> = init.iter().zip(delta.iter()).map(|(a, d)| a + d).collect();
+            if steps == 1 && free.is_some() {
+                // affine in the history: the step is the exact minimiser
+                p.init = t;
+                return;
+            }
             match resid(&t, &mut buf) {
                 Some(r) => {
                     let c: f64 = r.iter().map(|v| v * v).sum();
@@ -1046,6 +1062,41 @@ impl LocalModelNetwork {
             }
         }
         p.init = init;
+    }
+}
+
+impl LocalModelNetwork {
+    /// For a network of one local model, the Jacobian of the residual
+    /// `y − ŷ` over the first `w` samples with respect to the `k0` starting
+    /// values through its output lags: `−g_i(k)`, `g_i` the free response
+    /// of `ŷ(k) = Σⱼ aⱼ ŷ(k−j)` from the unit history `e_i` (`aⱼ` the local
+    /// model's output-lag coefficients; the history's own samples are
+    /// `g_i(k) = δ_ik`). Without output-side hysteresis columns (input
+    /// plays do not depend on the simulated output) the simulation is
+    /// affine in the starting values and this is the exact Jacobian that
+    /// finite differences of `k0` simulations approximate; with them it
+    /// leaves out the columns' dependence on the history (the play
+    /// operators start at its last value), and the Gauss–Newton steps it
+    /// drives are kept only when they lower the error. `None` for several
+    /// local models.
+    fn free_response(&self, w: usize, k0: usize) -> Option<DMatrix<f64>> {
+        if self.leaves.len() != 1 {
+            return None;
+        }
+        let na = self.spec.na;
+        let a = self.leaves[0].theta.get(1..=na)?;
+        let mut jac = DMatrix::<f64>::zeros(w, k0);
+        for i in 0..k0.min(w) {
+            let mut g = vec![0.0; w];
+            g[i] = 1.0;
+            for k in k0..w {
+                g[k] = (1..=na.min(k)).map(|j| a[j - 1] * g[k - j]).sum();
+            }
+            for (k, v) in g.iter().enumerate() {
+                jac[(k, i)] = -v;
+            }
+        }
+        Some(jac)
     }
 }
 
@@ -2009,6 +2060,70 @@ mod tests {
                 v + noise * e
             })
             .collect()
+    }
+
+    /// Finite differences of the simulated residual over the first `w`
+    /// samples with respect to the starting values (step `h`).
+    fn fd_history_jacobian(
+        net: &LocalModelNetwork,
+        p: &Prepared,
+        init: &[f64],
+        w: usize,
+        h: f64,
+    ) -> DMatrix<f64> {
+        let mut buf = vec![];
+        assert!(net.simulate_norm(p, w, init, &mut buf));
+        let base = buf.clone();
+        DMatrix::from_fn(w, init.len(), |k, i| {
+            let mut t = init.to_vec();
+            t[i] += h;
+            assert!(net.simulate_norm(p, w, &t, &mut buf));
+            -(buf[k] - base[k]) / h
+        })
+    }
+
+    #[test]
+    fn the_free_response_is_the_history_jacobian_of_an_affine_network() {
+        let mut r = rand::rngs::SmallRng::seed_from_u64(5);
+        let u: Vec<f64> = (0..600).map(|_| StandardNormal.sample(&mut r)).collect();
+        let y = simulate_true(&u, 0.05, 6);
+        let us = std::slice::from_ref(&u);
+        // order 2 with a dead time of 3 (more starting values than output
+        // lags), and order 3 with input play operators (affine too)
+        let mut delayed = NetworkSpec::order(2, 1);
+        delayed.nk = vec![3];
+        let mut plays = NetworkSpec::order(3, 1);
+        plays.input_play = vec![vec![0.2, 0.6]];
+        plays.hysteresis_lags = 2;
+        for spec in [delayed, plays] {
+            let net = fit_linear_oe(&spec, us, &y, &FitOptions::default()).unwrap();
+            let p = net.prepare(us, &y).unwrap();
+            let k0 = net.spec.max_lag();
+            let init = smoothed_start(&p.yn, k0);
+            let w = 200;
+            let exact = net.free_response(w, k0).expect("one local model");
+            let fd = fd_history_jacobian(&net, &p, &init, w, 1e-3);
+            let scale = fd.amax().max(1.0);
+            assert!(
+                (&exact - &fd).amax() < 1e-6 * scale,
+                "max |free response - finite differences| = {:.3e}",
+                (&exact - &fd).amax()
+            );
+            // its one Gauss-Newton step is the least-squares history: the
+            // residual is orthogonal to the Jacobian's columns
+            let mut q = net.prepare(us, &y).unwrap();
+            net.estimate_init(&mut q);
+            let mut sim = vec![];
+            assert!(net.simulate_norm(&q, 400, &q.init, &mut sim));
+            let res = DVector::from_iterator(400, (0..400).map(|k| q.yn[k] - sim[k]));
+            let jac = net.free_response(400, k0).unwrap();
+            let grad = jac.transpose() * &res;
+            assert!(
+                grad.amax() < 1e-8 * res.norm() * jac.norm(),
+                "gradient {:.3e}",
+                grad.amax()
+            );
+        }
     }
 
     /// Every parameter and the noise model, bit for bit.

@@ -196,14 +196,14 @@ pub static RECIPES: &[Recipe] = &[
         name: "hammerstein",
         components: &[],
         summary: "Hammerstein: static maps of the inputs (cubic polynomial, cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out) before linear dynamics of order n, trained output-error",
-        options: &["order=2", "delay=1 (list)", "maps=1: which inputs get a map, 0 or 1 per input (list)"],
+        options: &["order=2", "delay=1 (list)", "maps=1: which inputs get a map, 0 or 1 per input (list)", MAP_OPTION],
         fit: fit_block,
     },
     Recipe {
         name: "wiener",
         components: &[],
         summary: "Wiener: linear dynamics of order n, then a static map of the output (cubic polynomial, cubic spline or piecewise linear, chosen on a hold-out), trained output-error",
-        options: &["order=2", "delay=1 (list)"],
+        options: &["order=2", "delay=1 (list)", MAP_OPTION],
         fit: fit_block,
     },
     Recipe {
@@ -450,8 +450,12 @@ fn fit_block(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<Fi
         delay,
         ..gb_lmn::BlockParams::linear(order)
     };
+    let map = o.choice("map", "auto", &MAP_STRUCTURES)?;
+    if map != "auto" {
+        p.maps.retain(|&(b, k)| b.structure_name(k) == map);
+    }
     if spec.name == "wiener" {
-        o.finish(&["order", "delay"])?;
+        o.finish(&["order", "delay", "map"])?;
         p.output_map = true;
     } else {
         p.input_maps = o
@@ -459,7 +463,7 @@ fn fit_block(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<Fi
             .iter()
             .map(|&m| m == 1)
             .collect();
-        o.finish(&["order", "delay", "maps"])?;
+        o.finish(&["order", "delay", "maps", "map"])?;
     }
     d.check_identifiable("training record", 20 * (order + 1) * (ni + 1) + 50)?;
     let m = p.check()?.fit(d)?;
@@ -500,6 +504,15 @@ fn fit_wiener_hammerstein(
     )];
     wrap(d, Box::new(w), noise, notes)
 }
+
+/// The help line of the block-oriented recipes' `map` option.
+const MAP_OPTION: &str = "map=auto: the static maps' structure, cubic, spline4/8/16 or pwl2/4/8/16 (piecewise linear, free knots); auto chooses among them on a hold-out";
+
+/// The `map` option of the block-oriented recipes: `auto` (chosen on a
+/// hold-out among the others) or one of gb-lmn's default map structures.
+const MAP_STRUCTURES: [&str; 9] = [
+    "auto", "cubic", "pwl2", "pwl4", "spline4", "spline8", "pwl8", "spline16", "pwl16",
+];
 
 /// `lmn-state-space`.
 fn fit_ss_lmn(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<Fitted, CoreError> {
@@ -629,4 +642,55 @@ fn fit_damper(spec: &ModelSpec, d: &Record) -> Result<Fitted, CoreError> {
     let sim = m.simulate(&d.inputs)?;
     let noise = residual_noise(&d.output, &sim, 0);
     wrap(d, Box::new(m), noise, notes)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::MAP_STRUCTURES;
+
+    #[test]
+    fn the_map_option_names_every_default_map_structure() {
+        let names: Vec<String> = gb_lmn::BlockParams::linear(2)
+            .maps
+            .iter()
+            .map(|&(b, k)| b.structure_name(k))
+            .collect();
+        let listed: Vec<&str> = MAP_STRUCTURES[1..].to_vec();
+        assert_eq!(names, listed);
+        assert_eq!(MAP_STRUCTURES[0], "auto");
+    }
+
+    #[test]
+    fn the_map_option_fixes_the_structure_of_the_static_map() {
+        // a Hammerstein system: tanh of the input, then a second-order filter
+        let u: Vec<f64> = (0..1500)
+            .map(|k| ((k as f64 * 0.37).sin() + (k as f64 * 0.113).cos()) * 1.2)
+            .collect();
+        let mut y = vec![0.0; u.len()];
+        for k in 2..u.len() {
+            y[k] = 1.2 * y[k - 1] - 0.5 * y[k - 2] + 0.4 * u[k - 1].tanh();
+        }
+        let rec = gb_core::Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        let data = gb_core::Records::single(rec);
+        for (name, want) in [
+            ("cubic", (gb_lmn::MapBasis::Cubic, 0)),
+            ("pwl4", (gb_lmn::MapBasis::Hinge, 4)),
+            ("spline8", (gb_lmn::MapBasis::Spline, 8)),
+        ] {
+            for recipe in ["hammerstein", "wiener"] {
+                let spec = format!("{recipe}:order=2,map={name}").parse().unwrap();
+                let f = super::fit(&spec, &data, &crate::Silent).unwrap();
+                let m = f
+                    .model
+                    .dynamics
+                    .as_any()
+                    .downcast_ref::<gb_lmn::BlockModel>()
+                    .unwrap();
+                assert_eq!(m.map_structure(), Some(want), "{recipe} map={name}");
+            }
+        }
+        let bad = "hammerstein:map=spline5".parse().unwrap();
+        let err = super::fit(&bad, &data, &crate::Silent).unwrap_err();
+        assert!(err.to_string().contains("spline5"), "{err}");
+    }
 }

@@ -131,6 +131,41 @@ pub(crate) fn fit_spec(
     Ok(f.model)
 }
 
+/// A block-oriented (Hammerstein, Wiener) proposal fitted by
+/// [`fit_spec`], and the map structure it chose on the fit block (its
+/// index among gb-lmn's default structures): the final refit on the whole
+/// training record ([`Context::start_choice`]) refits that structure only,
+/// the one the select block judged. The folds of a cross-validation choose
+/// their own (given the whole fit block's choice, a fold fitted on three
+/// quarters of a short record extrapolates a cubic or a spline the others
+/// would not have chosen: hammerstein-odd 5 and wiener 8 lost their
+/// cause).
+pub(crate) fn fit_block_choosing(
+    lineage: &Lineage,
+    ctx: &Context,
+) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
+    let structures = gb_lmn::BlockParams::linear(1).maps;
+    let cap = ctx.policy().nonlinear_fit_samples;
+    let choice = ctx.start_choice.filter(|_| !ctx.plan.cv());
+    let m = match (lineage, choice.and_then(|i| structures.get(i))) {
+        (Lineage::Other { spec, order }, Some(&(basis, knots))) => {
+            let one = Lineage::Other {
+                spec: format!("{spec},map={}", basis.structure_name(knots)),
+                order: *order,
+            };
+            fit_spec(&one, ctx, cap)?
+        }
+        _ => fit_spec(lineage, ctx, cap)?,
+    };
+    let chosen = m
+        .dynamics
+        .as_any()
+        .downcast_ref::<gb_lmn::BlockModel>()
+        .and_then(gb_lmn::BlockModel::map_structure)
+        .and_then(|s| structures.iter().position(|&t| t == s));
+    Ok((m, chosen))
+}
+
 /// Fit an input–output model on the fit block, warm-started from the
 /// current model (its network for linear fits, its simulated output for
 /// LOLIMOT's output-error construction). With several training records

@@ -1,6 +1,6 @@
 //! `nonlinearity`: a Wiener model (the linear dynamics, then a static map
 //! of the output).
-use super::{delay_variants, fit_spec, plain_linear_structure};
+use super::{delay_variants, fit_block_choosing, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -38,7 +38,14 @@ impl Extension for Wiener {
             .collect()
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        fit_spec(&p.lineage, ctx, ctx.policy().nonlinear_fit_samples)
+        self.fit_choosing(p, ctx).map(|(m, _)| m)
+    }
+    fn fit_choosing(
+        &self,
+        p: &Proposal,
+        ctx: &Context,
+    ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
+        fit_block_choosing(&p.lineage, ctx)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()

@@ -160,7 +160,8 @@ impl PhysicsFit {
     /// prefixes of the first record (1/32, 1/8, 1/2, then all records;
     /// prefixes shorter than 50 samples skipped), each started
     /// from the last one's estimates; the one with the smaller training
-    /// RMSE wins. Output-error costs of oscillating systems have local
+    /// RMSE wins (the two paths run side by side when a thread is free).
+    /// Output-error costs of oscillating systems have local
     /// minima away from the start that a short prefix does not have (the
     /// simulated and measured phases drift apart only over long records).
     pub fn identify_growing(
@@ -351,7 +352,23 @@ impl PhysicsFit {
             }
             .identify_outputs(data, obs);
         }
-        let direct = self.identify_outputs(data, obs);
+        // the two paths are independent: run them side by side when a
+        // thread is free (the same fits, the same choice)
+        let (direct, grown) = rayon::join(
+            || self.identify_outputs(data, obs),
+            || self.identify_grown(data, obs),
+        );
+        better_of(grown?, direct)
+    }
+
+    /// The fit continued over growing prefixes of the first record (see
+    /// [`identify_growing_plain`](Self::identify_growing_plain)); the outer
+    /// error when a start cannot be built, the inner one the final fit's.
+    fn identify_grown(
+        &self,
+        data: &[Records],
+        obs: &dyn Observer,
+    ) -> PhysicsResult<PhysicsResult<PhysicsModel>> {
         let n = data.first().map_or(0, |d| d.first().len());
         let mut start = self.model.clone();
         for part in [32, 8, 2] {
@@ -370,12 +387,11 @@ impl PhysicsFit {
                 start = start.with_values(m.parameters().to_vec(), m.initial_state().to_vec())?;
             }
         }
-        let grown = PhysicsFit {
+        Ok(PhysicsFit {
             model: start.with_start_at_values()?,
             lm: self.lm,
         }
-        .identify_outputs(data, obs);
-        better_of(grown, direct)
+        .identify_outputs(data, obs))
     }
 }
 
