@@ -183,7 +183,7 @@ fn main() {
     let results = run(&specs, &a.opts, Some(&progress));
     let wall = t.elapsed().as_secs_f64();
     let title = format!(
-        "Diagnosis sweep: {} cases ({}), order {:?}, {}, {:.0} s wall",
+        "Diagnosis sweep: {} cases ({}), order {:?}, {} on {} threads, {:.0} s wall",
         results.len(),
         if a.quick {
             "--quick".to_string()
@@ -196,16 +196,11 @@ fn main() {
         },
         a.opts.order,
         if a.opts.parallel {
-            format!(
-                "cases in parallel on {} threads",
-                rayon::current_num_threads()
-            )
+            "cases in parallel"
         } else {
-            format!(
-                "one case at a time on {} threads",
-                rayon::current_num_threads()
-            )
+            "one case at a time"
         },
+        rayon::current_num_threads(),
         wall
     );
     let md = markdown(&results, &title);

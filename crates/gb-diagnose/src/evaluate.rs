@@ -147,9 +147,11 @@ pub struct Evaluated {
     /// The noise a `noise` candidate found (`None` for the other models).
     pub finding: Option<crate::report::NoiseFound>,
     /// The start or map structure a multi-start fit chose on the fit block
-    /// ([`crate::Extension::fit_choosing`]): the folds of the
-    /// cross-validation and the final refit on the whole training record
-    /// fit that one only.
+    /// ([`crate::Extension::fit_choosing`]): the final refit on the whole
+    /// training record fits that one only, and so do the folds of the
+    /// cross-validation of the extensions that take it there (the physics
+    /// starts, the backlash half-width; a block-oriented model's folds
+    /// choose their own map).
     pub start_choice: Option<usize>,
 }
 

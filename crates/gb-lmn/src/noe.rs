@@ -1018,11 +1018,12 @@ impl LocalModelNetwork {
         let mut c0: f64 = r0.iter().map(|v| v * v).sum();
         let free = self.free_response(w, k0);
         for _ in 0..steps {
+            let fd;
             let jac = match &free {
-                Some(j) => j.clone(),
+                Some(j) => j,
                 None => {
                     let h = 1e-3;
-                    let mut jac = DMatrix::<f64>::zeros(w, k0);
+                    let mut d = DMatrix::<f64>::zeros(w, k0);
                     for i in 0..k0 {
                         let mut t = init.clone();
                         t[i] += h;
@@ -1030,13 +1031,14 @@ impl LocalModelNetwork {
                             return;
                         };
                         for k in 0..w {
-                            jac[(k, i)] = (ri[k] - r0[k]) / h;
+                            d[(k, i)] = (ri[k] - r0[k]) / h;
                         }
                     }
-                    jac
+                    fd = d;
+                    &fd
                 }
             };
-            let jtj = jac.transpose() * &jac;
+            let jtj = jac.transpose() * jac;
             let jtr = jac.transpose() * DVector::from_column_slice(&r0);
             let Some(ch) = (jtj + DMatrix::<f64>::identity(k0, k0) * 1e-9).cholesky() else {
                 break;
