@@ -221,6 +221,36 @@ impl Options {
         let Some(v) = self.raw(key) else {
             return Ok(vec![default; n]);
         };
+        self.parse_usize_list(key, &v, n, lo, hi)
+    }
+
+    /// Alternatives of [`usize_list`](Self::usize_list) separated by `|`
+    /// (`delay=1|0|2`: try 1, 0 and 2); the first is the main one. One
+    /// list (`default` for all) when absent.
+    pub fn usize_list_choices(
+        &mut self,
+        key: &str,
+        n: usize,
+        default: usize,
+        lo: usize,
+        hi: usize,
+    ) -> Result<Vec<Vec<usize>>, CoreError> {
+        let Some(v) = self.raw(key) else {
+            return Ok(vec![vec![default; n]]);
+        };
+        v.split('|')
+            .map(|alt| self.parse_usize_list(key, alt, n, lo, hi))
+            .collect()
+    }
+
+    fn parse_usize_list(
+        &self,
+        key: &str,
+        v: &str,
+        n: usize,
+        lo: usize,
+        hi: usize,
+    ) -> Result<Vec<usize>, CoreError> {
         let vals: Vec<usize> = v
             .split('/')
             .map(|x| {
@@ -233,7 +263,7 @@ impl Options {
             .ok_or_else(|| {
                 self.err(
                     key,
-                    &v,
+                    v,
                     &format!("whole numbers in {lo}..={hi}, separated by /"),
                 )
             })?;
@@ -242,7 +272,7 @@ impl Options {
             k if k == n => Ok(vals),
             k => Err(self.err(
                 key,
-                &v,
+                v,
                 &format!("{k} values for {n} inputs (give one, or one per input)"),
             )),
         }
@@ -326,5 +356,24 @@ mod tests {
         let mut o = "x:w=tree".parse::<ModelSpec>().unwrap().options();
         assert_eq!(o.choice("w", "gauss", &["gauss", "tree"]).unwrap(), "tree");
         assert!(o.choice("w", "gauss", &["gauss"]).is_err());
+    }
+
+    #[test]
+    fn list_alternatives_are_separated_by_a_bar() {
+        let mut o = "x:d=1|0/2|3".parse::<ModelSpec>().unwrap().options();
+        let d = o.usize_list_choices("d", 2, 1, 0, 9).unwrap();
+        assert_eq!(d, vec![vec![1, 1], vec![0, 2], vec![3, 3]]);
+        assert_eq!(
+            o.usize_list_choices("absent", 2, 1, 0, 9).unwrap(),
+            vec![vec![1, 1]]
+        );
+        for bad in ["x:d=1|", "x:d=1|0/2/3", "x:d=1|99"] {
+            let mut o = bad.parse::<ModelSpec>().unwrap().options();
+            let e = o
+                .usize_list_choices("d", 2, 1, 0, 9)
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("d="), "{bad}: {e}");
+        }
     }
 }

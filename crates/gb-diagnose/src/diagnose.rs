@@ -96,7 +96,12 @@ pub struct Diagnosis {
 struct Iteration {
     rows: Vec<Step>,
     chosen: Option<(Evaluated, crate::refit::Pick)>,
+    /// The candidates that did not pay (extension, proposal text).
+    lost: HashSet<Lost>,
 }
+
+/// A candidate that did not pay at a step: its extension and proposal text.
+type Lost = (&'static str, String);
 
 /// The proposals of the regular extensions (not the escalation).
 fn proposals(
@@ -280,7 +285,7 @@ fn iterate(
     run: &Run,
     cur: &Evaluated,
     causes: &[Cause],
-    tried: &mut HashSet<&'static str>,
+    (tried, skip): (&mut HashSet<&'static str>, &HashSet<Lost>),
     it: usize,
 ) -> Option<Iteration> {
     let Run { d, plan, opts, obs } = *run;
@@ -315,7 +320,10 @@ fn iterate(
         fold_sims_all: &fold_sims_all,
         start_choice: None,
     };
-    let props = proposals(&ctx, tried);
+    let props: Vec<_> = proposals(&ctx, tried)
+        .into_iter()
+        .filter(|(e, p)| !skip.contains(&(e.name(), p.text.clone())))
+        .collect();
     if props.is_empty() {
         return None;
     }
@@ -347,11 +355,16 @@ fn iterate(
         }
     }
     let rows = rows(&cands, chosen, note.as_deref(), &ctx, it);
+    let lost = cands
+        .iter()
+        .filter(|c| !c.pays)
+        .map(|c| (c.ext.name(), c.proposal.text.clone()))
+        .collect();
     let chosen = chosen.map(|i| {
         let c = cands.swap_remove(i);
         (c.fitted, (c.proposal.cause, c.ext, c.proposal))
     });
-    Some(Iteration { rows, chosen })
+    Some(Iteration { rows, chosen, lost })
 }
 
 /// What was tried, per cause: `nonlinearity (2 candidates, 1 accepted)`.
@@ -452,6 +465,9 @@ pub(crate) fn search(
     let mut steps = vec![];
     let mut causes: Vec<Cause> = vec![];
     let mut tried = HashSet::new();
+    // after a step that changed only the noise model: the candidates that
+    // did not pay there (`retry_after_noise_step`)
+    let mut skip: HashSet<Lost> = HashSet::new();
     let mut picks: Vec<crate::refit::Pick> = vec![];
     let inputs = plan.decision_inputs(d);
     for it in 1..=opts.max_steps {
@@ -482,12 +498,21 @@ pub(crate) fn search(
             opts,
             obs,
         };
-        let Some(step) = iterate(&run, cur, &causes, &mut tried, it) else {
+        let Some(step) = iterate(&run, cur, &causes, (&mut tried, &skip), it) else {
             break;
         };
         steps.extend(step.rows);
         match step.chosen {
             Some((model, pick)) => {
+                if pick.0 == Cause::Noise && !opts.policy.retry_after_noise_step {
+                    choice.decision.push_str(&format!(
+                        "; step {it} changed only the noise model: its {} candidates that did not pay were not fitted again",
+                        step.lost.len()
+                    ));
+                    skip.extend(step.lost);
+                } else {
+                    skip.clear();
+                }
                 if !causes.contains(&pick.0) {
                     causes.push(pick.0);
                 }

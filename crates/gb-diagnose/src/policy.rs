@@ -54,6 +54,7 @@ use crate::DiagnoseError;
 /// | `process_noise_particles`, `process_noise_iterations` | 100, 100 | particles and PMMH iterations (a quarter burn-in) of that fit: two noise levels started at their Gaussian estimate need few |
 /// | `process_noise_filter_particles` | 1000 | particles of the filter that scores a non-Gaussian process-noise model's predictive likelihood on held-out data |
 /// | `prediction_horizon` | 10 | the k of the k-step prediction RMSE reported (with 1-step) for a process-noise model |
+/// | `retry_after_noise_step` | false | after a step that changed only the noise model (a heavy-tailed or process-noise model), the candidates that did not pay at that step are not proposed again: their deterministic part was judged against the same deterministic model, and the select gain is the same squared simulation error (on the sweep, no case named a second cause after `noise`; student-t cases spent half their time refitting every candidate robustly) |
 /// | `stop_when_adequate`, `search_stop_level` | true, 0.05 | before each step the current model's residuals on the decision data get the verdict's tests, each at 5 % without the Bonferroni correction (a lenient reading: any hint of structure counts), and the Jarque–Bera normality test (heavy tails: the `noise` cause); when none rejects and the residual is within `verdict_noise_ratio` × the white-noise level, no extension is searched — the search runs where the residual shows a cause (clean data: the baseline alone) |
 /// | `refit_on_training` | true | once the search has chosen the structure on the fit block, the chain (baseline, then every accepted extension in turn) is refitted on the whole training record (fit and select blocks) when decisions used the select block; a refitted model replaces its fit-block fit only when its free-run squared error over the whole training record is not larger (a refit that lands in a worse local minimum is dropped). The decisions and the verdict keep the fit-block fits' held-out residuals |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
@@ -192,6 +193,10 @@ pub struct DecisionPolicy {
     /// Level of each residual test (uncorrected) below which the search
     /// goes on.
     pub search_stop_level: f64,
+    /// After a step that changed only the noise model, propose again the
+    /// candidates that did not pay at that step (`false`: only those that
+    /// paid, and new ones).
+    pub retry_after_noise_step: bool,
     /// Refit the chosen chain on the whole training record (fit and
     /// select blocks) for the final model.
     pub refit_on_training: bool,
@@ -259,6 +264,7 @@ impl Default for DecisionPolicy {
             verdict_noise_ratio: 3.0,
             stop_when_adequate: true,
             search_stop_level: 0.05,
+            retry_after_noise_step: false,
             refit_on_training: true,
         }
     }

@@ -193,6 +193,28 @@ impl StaticNetwork {
         }
     }
 
+    /// `f(v)` and its slope `f′(v) = Σᵢ Φᵢ′(v)(cᵢ₀ + cᵢ₁v) + Φᵢ(v)cᵢ₁`,
+    /// `Φᵢ = ψᵢ − ψᵢ₊₁` with `ψ′ = ψ(1 − ψ)/width` for the sigmoids.
+    pub fn eval_with_slope(&self, v: f64) -> (f64, f64) {
+        let m = self.knots.len();
+        let (mut prev, mut dprev) = (1.0, 0.0);
+        let (mut s, mut ds) = (0.0, 0.0);
+        for i in 0..=m {
+            let (next, dnext) = if i < m {
+                let g = 1.0 / (1.0 + (-(v - self.knots[i]) / self.width).exp());
+                (g, g * (1.0 - g) / self.width)
+            } else {
+                (0.0, 0.0)
+            };
+            let (phi, dphi) = (prev - next, dprev - dnext);
+            let (c0, c1) = (self.coefficients[2 * i], self.coefficients[2 * i + 1]);
+            s += phi * (c0 + c1 * v);
+            ds += dphi * (c0 + c1 * v) + phi * c1;
+            (prev, dprev) = (next, dnext);
+        }
+        (s, ds)
+    }
+
     /// `f(v)`.
     pub fn eval(&self, v: f64) -> f64 {
         let m = self.knots.len();
@@ -658,6 +680,37 @@ fn network_columns(m: &WienerHammersteinNetwork, u: &[f64]) -> Vec<Vec<f64>> {
     cols.iter().map(|c| filtered(&m.b2, &m.a2, c)).collect()
 }
 
+/// `∂ŷ/∂θ` for the free filter coefficients in [`Layout`]'s order
+/// (b₁ after its first, a₁, b₂, a₂ after their first), exact, each over
+/// the whole record: with `v = (B₁/A₁)u`, `w = f(v)`, `ŷ = (B₂/A₂)w`
+/// (zero initial states),
+/// `∂v/∂b₁ⱼ = q⁻ʲ(1/A₁)u`, `∂v/∂a₁ⱼ = −q⁻ʲ(1/A₁)v`, `∂ŷ/∂θ₁ = (B₂/A₂)(f′(v)·∂v/∂θ₁)`,
+/// `∂ŷ/∂b₂ⱼ = q⁻ʲ(1/A₂)w`, `∂ŷ/∂a₂ⱼ = −q⁻ʲ(1/A₂)ŷ`.
+fn filter_columns(m: &WienerHammersteinNetwork, u: &[f64]) -> Vec<Vec<f64>> {
+    let n = u.len();
+    let v = filtered(&m.b1, &m.a1, u);
+    let (w, slope): (Vec<f64>, Vec<f64>) =
+        v.iter().map(|&x| m.nonlinearity.eval_with_slope(x)).unzip();
+    let yhat = filtered(&m.b2, &m.a2, &w);
+    let shifted = |x: &[f64], j: usize, sign: f64| -> Vec<f64> {
+        (0..n)
+            .map(|k| if k >= j { sign * x[k - j] } else { 0.0 })
+            .collect()
+    };
+    let through_g2 = |dv: Vec<f64>| -> Vec<f64> {
+        let dw: Vec<f64> = dv.iter().zip(&slope).map(|(d, s)| d * s).collect();
+        filtered(&m.b2, &m.a2, &dw)
+    };
+    let (u1, v1) = (filtered(&[1.0], &m.a1, u), filtered(&[1.0], &m.a1, &v));
+    let (w2, y2) = (filtered(&[1.0], &m.a2, &w), filtered(&[1.0], &m.a2, &yhat));
+    let mut cols = Vec::with_capacity(Layout::of(m).n_filter());
+    cols.extend((1..m.b1.len()).map(|j| through_g2(shifted(&u1, j, 1.0))));
+    cols.extend((1..m.a1.len()).map(|j| through_g2(shifted(&v1, j, -1.0))));
+    cols.extend((0..m.b2.len()).map(|j| shifted(&w2, j, 1.0)));
+    cols.extend((1..m.a2.len()).map(|j| shifted(&y2, j, -1.0)));
+    cols
+}
+
 /// Least squares `y ≈ Σ cₖ colₖ` over samples `skip..` (small ridge).
 fn solve_columns(cols: &[Vec<f64>], y: &[f64], skip: usize) -> Option<Vec<f64>> {
     let p = cols.len();
@@ -1065,7 +1118,7 @@ impl WhFitter {
         r.is_finite().then_some((r, m))
     }
 
-    /// Joint LM over filter coefficients (finite differences) and network
+    /// Joint LM over filter coefficients and network
     /// coefficients (exact columns); see [`JointProblem`] and [`wh_solver`].
     fn refine(
         &self,
@@ -1107,9 +1160,10 @@ impl WhFitter {
 
 /// The joint refinement as a least-squares problem: θ = the packed filter
 /// and network coefficients ([`Layout`]); residuals y − ŷ after `skip`
-/// samples; Jacobian columns of the filter coefficients by forward
-/// differences (step 1e-6·(1 + |θⱼ|)), of the network coefficients exact
-/// (G₂ of the basis functions); trial points with a pole at |z| ≥ 0.999 are
+/// samples; Jacobian columns exact, of the filter coefficients by
+/// [`filter_columns`] (until 2026-11-27 forward differences, one
+/// simulation per coefficient), of the network coefficients G₂ of the
+/// basis functions; trial points with a pole at |z| ≥ 0.999 are
 /// inadmissible.
 struct JointProblem<'a> {
     lay: Layout,
@@ -1157,21 +1211,9 @@ impl LeastSquaresProblem for JointProblem<'_> {
         };
         let (nf, skip) = (self.lay.n_filter(), self.skip);
         let ns = self.e.len();
-        // Jacobian of ŷ: filters by forward differences
-        let s0: Vec<f64> = self.y[skip..]
-            .iter()
-            .zip(&self.e)
-            .map(|(y, e)| y - e)
-            .collect();
-        let mut mj = self.model.clone();
-        for j in 0..nf {
-            let h = 1e-6 * (1.0 + p[j].abs());
-            let mut pj = p.to_vec();
-            pj[j] += h;
-            self.lay.unpack(&pj, &mut mj);
-            let s = mj.simulate(self.u);
+        for (j, c) in filter_columns(&self.model, self.u).iter().enumerate() {
             for t in 0..ns {
-                self.jac[(t, j)] = (s[skip + t] - s0[t]) / h;
+                self.jac[(t, j)] = c[skip + t];
             }
         }
         let cols = network_columns(&self.model, self.u);
@@ -1333,6 +1375,49 @@ fn lm_fd(
 mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
+
+    #[test]
+    fn the_filter_columns_are_the_derivatives_of_the_simulation() {
+        // G1 2/2, a network of 4 local models, G2 1/2: every column against
+        // central differences of the simulation
+        let mut m = WienerHammersteinNetwork {
+            b1: vec![0.4, 0.2, -0.1],
+            a1: vec![1.0, -0.9, 0.3],
+            b2: vec![0.2, 0.5],
+            a2: vec![1.0, -0.6, 0.25],
+            nonlinearity: StaticNetwork {
+                knots: vec![-0.5, 0.2, 0.9],
+                width: 0.3,
+                coefficients: vec![0.1, 0.8, -0.2, 1.5, 0.3, -0.4, 0.0, 2.0],
+            },
+        };
+        let u: Vec<f64> = (0..300)
+            .map(|k| (k as f64 * 0.21).sin() + 0.5 * (k as f64 * 0.057).cos())
+            .collect();
+        let lay = Layout::of(&m);
+        let cols = filter_columns(&m, &u);
+        assert_eq!(cols.len(), lay.n_filter());
+        let p0 = lay.pack(&m);
+        for (j, col) in cols.iter().enumerate() {
+            let h = 1e-6;
+            let mut at = |d: f64| {
+                let mut p = p0.clone();
+                p[j] += d;
+                lay.unpack(&p, &mut m);
+                m.simulate(&u)
+            };
+            let (hi, lo) = (at(h), at(-h));
+            let scale = col.iter().fold(1e-3, |a: f64, v| a.max(v.abs()));
+            for k in 0..u.len() {
+                let fd = (hi[k] - lo[k]) / (2.0 * h);
+                assert!(
+                    (fd - col[k]).abs() <= 1e-6 * scale,
+                    "column {j} sample {k}: {} vs {fd}",
+                    col[k]
+                );
+            }
+        }
+    }
 
     #[test]
     fn the_steady_start_is_the_zero_start_after_a_long_constant_prefix() {

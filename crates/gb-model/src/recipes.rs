@@ -196,14 +196,14 @@ pub static RECIPES: &[Recipe] = &[
         name: "hammerstein",
         components: &[],
         summary: "Hammerstein: static maps of the inputs (cubic polynomial, cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out) before linear dynamics of order n, trained output-error",
-        options: &["order=2", "delay=1 (list)", "maps=1: which inputs get a map, 0 or 1 per input (list)", MAP_OPTION],
+        options: &["order=2", DELAY_CHOICES, "maps=1: which inputs get a map, 0 or 1 per input (list)", MAP_OPTION],
         fit: fit_block,
     },
     Recipe {
         name: "wiener",
         components: &[],
         summary: "Wiener: linear dynamics of order n, then a static map of the output (cubic polynomial, cubic spline or piecewise linear, chosen on a hold-out), trained output-error",
-        options: &["order=2", "delay=1 (list)", MAP_OPTION],
+        options: &["order=2", DELAY_CHOICES, MAP_OPTION],
         fit: fit_block,
     },
     Recipe {
@@ -445,9 +445,11 @@ fn fit_block(spec: &ModelSpec, data: &Records, _obs: &dyn Observer) -> Result<Fi
     let d = one_record(data, "a block-oriented model")?;
     let ni = d.n_inputs();
     let order = o.usize("order", 2, 1, 30)?;
-    let delay = o.usize_list("delay", ni, 1, 0, 64)?;
+    let mut delays = o.usize_list_choices("delay", ni, 1, 0, 64)?;
+    let delay = delays.remove(0);
     let mut p = gb_lmn::BlockParams {
         delay,
+        other_delays: delays,
         ..gb_lmn::BlockParams::linear(order)
     };
     let map = o.choice("map", "auto", &MAP_STRUCTURES)?;
@@ -504,6 +506,9 @@ fn fit_wiener_hammerstein(
     )];
     wrap(d, Box::new(w), noise, notes)
 }
+
+/// The help line of the block-oriented recipes' `delay` option.
+const DELAY_CHOICES: &str = "delay=1: dead time, one or one per input (a/b); alternatives separated by | (delay=1|0|2) are compared on a hold-out at the map structure chosen at the first";
 
 /// The help line of the block-oriented recipes' `map` option.
 const MAP_OPTION: &str = "map=auto: the static maps' structure, cubic, spline4/8/16 or pwl2/4/8/16 (piecewise linear, free knots); auto chooses among them on a hold-out";
@@ -692,5 +697,40 @@ mod tests {
         let bad = "hammerstein:map=spline5".parse().unwrap();
         let err = super::fit(&bad, &data, &crate::Silent).unwrap_err();
         assert!(err.to_string().contains("spline5"), "{err}");
+    }
+
+    #[test]
+    fn the_block_recipes_choose_among_alternative_dead_times() {
+        // a second-order filter of the input three samples late, with tanh
+        // before it (Hammerstein) or after it (Wiener)
+        let u: Vec<f64> = (0..1500)
+            .map(|k| ((k as f64 * 0.37).sin() + (k as f64 * 0.113).cos()) * 1.2)
+            .collect();
+        for recipe in ["hammerstein", "wiener"] {
+            let before = |v: f64| if recipe == "hammerstein" { v.tanh() } else { v };
+            let mut x = vec![0.0; u.len()];
+            for k in 3..u.len() {
+                x[k] = 1.2 * x[k - 1] - 0.5 * x[k - 2] + 0.4 * before(u[k - 3]);
+            }
+            let y = if recipe == "wiener" {
+                x.iter().map(|v| (2.0 * v).tanh()).collect()
+            } else {
+                x
+            };
+            let rec =
+                gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y).unwrap();
+            let data = gb_core::Records::single(rec);
+            for (delay, want) in [("4|3|5", 3), ("5|4|3", 3), ("4", 4)] {
+                let spec = format!("{recipe}:order=2,delay={delay}").parse().unwrap();
+                let f = super::fit(&spec, &data, &crate::Silent).unwrap();
+                let m = f
+                    .model
+                    .dynamics
+                    .as_any()
+                    .downcast_ref::<gb_lmn::BlockModel>()
+                    .unwrap();
+                assert_eq!(m.nk, vec![want], "{recipe} delay={delay}");
+            }
+        }
     }
 }

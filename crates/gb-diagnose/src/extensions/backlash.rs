@@ -17,9 +17,15 @@ const SCAN: [f64; 10] = [0.04, 0.06, 0.09, 0.135, 0.2, 0.3, 0.45, 0.68, 1.0, 1.5
 /// `k = −FINE+1 … FINE−1` (a grid ratio of 1.07).
 const FINE: i32 = 6;
 
-/// The half-width of choice `c` ([`Extension::fit_choosing`]): scan index
-/// `c / (2·FINE − 1)`, fine step `c mod (2·FINE − 1) − (FINE − 1)`.
+/// Choices per dead time: every scan value with its fine steps.
+const PER_DELAY: usize = SCAN.len() * (2 * FINE - 1) as usize;
+
+/// The half-width of choice `c` ([`Extension::fit_choosing`]): within its
+/// dead time's `c mod PER_DELAY`, scan index `/ (2·FINE − 1)`, fine step
+/// `mod (2·FINE − 1) − (FINE − 1)`; the dead time is alternative
+/// `c / PER_DELAY` ([`alternatives`]).
 fn half_width_of(c: usize) -> Option<f64> {
+    let c = c % PER_DELAY;
     let per = (2 * FINE - 1) as usize;
     let base = SCAN.get(c / per)?;
     let k = (c % per) as i32 - (FINE - 1);
@@ -40,6 +46,20 @@ fn half_width_of(c: usize) -> Option<f64> {
 /// each `r`. The grid of [`super::PreisachColumns`]' input plays (steps of
 /// 0.3 σ) can only interpolate a gear play of, say, 0.2 σ; this fits it.
 pub struct Backlash;
+
+/// The dead times a proposal tries: with one input its own and the
+/// variants of [`super::delay_variants`] (a backlash holds the response at
+/// every reversal, which a linear fit takes for extra dead time); with
+/// several, its own.
+fn alternatives(io: &IoNetworkParams) -> Vec<Vec<usize>> {
+    if io.delay.len() != 1 {
+        return vec![io.delay.clone()];
+    }
+    super::delay_variants(&io.delay[0].to_string())
+        .iter()
+        .filter_map(|d| d.parse().ok().map(|k| vec![k]))
+        .collect()
+}
 
 /// The input a proposal's play sits on.
 fn input_of(p: &Proposal) -> Option<usize> {
@@ -66,9 +86,49 @@ impl Backlash {
         score.is_finite().then_some((score, m))
     }
 
-    /// Scan [`SCAN`], then the fine steps around its best; the best fit
-    /// and its choice index (see [`half_width_of`]).
-    fn search(io: &IoNetworkParams, j: usize, ctx: &Context) -> Option<(usize, FittedModel)> {
+    /// [`search`](Self::search) at the proposal's dead time; then each
+    /// other dead time of [`alternatives`] fitted at the half-width found,
+    /// and the search repeated at the one whose fit-block error is smallest
+    /// if that beats the first. With no backlash at the proposal's dead
+    /// time, the search at each other one. The best fit and its choice
+    /// index (see [`half_width_of`]).
+    fn search_delays(
+        io: &IoNetworkParams,
+        j: usize,
+        ctx: &Context,
+    ) -> Option<(usize, FittedModel)> {
+        let alts = alternatives(io);
+        let at = |i: usize| IoNetworkParams {
+            delay: alts[i].clone(),
+            ..io.clone()
+        };
+        let offset = |i: usize, (c, s, m): (usize, f64, FittedModel)| (c + i * PER_DELAY, s, m);
+        let first = Self::search(&at(0), j, ctx);
+        let pick = |v: Vec<(usize, f64, FittedModel)>| {
+            v.into_iter()
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .map(|(c, _, m)| (c, m))
+        };
+        let Some(first) = first else {
+            let rest: Vec<_> = (1..alts.len())
+                .into_par_iter()
+                .filter_map(|i| Self::search(&at(i), j, ctx).map(|r| offset(i, r)))
+                .collect();
+            return pick(rest);
+        };
+        let r = half_width_of(first.0)?;
+        let other = (1..alts.len())
+            .into_par_iter()
+            .filter_map(|i| Self::fit_at(&at(i), j, r, ctx).map(|(s, _)| (i, s)))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .filter(|&(_, s)| s < first.1);
+        let again = other.and_then(|(i, _)| Self::search(&at(i), j, ctx).map(|r| offset(i, r)));
+        pick([Some(first), again].into_iter().flatten().collect())
+    }
+
+    /// Scan [`SCAN`], then the fine steps around its best; the best fit,
+    /// its score and its choice index (see [`half_width_of`]).
+    fn search(io: &IoNetworkParams, j: usize, ctx: &Context) -> Option<(usize, f64, FittedModel)> {
         let top = gb_lmn::half_range(&ctx.fit.inputs[j]);
         let per = (2 * FINE - 1) as usize;
         let centre = (FINE - 1) as usize;
@@ -97,9 +157,7 @@ impl Backlash {
         all.push(first);
         // at the scan's lower end the play is the input itself: no
         // backlash, and any gain would be the delay variant's alone
-        best(all)
-            .filter(|(c, _, _)| half_width_of(*c).is_some_and(|r| r > SCAN[0]))
-            .map(|(c, _, m)| (c, m))
+        best(all).filter(|(c, _, _)| half_width_of(*c).is_some_and(|r| r > SCAN[0]))
     }
 }
 
@@ -110,12 +168,11 @@ impl Extension for Backlash {
     fn cause(&self) -> Cause {
         Cause::Hysteresis
     }
-    /// When the current model is a plain linear input–output model: with
-    /// one input, one proposal per delay variant ([`super::delay_variants`]:
-    /// the current delay, one sample either side, the plain one-sample
-    /// delay; a backlash holds the response at every reversal, which a
-    /// linear fit takes for extra dead time); with several, one per input
-    /// at the current delays.
+    /// When the current model is a plain linear input–output model: one
+    /// proposal per input at the current delays; with one input, the fit
+    /// tries the [`alternatives`] as well, except under cross-validation,
+    /// where each alternative is a proposal of its own
+    /// ([`super::delay_choices`]).
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         let Some(p) = ctx
             .current
@@ -127,13 +184,15 @@ impl Extension for Backlash {
         };
         let n = ctx.fit.n_inputs();
         let (_, delay) = super::io_structure(p, n);
-        let delays = if n == 1 {
-            super::delay_variants(&delay)
+        let choices = if n == 1 {
+            super::delay_choices(ctx, &delay)
         } else {
-            vec![delay]
+            vec![(delay.clone(), format!("input delay {delay}"))]
         };
         let mut out = vec![];
-        for d in delays {
+        for (d, words) in choices {
+            // one dead time (the others, `a|b`, are tried by the fit)
+            let d = d.split('|').next().unwrap_or_default().to_string();
             let Some(dv) = d
                 .split('/')
                 .map(|v| v.parse().ok())
@@ -157,7 +216,7 @@ impl Extension for Backlash {
                         ..p.clone()
                     }),
                     text: format!(
-                        "a backlash on input '{}' (one play operator, its half-width fitted on the training data), the input kept as well, then the linear dynamics of order {} (input delay {d}), trained output-error",
+                        "a backlash on input '{}' (one play operator, its half-width fitted on the training data), the input kept as well, then the linear dynamics of order {} ({words}), trained output-error",
                         ctx.fit.input_names.get(j).map_or("?", String::as_str),
                         p.order
                     ),
@@ -183,10 +242,18 @@ impl Extension for Backlash {
         let j = input_of(p).ok_or_else(bad)?;
         let found = super::on_leading(ctx, ctx.policy().nonlinear_fit_samples, |c| {
             match ctx.start_choice {
-                Some(k) => half_width_of(k)
-                    .and_then(|r| Self::fit_at(io, j, r, c))
-                    .map(|(_, m)| (k, m)),
-                None => Self::search(io, j, c),
+                Some(k) => {
+                    let delay = alternatives(io).get(k / PER_DELAY)?.clone();
+                    let at = IoNetworkParams {
+                        delay,
+                        ..io.clone()
+                    };
+                    half_width_of(k)
+                        .and_then(|r| Self::fit_at(&at, j, r, c))
+                        .map(|(_, m)| (k, m))
+                }
+                None if c.plan.cv() => Self::search(io, j, c).map(|(k, _, m)| (k, m)),
+                None => Self::search_delays(io, j, c),
             }
         });
         found.map(|(k, m)| (m, Some(k))).ok_or_else(|| {
@@ -199,8 +266,12 @@ impl Extension for Backlash {
     /// increase) keep this play, not the grid.
     fn rescore(&self, _ctx: &Context, c: &mut Evaluated) -> Result<(), DiagnoseError> {
         let at = fitted_plays(&c.model);
+        let nk = fitted_delays(&c.model);
         if let (Lineage::Io(p), Some(at)) = (&mut c.lineage, at) {
             p.input_play_at = Some(at);
+            if let Some(nk) = nk.filter(|k| k.len() == p.delay.len()) {
+                p.delay = nk;
+            }
         }
         Ok(())
     }
@@ -213,11 +284,25 @@ impl Extension for Backlash {
             .map_or(String::new(), |r| {
                 format!(" -> half-width {r:.3} standard deviations of the input")
             });
-        format!("{}{r}", p.text)
+        let nk = fitted_delays(fitted)
+            .filter(|_| !r.is_empty())
+            .map_or(String::new(), |k| {
+                let k: Vec<String> = k.iter().map(usize::to_string).collect();
+                format!(", input delay {}", k.join("/"))
+            });
+        format!("{}{r}{nk}", p.text)
     }
     fn input(&self, p: &Proposal, ctx: &Context) -> Option<String> {
         input_of(p).and_then(|j| ctx.fit.input_names.get(j).cloned())
     }
+}
+
+/// The input dead times of a fitted input–output network.
+fn fitted_delays(m: &FittedModel) -> Option<Vec<usize>> {
+    core(m)
+        .as_any()
+        .downcast_ref::<LocalModelNetwork>()
+        .map(|n| n.spec.nk.clone())
 }
 
 /// The input play thresholds of a fitted input–output network.

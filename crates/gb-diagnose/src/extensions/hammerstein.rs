@@ -1,7 +1,7 @@
 //! `nonlinearity`: a Hammerstein model (static maps of the inputs before
 //! the linear dynamics); with several inputs, a map of one input at a time
 //! says which input the nonlinearity lives on.
-use super::{delay_variants, fit_block_choosing, plain_linear_structure};
+use super::{delay_choices, fit_block_choosing, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -10,10 +10,11 @@ use gb_core::FittedModel;
 /// Static maps of the inputs (cubic polynomial, cubic spline or piecewise linear, knots at
 /// quantiles, the structure chosen on a hold-out of the fit block) before
 /// the current linear dynamics, trained output-error, with the current
-/// input delay, the delays one sample either side and the plain one-sample
-/// delay when the baseline's is further from it ([`delay_variants`]).
-/// With several inputs: one candidate per input (only that path nonlinear,
-/// the current delay) and the every-input candidates.
+/// input delay or, when it fits the fit block better, one sample either
+/// side or the plain one-sample delay (under cross-validation one candidate
+/// per delay: [`delay_choices`]). With several inputs: one candidate per
+/// input (only that path nonlinear, the current delay) and the every-input
+/// candidates.
 pub struct Hammerstein;
 
 /// The maps of a proposal (`maps=0/1/…`) as flags.
@@ -63,20 +64,21 @@ impl Extension for Hammerstein {
         };
         let tail = |d: &str| {
             format!(
-                "(cubic polynomial, cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order} (input delay {d}), trained output-error"
+                "(cubic polynomial, cubic spline or piecewise linear, knots at quantiles, chosen on a hold-out of the fit block), then the linear dynamics of order {order} ({d}), trained output-error"
             )
         };
+        let choices = delay_choices(ctx, &delay);
         if ni == 1 {
-            return delay_variants(&delay)
+            return choices
                 .iter()
-                .map(|d| {
+                .map(|(d, words)| {
                     proposal(
                         &[true],
                         d,
                         format!(
                             "Hammerstein: a static map of the input '{}' {}",
                             names[0],
-                            tail(d)
+                            tail(words)
                         ),
                     )
                 })
@@ -92,16 +94,16 @@ impl Extension for Hammerstein {
                         "Hammerstein on input '{}' only: a static map of '{}' {}; the other inputs stay linear",
                         names[j],
                         names[j],
-                        tail(&delay)
+                        tail(&format!("input delay {delay}"))
                     ),
                 )
             })
             .collect();
-        out.extend(delay_variants(&delay).iter().map(|d| {
+        out.extend(choices.iter().map(|(d, words)| {
             proposal(
                 &vec![true; ni],
                 d,
-                format!("Hammerstein: a static map of every input {}", tail(d)),
+                format!("Hammerstein: a static map of every input {}", tail(words)),
             )
         }));
         out

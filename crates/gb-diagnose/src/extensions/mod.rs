@@ -94,6 +94,31 @@ pub(crate) fn delay_variants(d: &str) -> Vec<String> {
     out
 }
 
+/// The `delay=` values of the block candidates at delay `d`, with their
+/// words for a report row: one candidate trying every variant of
+/// [`delay_variants`] (`1|0|2`, the dead time chosen on the fit block);
+/// under cross-validation one candidate per variant, the folds judging
+/// each (a short record's fit block can prefer a dead time the folds
+/// reject: backlash 2 of the sweep, 805 samples, 1.06× the floor with the
+/// folds' choice, 5.6× with the fit block's).
+pub(crate) fn delay_choices(ctx: &Context, d: &str) -> Vec<(String, String)> {
+    let v = delay_variants(d);
+    if ctx.plan.cv() || v.len() == 1 {
+        return v
+            .into_iter()
+            .map(|x| {
+                let words = format!("input delay {x}");
+                (x, words)
+            })
+            .collect();
+    }
+    let words = format!(
+        "input delay {d}, or {} if that fits the fit block better",
+        v[1..].join(" or ")
+    );
+    vec![(v.join("|"), words)]
+}
+
 /// `f` on the context whose fit block is the first `n` samples of `ctx`'s
 /// when there is one training record longer than `n` (the fits whose cost
 /// is linear in the samples, capped by the policy), else on `ctx` itself.
@@ -132,38 +157,89 @@ pub(crate) fn fit_spec(
 }
 
 /// A block-oriented (Hammerstein, Wiener) proposal fitted by
-/// [`fit_spec`], and the map structure it chose on the fit block (its
-/// index among gb-lmn's default structures): the final refit on the whole
+/// [`fit_spec`], and the structure it chose on the fit block — its dead
+/// time among the spec's alternatives (`delay=1|0|2`) and its map
+/// structure among gb-lmn's default structures, as one index
+/// `delay index · structures + map index`: the final refit on the whole
 /// training record ([`Context::start_choice`]) refits that structure only,
-/// the one the select block judged. The folds of a cross-validation choose
-/// their own (given the whole fit block's choice, a fold fitted on three
-/// quarters of a short record extrapolates a cubic or a spline the others
-/// would not have chosen: hammerstein-odd 5 and wiener 8 lost their
-/// cause).
+/// the one the select block judged. The folds of a cross-validation keep
+/// the dead time and choose their own map (given the whole fit block's
+/// map, a fold fitted on three quarters of a short record extrapolates a
+/// cubic or a spline the others would not have chosen: hammerstein-odd 5
+/// and wiener 8 lost their cause; choosing their own dead time as well, a
+/// fold on a slow excitation takes the wrong one: hammerstein-odd 5
+/// again).
 pub(crate) fn fit_block_choosing(
     lineage: &Lineage,
     ctx: &Context,
 ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
     let structures = gb_lmn::BlockParams::linear(1).maps;
     let cap = ctx.policy().nonlinear_fit_samples;
-    let choice = ctx.start_choice.filter(|_| !ctx.plan.cv());
-    let m = match (lineage, choice.and_then(|i| structures.get(i))) {
-        (Lineage::Other { spec, order }, Some(&(basis, knots))) => {
-            let one = Lineage::Other {
-                spec: format!("{spec},map={}", basis.structure_name(knots)),
-                order: *order,
-            };
-            fit_spec(&one, ctx, cap)?
-        }
-        _ => fit_spec(lineage, ctx, cap)?,
+    let Lineage::Other { spec, order } = lineage else {
+        return Ok((fit_spec(lineage, ctx, cap)?, None));
     };
-    let chosen = m
-        .dynamics
-        .as_any()
-        .downcast_ref::<gb_lmn::BlockModel>()
+    let delays = spec_delays(spec);
+    let fixed = ctx.start_choice.and_then(|c| {
+        let (basis, knots) = structures.get(c % structures.len())?;
+        let delay = with_option(spec, "delay", delays.get(c / structures.len())?);
+        let spec = if ctx.plan.cv() {
+            delay
+        } else {
+            format!("{delay},map={}", basis.structure_name(*knots))
+        };
+        Some(Lineage::Other {
+            spec,
+            order: *order,
+        })
+    });
+    let m = fit_spec(fixed.as_ref().unwrap_or(lineage), ctx, cap)?;
+    let block = m.dynamics.as_any().downcast_ref::<gb_lmn::BlockModel>();
+    let map = block
         .and_then(gb_lmn::BlockModel::map_structure)
         .and_then(|s| structures.iter().position(|&t| t == s));
+    let delay = block.and_then(|b| {
+        delays.iter().position(|d| {
+            let v: Vec<usize> = d.split('/').filter_map(|x| x.parse().ok()).collect();
+            v == b.nk || (v.len() == 1 && b.nk.iter().all(|&k| k == v[0]))
+        })
+    });
+    let chosen = map.map(|s| delay.unwrap_or(0) * structures.len() + s);
     Ok((m, chosen))
+}
+
+/// The dead-time alternatives of a block spec's `delay=` option (`1|0|2`
+/// gives `1`, `0`, `2`); `1` when it has none.
+fn spec_delays(spec: &str) -> Vec<String> {
+    spec.split_once(':')
+        .map(|(_, o)| o)
+        .unwrap_or("")
+        .split(',')
+        .find_map(|kv| kv.strip_prefix("delay="))
+        .map_or_else(
+            || vec!["1".to_string()],
+            |d| d.split('|').map(str::to_string).collect(),
+        )
+}
+
+/// `spec` with option `key` set to `value` (replaced, or appended).
+fn with_option(spec: &str, key: &str, value: &str) -> String {
+    let (head, opts) = spec.split_once(':').unwrap_or((spec, ""));
+    let prefix = format!("{key}=");
+    let mut parts: Vec<String> = opts
+        .split(',')
+        .filter(|kv| !kv.is_empty())
+        .map(|kv| {
+            if kv.starts_with(&prefix) {
+                format!("{prefix}{value}")
+            } else {
+                kv.to_string()
+            }
+        })
+        .collect();
+    if !parts.iter().any(|kv| kv.starts_with(&prefix)) {
+        parts.push(format!("{prefix}{value}"));
+    }
+    format!("{head}:{}", parts.join(","))
 }
 
 /// Fit an input–output model on the fit block, warm-started from the
@@ -199,6 +275,21 @@ pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, 
 #[cfg(test)]
 mod tests {
     use super::delay_variants;
+
+    #[test]
+    fn a_block_spec_names_its_dead_times_and_one_can_be_fixed() {
+        let s = "hammerstein:order=2,delay=4/0|5/1|1/1,maps=1/1";
+        assert_eq!(super::spec_delays(s), vec!["4/0", "5/1", "1/1"]);
+        assert_eq!(super::spec_delays("wiener:order=3"), vec!["1"]);
+        assert_eq!(
+            super::with_option(s, "delay", "5/1"),
+            "hammerstein:order=2,delay=5/1,maps=1/1"
+        );
+        assert_eq!(
+            super::with_option("wiener:order=3", "delay", "2"),
+            "wiener:order=3,delay=2"
+        );
+    }
 
     #[test]
     fn the_delay_variants_are_the_delay_its_neighbours_and_the_plain_delay() {

@@ -1,6 +1,6 @@
 //! `nonlinearity`: a Wiener model (the linear dynamics, then a static map
 //! of the output).
-use super::{delay_variants, fit_block_choosing, plain_linear_structure};
+use super::{delay_choices, fit_block_choosing, plain_linear_structure};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -8,8 +8,9 @@ use gb_core::FittedModel;
 
 /// The current linear dynamics followed by a static map of the output
 /// (cubic polynomial, cubic spline or piecewise linear, knots at quantiles, the structure
-/// chosen on a hold-out of the fit block), trained output-error; one
-/// candidate per delay of [`delay_variants`].
+/// chosen on a hold-out of the fit block), trained output-error, with the
+/// current input delay or one of [`super::delay_variants`] when it fits
+/// the hold-out better ([`delay_choices`]).
 pub struct Wiener;
 
 impl Extension for Wiener {
@@ -23,16 +24,16 @@ impl Extension for Wiener {
         let Some((order, delay)) = plain_linear_structure(ctx) else {
             return vec![];
         };
-        delay_variants(&delay)
+        delay_choices(ctx, &delay)
             .into_iter()
-            .map(|d| Proposal {
+            .map(|(d, words)| Proposal {
                 cause: Cause::Nonlinearity,
                 lineage: Lineage::Other {
                     spec: format!("wiener:order={order},delay={d}"),
                     order,
                 },
                 text: format!(
-                    "Wiener: the linear dynamics of order {order} (input delay {d}), then a static map of the output (cubic polynomial, cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
+                    "Wiener: the linear dynamics of order {order} ({words}), then a static map of the output (cubic polynomial, cubic spline or piecewise linear, chosen on a hold-out of the fit block), trained output-error"
                 ),
             })
             .collect()
