@@ -508,7 +508,7 @@ fn fit_wiener_hammerstein(
 }
 
 /// The help line of the block-oriented recipes' `delay` option.
-const DELAY_CHOICES: &str = "delay=1: dead time, one or one per input (a/b); alternatives separated by | (delay=1|0|2) are compared on a hold-out at the map structure chosen at the first";
+const DELAY_CHOICES: &str = "delay=1: dead time, one or one per input (a/b); alternatives separated by | (delay=1|0|2) are compared by their fit error at the map structure chosen at the first";
 
 /// The help line of the block-oriented recipes' `map` option.
 const MAP_OPTION: &str = "map=auto: the static maps' structure, cubic, spline4/8/16 or pwl2/4/8/16 (piecewise linear, free knots); auto chooses among them on a hold-out";
@@ -683,20 +683,25 @@ mod tests {
             ("spline8", (gb_lmn::MapBasis::Spline, 8)),
         ] {
             for recipe in ["hammerstein", "wiener"] {
-                let spec = format!("{recipe}:order=2,map={name}").parse().unwrap();
-                let f = super::fit(&spec, &data, &crate::Silent).unwrap();
-                let m = f
-                    .model
-                    .dynamics
-                    .as_any()
-                    .downcast_ref::<gb_lmn::BlockModel>()
-                    .unwrap();
+                let m = fitted_block(&format!("{recipe}:order=2,map={name}"), &data);
                 assert_eq!(m.map_structure(), Some(want), "{recipe} map={name}");
             }
         }
         let bad = "hammerstein:map=spline5".parse().unwrap();
         let err = super::fit(&bad, &data, &crate::Silent).unwrap_err();
         assert!(err.to_string().contains("spline5"), "{err}");
+    }
+
+    /// The block-oriented model a recipe spec fits on `data`.
+    fn fitted_block(spec: &str, data: &gb_core::Records) -> gb_lmn::BlockModel {
+        let spec = spec.parse().unwrap();
+        let f = super::fit(&spec, data, &crate::Silent).unwrap();
+        f.model
+            .dynamics
+            .as_any()
+            .downcast_ref::<gb_lmn::BlockModel>()
+            .unwrap()
+            .clone()
     }
 
     #[test]
@@ -721,14 +726,7 @@ mod tests {
                 gb_core::Record::new(vec!["u".into()], "y".into(), vec![u.clone()], y).unwrap();
             let data = gb_core::Records::single(rec);
             for (delay, want) in [("4|3|5", 3), ("5|4|3", 3), ("4", 4)] {
-                let spec = format!("{recipe}:order=2,delay={delay}").parse().unwrap();
-                let f = super::fit(&spec, &data, &crate::Silent).unwrap();
-                let m = f
-                    .model
-                    .dynamics
-                    .as_any()
-                    .downcast_ref::<gb_lmn::BlockModel>()
-                    .unwrap();
+                let m = fitted_block(&format!("{recipe}:order=2,delay={delay}"), &data);
                 assert_eq!(m.nk, vec![want], "{recipe} delay={delay}");
             }
         }
