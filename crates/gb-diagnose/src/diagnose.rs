@@ -98,6 +98,9 @@ struct Iteration {
     chosen: Option<(Evaluated, crate::refit::Pick)>,
     /// The candidates that did not pay (extension, proposal text).
     lost: HashSet<Lost>,
+    /// What the screening of the costly candidates left out, for the
+    /// decisions line.
+    screened: Option<String>,
 }
 
 /// A candidate that did not pay at a step: its extension and proposal text.
@@ -115,26 +118,84 @@ fn proposals(
         .collect()
 }
 
-/// Fit and score the proposals in parallel; seeds follow the proposal order.
+/// Fit and score the proposals in parallel; seeds follow the proposal
+/// order (`i` of each pair, its index among the step's proposals).
 fn fit_candidates(
     ctx: &Context,
-    proposals: Vec<(&'static dyn Extension, Proposal)>,
+    proposals: Vec<(usize, (&'static dyn Extension, Proposal))>,
     it: usize,
-) -> Vec<Candidate> {
+) -> Vec<(usize, Candidate)> {
     let pol = ctx.policy();
     let fitted: Vec<Option<Evaluated>> = proposals
         .par_iter()
-        .map(|(e, p)| timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx).ok()))
+        .map(|(_, (e, p))| timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx).ok()))
         .collect();
     proposals
         .into_iter()
         .zip(fitted)
-        .enumerate()
-        .filter_map(|(i, ((e, p), f))| {
+        .filter_map(|((i, (e, p)), f)| {
             let seed = pol.seed.wrapping_add(1000 * it as u64 + i as u64);
-            f.map(|f| score(e, p, f, ctx, seed))
+            f.map(|f| (i, score(e, p, f, ctx, seed)))
         })
         .collect()
+}
+
+/// The candidates of one step in proposal order. With the policy's
+/// `screen_costly`, the cheap proposals are fitted first, and the costly
+/// ones ([`Extension::costly`]) only when no cheap candidate that pays
+/// leaves a quiet residual on the decision data ([`residual_quiet`] within
+/// `screen_noise_ratio` × the white-noise level); then the note says what
+/// was not fitted.
+fn screened_candidates(
+    ctx: &Context,
+    props: Vec<(&'static dyn Extension, Proposal)>,
+    inputs: &[Vec<f64>],
+    it: usize,
+) -> (Vec<Candidate>, Option<String>) {
+    let pol = ctx.policy();
+    let (costly, cheap): (Vec<_>, Vec<_>) = props
+        .into_iter()
+        .enumerate()
+        .partition(|(_, (e, _))| pol.screen_costly && e.costly());
+    let screen = !costly.is_empty() && !cheap.is_empty();
+    let mut cands = fit_candidates(ctx, cheap, it);
+    let quiet = screen
+        .then(|| {
+            cands
+                .iter()
+                .filter(|(_, c)| c.pays)
+                .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
+                .filter(|(_, c)| {
+                    residual_quiet(
+                        &c.fitted,
+                        inputs,
+                        (pol.screen_level, pol.screen_noise_ratio),
+                    )
+                })
+        })
+        .flatten()
+        .map(|(_, c)| c.ext.name());
+    let note = match quiet {
+        Some(name) => {
+            let names: Vec<&str> = costly.iter().map(|(_, (e, _))| e.name()).collect();
+            let mut names_unique = names.clone();
+            names_unique.dedup();
+            Some(format!(
+                "; step {it}: the {name} candidate left a quiet residual (every test passed at the {} % level, within {}× the white-noise level): {} costly candidate{} ({}) not fitted",
+                100.0 * pol.screen_level,
+                pol.screen_noise_ratio,
+                names.len(),
+                if names.len() == 1 { "" } else { "s" },
+                names_unique.join(", ")
+            ))
+        }
+        None => {
+            cands.extend(fit_candidates(ctx, costly, it));
+            None
+        }
+    };
+    cands.sort_by_key(|(i, _)| *i);
+    (cands.into_iter().map(|(_, c)| c).collect(), note)
 }
 
 /// `f()`, and with the environment variable `GREYBOX_TIMING` set, one
@@ -150,6 +211,18 @@ fn timed<T>(extension: &str, lineage: &Lineage, f: impl FnOnce() -> T) -> T {
         t0.elapsed().as_secs_f64(),
         lineage.spec()
     );
+    r
+}
+
+/// `f()`, and with `GREYBOX_TIMING` set, one line on stderr with the wall
+/// time of the phase `name`.
+pub(crate) fn timed_phase<T>(name: &str, f: impl FnOnce() -> T) -> T {
+    if std::env::var_os("GREYBOX_TIMING").is_none() {
+        return f();
+    }
+    let t0 = Instant::now();
+    let r = f();
+    eprintln!("phase: {:8.3} s  {name}", t0.elapsed().as_secs_f64());
     r
 }
 
@@ -327,8 +400,11 @@ fn iterate(
     if props.is_empty() {
         return None;
     }
-    let mut cands = fit_candidates(&ctx, props, it);
-    let (mut chosen, note) = choose(&mut cands, &ctx, it);
+    let inputs = plan.decision_inputs(d);
+    let (mut cands, screened) = timed_phase("candidates", || {
+        screened_candidates(&ctx, props, &inputs, it)
+    });
+    let (mut chosen, note) = timed_phase("choose", || choose(&mut cands, &ctx, it));
     let new_cause = chosen
         .is_some_and(|i| cands[i].role() == Role::NewCause && !causes.contains(&cands[i].cause()));
     // an order increase after a named hysteresis may only stand in for the
@@ -364,7 +440,12 @@ fn iterate(
         let c = cands.swap_remove(i);
         (c.fitted, (c.proposal.cause, c.ext, c.proposal))
     });
-    Some(Iteration { rows, chosen, lost })
+    Some(Iteration {
+        rows,
+        chosen,
+        lost,
+        screened,
+    })
 }
 
 /// What was tried, per cause: `nonlinearity (2 candidates, 1 accepted)`.
@@ -418,21 +499,15 @@ pub fn diagnose(
 
 /// Whether the residuals of `cur` on the decision data show no hint of
 /// structure: no test of the verdict ([`crate::verdict::verdict`]) rejects
-/// with each run at the policy's `search_stop_level` (uncorrected), the
-/// residual is within `verdict_noise_ratio` times the white-noise level,
-/// and the Jarque–Bera test does not reject normality at that level
-/// either (heavy tails are the `noise` cause's evidence). The search for
-/// a cause runs where the residual shows one.
-fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], pol: &DecisionPolicy) -> bool {
-    let normal = crate::stats::jarque_bera(&cur.select.e).3 >= pol.search_stop_level;
-    normal
-        && crate::verdict::quiet(
-            &cur.select.e,
-            &cur.select.yhat,
-            inputs,
-            pol.search_stop_level,
-            pol.verdict_noise_ratio,
-        )
+/// with each run at `level` (uncorrected), the residual is within
+/// `noise_ratio` times the white-noise level, and the Jarque–Bera test
+/// does not reject normality at `level` either (heavy tails are the
+/// `noise` cause's evidence). Before a step (the policy's
+/// `search_stop_level`, `verdict_noise_ratio`): the search for a cause
+/// runs where the residual shows one.
+fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], (level, noise_ratio): (f64, f64)) -> bool {
+    let normal = crate::stats::jarque_bera(&cur.select.e).3 >= level;
+    normal && crate::verdict::quiet(&cur.select.e, &cur.select.yhat, inputs, level, noise_ratio)
 }
 
 /// The diagnosis loop; with a `deadline`, no step starts after it. With
@@ -456,7 +531,7 @@ pub(crate) fn search(
     };
     let base = match &opts.physics {
         Some(spec) => crate::physics::physics_baseline(d, &plan0, spec, obs)?,
-        None => baseline(d, &plan0, opts)?,
+        None => timed_phase("baseline", || baseline(d, &plan0, opts))?,
     };
     let plan = base.plan;
     let mut choice = base.choice;
@@ -484,7 +559,16 @@ pub(crate) fn search(
             &format!("step {it}: fitting candidate extensions"),
         );
         let cur = chain.last().expect("the chain holds the baseline");
-        if opts.policy.stop_when_adequate && residual_quiet(cur, &inputs, &opts.policy) {
+        if opts.policy.stop_when_adequate
+            && residual_quiet(
+                cur,
+                &inputs,
+                (
+                    opts.policy.search_stop_level,
+                    opts.policy.verdict_noise_ratio,
+                ),
+            )
+        {
             choice.decision.push_str(&format!(
                 "; before step {it} every residual test passed at the {} % level (each test, uncorrected; normality too) and the residual was within {}× the white-noise level: no extension was searched",
                 100.0 * opts.policy.search_stop_level,
@@ -498,10 +582,15 @@ pub(crate) fn search(
             opts,
             obs,
         };
-        let Some(step) = iterate(&run, cur, &causes, (&mut tried, &skip), it) else {
+        let Some(step) = timed_phase("step", || {
+            iterate(&run, cur, &causes, (&mut tried, &skip), it)
+        }) else {
             break;
         };
         steps.extend(step.rows);
+        if let Some(note) = &step.screened {
+            choice.decision.push_str(note);
+        }
         match step.chosen {
             Some((model, pick)) => {
                 if pick.0 == Cause::Noise && !opts.policy.retry_after_noise_step {
@@ -523,7 +612,11 @@ pub(crate) fn search(
         }
     }
     let refitted = refit
-        .then(|| crate::refit::refit_chain(d, &plan, &chain, &picks, opts, obs))
+        .then(|| {
+            timed_phase("refit", || {
+                crate::refit::refit_chain(d, &plan, &chain, &picks, opts, obs)
+            })
+        })
         .flatten();
     obs.progress(total, total, "done");
     let refitted = refitted.and_then(|(r, note)| {

@@ -150,6 +150,13 @@ pub trait Extension: Sync {
     fn metric(&self) -> GainMetric {
         GainMetric::Nrmse
     }
+    /// Whether its fits cost seconds (continuous-time templates, networks
+    /// between filters, hidden states): fitted only when no cheap
+    /// candidate that pays leaves a quiet residual (the policy's
+    /// `screen_costly`).
+    fn costly(&self) -> bool {
+        false
+    }
     /// Tried at most once per diagnosis.
     fn once(&self) -> bool {
         false

@@ -57,6 +57,7 @@ use crate::DiagnoseError;
 /// | `retry_after_noise_step` | false | after a step that changed only the noise model (a heavy-tailed or process-noise model), the candidates that did not pay at that step are not proposed again: their deterministic part was judged against the same deterministic model, and the select gain is the same squared simulation error (on the sweep, no case named a second cause after `noise`; student-t cases spent half their time refitting every candidate robustly) |
 /// | `stop_when_adequate`, `search_stop_level` | true, 0.05 | before each step the current model's residuals on the decision data get the verdict's tests, each at 5 % without the Bonferroni correction (a lenient reading: any hint of structure counts), and the Jarque–Bera normality test (heavy tails: the `noise` cause); when none rejects and the residual is within `verdict_noise_ratio` × the white-noise level, no extension is searched — the search runs where the residual shows a cause (clean data: the baseline alone) |
 /// | `refit_on_training` | true | once the search has chosen the structure on the fit block, the chain (baseline, then every accepted extension in turn) is refitted on the whole training record (fit and select blocks) when decisions used the select block; a refitted model replaces its fit-block fit only when its free-run squared error over the whole training record is not larger (a refit that lands in a worse local minimum is dropped). The decisions and the verdict keep the fit-block fits' held-out residuals |
+/// | `screen_costly`, `screen_level`, `screen_noise_ratio` | true, 0.01, 1.1 | the costly candidates (the mechanical templates, the Wiener–Hammerstein network, the hidden-state model: [`crate::Extension::costly`]) are fitted only when the paying cheap candidate with the largest gain does not leave a quiet residual on the decision data: the verdict's tests each pass at 1 % (uncorrected; at 5 % one of six or nine tests rejects by chance in a third of the cases at the floor), the Jarque–Bera test too, and the residual is within 1.1× the white-noise level. A structure that the cheap candidates already explain to the noise level leaves nothing a costly one could gain significantly (a wiener case: 4.3 → 1.7 s) |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
@@ -197,6 +198,14 @@ pub struct DecisionPolicy {
     /// candidates that did not pay at that step (`false`: only those that
     /// paid, and new ones).
     pub retry_after_noise_step: bool,
+    /// Fit the costly candidates only when no cheap one that pays leaves
+    /// a quiet residual.
+    pub screen_costly: bool,
+    /// Level of each test (uncorrected) of that quiet residual.
+    pub screen_level: f64,
+    /// Largest residual RMS of that quiet residual, in units of the
+    /// output's white-noise level.
+    pub screen_noise_ratio: f64,
     /// Refit the chosen chain on the whole training record (fit and
     /// select blocks) for the final model.
     pub refit_on_training: bool,
@@ -265,6 +274,9 @@ impl Default for DecisionPolicy {
             stop_when_adequate: true,
             search_stop_level: 0.05,
             retry_after_noise_step: false,
+            screen_costly: true,
+            screen_level: 0.01,
+            screen_noise_ratio: 1.1,
             refit_on_training: true,
         }
     }
@@ -304,14 +316,17 @@ impl DecisionPolicy {
             || self.noise_nrmse_tolerance < 1.0
             || self.verdict_noise_ratio.is_nan()
             || self.verdict_noise_ratio < 1.0
+            || self.screen_noise_ratio.is_nan()
+            || self.screen_noise_ratio < 1.0
         {
-            return bad("tolerances and verdict_noise_ratio >= 1");
+            return bad("tolerances, verdict_noise_ratio and screen_noise_ratio >= 1");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
         if !p_ok(self.heavy_tail_p)
             || !p_ok(self.unexplained_p)
             || !p_ok(self.verdict_level)
             || !p_ok(self.search_stop_level)
+            || !p_ok(self.screen_level)
             || !p_ok(self.memory_priority_p)
         {
             return bad("p-value levels in (0,1)");

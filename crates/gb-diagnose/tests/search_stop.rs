@@ -64,3 +64,55 @@ fn an_effect_is_still_searched() {
         r.cause_names()
     );
 }
+
+fn diagnosed_screening(family: &str, seed: u64, screen: bool) -> Report {
+    let c = draw(family, seed).unwrap();
+    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
+    let o = DiagnoseOptions {
+        order: OrderChoice::Fixed(c.model_order),
+        policy: DecisionPolicy {
+            screen_costly: screen,
+            ..DecisionPolicy::default()
+        },
+        ..DiagnoseOptions::default()
+    };
+    diagnose(&d, &o, None).unwrap().report
+}
+
+/// Whether a row of the report comes from a costly extension (the
+/// mechanical templates, the Wiener–Hammerstein network).
+fn costly_row(text: &str) -> bool {
+    text.contains("mechanical grey-box") || text.contains("Wiener-Hammerstein network")
+}
+
+/// `wiener` seed 1: the Wiener candidate leaves a quiet residual, so the
+/// costly candidates are not fitted (the decisions line says so) and the
+/// diagnosis ends where the unscreened one does; `friction` seed 2: no
+/// cheap candidate explains the dry friction, the mechanical template is
+/// fitted and chosen.
+#[test]
+fn costly_candidates_are_fitted_only_where_the_cheap_ones_leave_structure() {
+    let screened = diagnosed_screening("wiener", 1, true);
+    let all = diagnosed_screening("wiener", 1, false);
+    assert!(
+        screened.structure.decision.contains("costly candidate"),
+        "{}",
+        screened.structure.decision
+    );
+    assert!(!screened.steps.iter().any(|s| costly_row(&s.extension)));
+    assert!(all.steps.iter().any(|s| costly_row(&s.extension)));
+    assert_eq!(screened.cause_names(), vec!["nonlinearity"]);
+    assert_eq!(screened.cause_names(), all.cause_names());
+    assert!(
+        (screened.final_model.nrmse - all.final_model.nrmse).abs() < 1e-9,
+        "{} vs {}",
+        screened.final_model.nrmse,
+        all.final_model.nrmse
+    );
+    let friction = diagnosed_screening("friction", 2, true);
+    assert!(!friction.structure.decision.contains("costly candidate"));
+    assert!(friction
+        .steps
+        .iter()
+        .any(|s| s.accepted && s.extension.contains("dry friction")));
+}

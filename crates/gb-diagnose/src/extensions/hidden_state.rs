@@ -16,6 +16,9 @@ impl Extension for HiddenState {
     fn name(&self) -> &'static str {
         "hidden-state"
     }
+    fn costly(&self) -> bool {
+        true
+    }
     fn cause(&self) -> Cause {
         Cause::Hysteresis
     }

@@ -177,6 +177,9 @@ impl Extension for MechanicalNonlinearity {
     fn name(&self) -> &'static str {
         "mechanical-nonlinearity"
     }
+    fn costly(&self) -> bool {
+        true
+    }
     fn cause(&self) -> Cause {
         Cause::Nonlinearity
     }
@@ -230,6 +233,9 @@ impl Extension for MechanicalNonlinearity {
 impl Extension for MechanicalHysteresis {
     fn name(&self) -> &'static str {
         "mechanical-hysteresis"
+    }
+    fn costly(&self) -> bool {
+        true
     }
     fn cause(&self) -> Cause {
         Cause::Hysteresis

@@ -22,6 +22,9 @@ impl Extension for WienerHammerstein {
     fn name(&self) -> &'static str {
         "wiener-hammerstein"
     }
+    fn costly(&self) -> bool {
+        true
+    }
     fn cause(&self) -> Cause {
         Cause::Nonlinearity
     }
