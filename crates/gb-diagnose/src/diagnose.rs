@@ -377,6 +377,7 @@ fn iterate(
         .zip(&plan.folds)
         .map(|(e, f)| simulated_on_all(&e.model, &f.fits))
         .collect();
+    let templates = crate::extensions::TemplateCache::default();
     let ctx = Context {
         data: d,
         fit: &plan.fit,
@@ -392,6 +393,7 @@ fn iterate(
         fold_sims: &fold_sims,
         fold_sims_all: &fold_sims_all,
         start_choice: None,
+        templates: Some(&templates),
     };
     let props: Vec<_> = proposals(&ctx, tried)
         .into_iter()
@@ -510,6 +512,29 @@ fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], (level, noise_ratio): (f
     normal && crate::verdict::quiet(&cur.select.e, &cur.select.yhat, inputs, level, noise_ratio)
 }
 
+/// The reading (per-test level, noise ratio) at which the current model's
+/// residual is quiet before step `it`, when it is (policy
+/// `stop_when_adequate`): the search-stop reading before every step, and
+/// after an accepted step also the screen's stricter noise ratio at its
+/// stricter per-test level (`screen_level`, `screen_noise_ratio`), which
+/// already decides that the costly candidates of a step are not needed.
+fn stop_reading(
+    cur: &Evaluated,
+    inputs: &[Vec<f64>],
+    pol: &DecisionPolicy,
+    it: usize,
+) -> Option<(f64, f64)> {
+    if !pol.stop_when_adequate {
+        return None;
+    }
+    let screen =
+        (it > 1 && pol.screen_costly).then_some((pol.screen_level, pol.screen_noise_ratio));
+    [(pol.search_stop_level, pol.verdict_noise_ratio)]
+        .into_iter()
+        .chain(screen)
+        .find(|&r| residual_quiet(cur, inputs, r))
+}
+
 /// The diagnosis loop; with a `deadline`, no step starts after it. With
 /// `refit`, the chosen chain is refitted on the whole training record
 /// ([`crate::refit`]).
@@ -559,20 +584,11 @@ pub(crate) fn search(
             &format!("step {it}: fitting candidate extensions"),
         );
         let cur = chain.last().expect("the chain holds the baseline");
-        if opts.policy.stop_when_adequate
-            && residual_quiet(
-                cur,
-                &inputs,
-                (
-                    opts.policy.search_stop_level,
-                    opts.policy.verdict_noise_ratio,
-                ),
-            )
-        {
+        if let Some((level, ratio)) = stop_reading(cur, &inputs, &opts.policy, it) {
             choice.decision.push_str(&format!(
                 "; before step {it} every residual test passed at the {} % level (each test, uncorrected; normality too) and the residual was within {}× the white-noise level: no extension was searched",
-                100.0 * opts.policy.search_stop_level,
-                opts.policy.verdict_noise_ratio
+                100.0 * level,
+                ratio
             ));
             break;
         }

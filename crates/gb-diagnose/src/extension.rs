@@ -98,6 +98,9 @@ pub struct Context<'a> {
     /// the same candidate chose on the whole fit block
     /// ([`Extension::fit_choosing`]).
     pub(crate) start_choice: Option<usize>,
+    /// The linear mechanical templates fitted so far in this step, shared
+    /// by its mechanical candidates (`None`: not shared).
+    pub(crate) templates: Option<&'a crate::extensions::TemplateCache>,
 }
 
 impl<'a> Context<'a> {

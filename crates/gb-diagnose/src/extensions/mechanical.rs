@@ -10,6 +10,8 @@ use crate::physics::{fit_physics, physics_of, TEMPLATE_NAME};
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
 use gb_model::physics::{Parameter, PhysicsSpec, State};
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex, OnceLock};
 
 /// The thesis' hysteresis inside the dynamics (chapter 4) for a model that
 /// has no equations yet. When the current model is the plain order-2
@@ -106,13 +108,34 @@ fn template(rec: &gb_core::Record, order: usize, nk: usize) -> Result<PhysicsSpe
     Ok(s)
 }
 
+/// A fitted linear template and the record it was fitted on.
+type Template = (gb_core::Record, FittedModel);
+
+/// One template fit, done once, or its error.
+type TemplateCell = Arc<OnceLock<Result<Template, String>>>;
+
+/// The linear templates fitted in one step of the diagnosis, shared by its
+/// mechanical candidates (the laws and the hysteretic state all start from
+/// the same fit, on the fit block and on each fold's record): keyed by the
+/// order, the input delay and a fingerprint of the record (its length and
+/// the bits of its samples). A candidate that finds the fit under way
+/// waits for it.
+#[derive(Default)]
+pub(crate) struct TemplateCache(Mutex<HashMap<(usize, usize, u64), TemplateCell>>);
+
+/// A fingerprint of the samples of `rec` (FNV-1a over their bits).
+fn fingerprint(rec: &gb_core::Record) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for v in rec.inputs.iter().flatten().chain(&rec.output) {
+        h = (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3);
+    }
+    h ^ rec.len() as u64
+}
+
 /// The fit record (the leading [`crate::physics::template_fit_len`]
-/// samples of the fit block)
-/// and the linear template of `order` fitted on it.
-fn fitted_template(
-    ctx: &Context,
-    order: usize,
-) -> Result<(gb_core::Record, FittedModel), DiagnoseError> {
+/// samples of the fit block) and the linear template of `order` fitted on
+/// it; taken from the step's [`TemplateCache`] when a candidate fitted it.
+fn fitted_template(ctx: &Context, order: usize) -> Result<Template, DiagnoseError> {
     let nk = ctx
         .current
         .lineage
@@ -122,9 +145,23 @@ fn fitted_template(
     let rec = ctx
         .fit
         .slice(0..crate::physics::template_fit_len(ctx.fit, ctx.policy()));
-    let spec = template(&rec, order, nk)?;
-    let lin = fit_physics(&spec, &rec, ctx.observer)?;
-    Ok((rec, lin))
+    let fit = |rec: gb_core::Record| -> Result<Template, DiagnoseError> {
+        let spec = template(&rec, order, nk)?;
+        let lin = fit_physics(&spec, &rec, ctx.observer)?;
+        Ok((rec, lin))
+    };
+    let Some(cache) = ctx.templates else {
+        return fit(rec);
+    };
+    let cell = {
+        let mut map = cache.0.lock().unwrap_or_else(|e| e.into_inner());
+        map.entry((order, nk, fingerprint(&rec)))
+            .or_default()
+            .clone()
+    };
+    cell.get_or_init(|| fit(rec).map_err(|e| e.to_string()))
+        .clone()
+        .map_err(DiagnoseError::InvalidArgument)
 }
 
 /// The order (1 or 2) of the current model when it is the plain linear

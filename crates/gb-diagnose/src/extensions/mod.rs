@@ -24,6 +24,7 @@ pub use hammerstein::Hammerstein;
 pub use hidden_state::HiddenState;
 pub use hidden_state_detail::HiddenStateDetail;
 pub use lolimot::Lolimot;
+pub(crate) use mechanical::TemplateCache;
 pub use mechanical::{MechanicalHysteresis, MechanicalNonlinearity};
 pub use order::LinearOrder;
 pub use physics_delay::PhysicsInputDelay;
