@@ -141,9 +141,12 @@ fn fit_candidates(
 }
 
 /// The candidates of one step in proposal order. With the policy's
-/// `screen_costly`, the cheap proposals are fitted first, and the costly
-/// ones ([`Extension::costly`]) only when no cheap candidate that pays
-/// leaves a quiet residual on the decision data ([`residual_quiet`] within
+/// `screen_costly`, the proposals are fitted tier by tier
+/// ([`Extension::screen_tier`]: the cheap ones, then the static
+/// mechanical laws, then the hysteretic template, the Wiener–Hammerstein
+/// network and the hidden-state model), and a tier only when no candidate
+/// of the tiers before that pays leaves a quiet residual on the decision
+/// data (the one with the largest gain: [`residual_quiet`] within
 /// `screen_noise_ratio` × the white-noise level); then the note says what
 /// was not fitted.
 fn screened_candidates(
@@ -153,49 +156,63 @@ fn screened_candidates(
     it: usize,
 ) -> (Vec<Candidate>, Option<String>) {
     let pol = ctx.policy();
-    let (costly, cheap): (Vec<_>, Vec<_>) = props
-        .into_iter()
-        .enumerate()
-        .partition(|(_, (e, _))| pol.screen_costly && e.costly());
-    let screen = !costly.is_empty() && !cheap.is_empty();
-    let mut cands = fit_candidates(ctx, cheap, it);
-    let quiet = screen
-        .then(|| {
-            cands
-                .iter()
-                .filter(|(_, c)| c.pays)
-                .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
-                .filter(|(_, c)| {
-                    residual_quiet(
-                        &c.fitted,
-                        inputs,
-                        (pol.screen_level, pol.screen_noise_ratio),
-                    )
-                })
-        })
-        .flatten()
-        .map(|(_, c)| c.ext.name());
-    let note = match quiet {
-        Some(name) => {
-            let names: Vec<&str> = costly.iter().map(|(_, (e, _))| e.name()).collect();
-            let mut names_unique = names.clone();
-            names_unique.dedup();
-            Some(format!(
+    let tier = |e: &dyn Extension| {
+        if pol.screen_costly {
+            e.screen_tier()
+        } else {
+            0
+        }
+    };
+    let mut left: Vec<_> = props.into_iter().enumerate().collect();
+    let mut cands = vec![];
+    let mut note = None;
+    while let Some(t) = left.iter().map(|(_, (e, _))| tier(*e)).min() {
+        let quiet = (!cands.is_empty())
+            .then(|| best_quiet(&cands, inputs, pol))
+            .flatten();
+        if let Some(name) = quiet {
+            let names: Vec<&str> = left.iter().map(|(_, (e, _))| e.name()).collect();
+            let mut unique = names.clone();
+            unique.sort_unstable();
+            unique.dedup();
+            note = Some(format!(
                 "; step {it}: the {name} candidate left a quiet residual (every test passed at the {} % level, within {}× the white-noise level): {} costly candidate{} ({}) not fitted",
                 100.0 * pol.screen_level,
                 pol.screen_noise_ratio,
                 names.len(),
                 if names.len() == 1 { "" } else { "s" },
-                names_unique.join(", ")
-            ))
+                unique.join(", ")
+            ));
+            break;
         }
-        None => {
-            cands.extend(fit_candidates(ctx, costly, it));
-            None
-        }
-    };
+        let (now, later): (Vec<_>, Vec<_>) =
+            left.into_iter().partition(|(_, (e, _))| tier(*e) == t);
+        left = later;
+        cands.extend(fit_candidates(ctx, now, it));
+    }
     cands.sort_by_key(|(i, _)| *i);
     (cands.into_iter().map(|(_, c)| c).collect(), note)
+}
+
+/// The name of the paying candidate with the largest gain when its
+/// residual is quiet at the screen's reading.
+fn best_quiet(
+    cands: &[(usize, Candidate)],
+    inputs: &[Vec<f64>],
+    pol: &DecisionPolicy,
+) -> Option<&'static str> {
+    cands
+        .iter()
+        .filter(|(_, c)| c.pays)
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
+        .filter(|(_, c)| {
+            residual_quiet(
+                &c.fitted,
+                inputs,
+                (pol.screen_level, pol.screen_noise_ratio),
+            )
+        })
+        .map(|(_, c)| c.ext.name())
 }
 
 /// `f()`, and with the environment variable `GREYBOX_TIMING` set, one

@@ -153,12 +153,13 @@ pub trait Extension: Sync {
     fn metric(&self) -> GainMetric {
         GainMetric::Nrmse
     }
-    /// Whether its fits cost seconds (continuous-time templates, networks
-    /// between filters, hidden states): fitted only when no cheap
-    /// candidate that pays leaves a quiet residual (the policy's
-    /// `screen_costly`).
-    fn costly(&self) -> bool {
-        false
+    /// Its tier in the screening of a step (the policy's `screen_costly`):
+    /// 0 for the cheap candidates; the costly ones, whose fits cost seconds
+    /// (continuous-time templates, networks between filters, hidden
+    /// states), 1 or 2 — a tier is fitted only when no candidate of the
+    /// tiers before that pays leaves a quiet residual.
+    fn screen_tier(&self) -> u8 {
+        0
     }
     /// Tried at most once per diagnosis.
     fn once(&self) -> bool {

@@ -16,8 +16,8 @@ impl Extension for HiddenState {
     fn name(&self) -> &'static str {
         "hidden-state"
     }
-    fn costly(&self) -> bool {
-        true
+    fn screen_tier(&self) -> u8 {
+        2
     }
     fn cause(&self) -> Cause {
         Cause::Hysteresis

@@ -214,8 +214,11 @@ impl Extension for MechanicalNonlinearity {
     fn name(&self) -> &'static str {
         "mechanical-nonlinearity"
     }
-    fn costly(&self) -> bool {
-        true
+    /// Before the hysteretic template (it shares the linear template's fit
+    /// and costs a fraction of it): a static law that leaves a quiet
+    /// residual leaves no loop for a hysteretic state.
+    fn screen_tier(&self) -> u8 {
+        1
     }
     fn cause(&self) -> Cause {
         Cause::Nonlinearity
@@ -271,8 +274,8 @@ impl Extension for MechanicalHysteresis {
     fn name(&self) -> &'static str {
         "mechanical-hysteresis"
     }
-    fn costly(&self) -> bool {
-        true
+    fn screen_tier(&self) -> u8 {
+        2
     }
     fn cause(&self) -> Cause {
         Cause::Hysteresis

@@ -22,8 +22,8 @@ impl Extension for WienerHammerstein {
     fn name(&self) -> &'static str {
         "wiener-hammerstein"
     }
-    fn costly(&self) -> bool {
-        true
+    fn screen_tier(&self) -> u8 {
+        2
     }
     fn cause(&self) -> Cause {
         Cause::Nonlinearity
