@@ -5,18 +5,23 @@
 use gb_diagnose::generator::draw;
 use gb_diagnose::{diagnose, DecisionPolicy, DiagnoseData, DiagnoseOptions, OrderChoice, Report};
 
-fn diagnosed(family: &str, seed: u64, stop: bool) -> Report {
+fn diagnosed_with(family: &str, seed: u64, policy: DecisionPolicy) -> Report {
     let c = draw(family, seed).unwrap();
     let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
     let o = DiagnoseOptions {
         order: OrderChoice::Fixed(c.model_order),
-        policy: DecisionPolicy {
-            stop_when_adequate: stop,
-            ..DecisionPolicy::default()
-        },
+        policy,
         ..DiagnoseOptions::default()
     };
     diagnose(&d, &o, None).unwrap().report
+}
+
+fn diagnosed(family: &str, seed: u64, stop: bool) -> Report {
+    let policy = DecisionPolicy {
+        stop_when_adequate: stop,
+        ..DecisionPolicy::default()
+    };
+    diagnosed_with(family, seed, policy)
 }
 
 /// `linear` seed 5 (a clean second-order system): the baseline is
@@ -66,17 +71,11 @@ fn an_effect_is_still_searched() {
 }
 
 fn diagnosed_screening(family: &str, seed: u64, screen: bool) -> Report {
-    let c = draw(family, seed).unwrap();
-    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
-    let o = DiagnoseOptions {
-        order: OrderChoice::Fixed(c.model_order),
-        policy: DecisionPolicy {
-            screen_costly: screen,
-            ..DecisionPolicy::default()
-        },
-        ..DiagnoseOptions::default()
+    let policy = DecisionPolicy {
+        screen_costly: screen,
+        ..DecisionPolicy::default()
     };
-    diagnose(&d, &o, None).unwrap().report
+    diagnosed_with(family, seed, policy)
 }
 
 /// Whether a row of the report comes from a costly extension (the
@@ -88,8 +87,10 @@ fn costly_row(text: &str) -> bool {
 /// `wiener` seed 1: the Wiener candidate leaves a quiet residual, so the
 /// costly candidates are not fitted (the decisions line says so) and the
 /// diagnosis ends where the unscreened one does; `friction` seed 2: no
-/// cheap candidate explains the dry friction, the mechanical template is
-/// fitted and chosen.
+/// cheap candidate explains the dry friction, so the first costly tier
+/// (the mechanical template's static laws) is fitted and its dry friction
+/// chosen, and as that leaves a quiet residual the second tier (the
+/// hysteretic template, the Wiener–Hammerstein network) is not.
 #[test]
 fn costly_candidates_are_fitted_only_where_the_cheap_ones_leave_structure() {
     let screened = diagnosed_screening("wiener", 1, true);
@@ -110,9 +111,24 @@ fn costly_candidates_are_fitted_only_where_the_cheap_ones_leave_structure() {
         all.final_model.nrmse
     );
     let friction = diagnosed_screening("friction", 2, true);
-    assert!(!friction.structure.decision.contains("costly candidate"));
     assert!(friction
         .steps
         .iter()
         .any(|s| s.accepted && s.extension.contains("dry friction")));
+    assert!(
+        friction
+            .structure
+            .decision
+            .contains("the mechanical-nonlinearity candidate left a quiet residual")
+            && friction
+                .structure
+                .decision
+                .contains("mechanical-hysteresis"),
+        "{}",
+        friction.structure.decision
+    );
+    assert!(!friction
+        .steps
+        .iter()
+        .any(|s| s.extension.contains("hysteretic state")));
 }
