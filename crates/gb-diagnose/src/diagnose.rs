@@ -218,28 +218,24 @@ fn best_quiet(
 /// `f()`, and with the environment variable `GREYBOX_TIMING` set, one
 /// line on stderr with its wall time, the extension and the candidate.
 fn timed<T>(extension: &str, lineage: &Lineage, f: impl FnOnce() -> T) -> T {
-    if std::env::var_os("GREYBOX_TIMING").is_none() {
-        return f();
-    }
-    let t0 = Instant::now();
-    let r = f();
-    eprintln!(
-        "timing: {:8.3} s  {extension}  {}",
-        t0.elapsed().as_secs_f64(),
-        lineage.spec()
-    );
-    r
+    timed_line("timing", || format!("{extension}  {}", lineage.spec()), f)
 }
 
 /// `f()`, and with `GREYBOX_TIMING` set, one line on stderr with the wall
 /// time of the phase `name`.
 pub(crate) fn timed_phase<T>(name: &str, f: impl FnOnce() -> T) -> T {
+    timed_line("phase", || name.to_string(), f)
+}
+
+/// `f()`, and with `GREYBOX_TIMING` set, the line `kind: seconds  label`
+/// on stderr.
+fn timed_line<T>(kind: &str, label: impl FnOnce() -> String, f: impl FnOnce() -> T) -> T {
     if std::env::var_os("GREYBOX_TIMING").is_none() {
         return f();
     }
     let t0 = Instant::now();
     let r = f();
-    eprintln!("phase: {:8.3} s  {name}", t0.elapsed().as_secs_f64());
+    eprintln!("{kind}: {:8.3} s  {}", t0.elapsed().as_secs_f64(), label());
     r
 }
 
