@@ -282,11 +282,12 @@ fn escalate(
     pays.then_some(cands.len() - 1)
 }
 
-/// The report rows of an iteration: every candidate, of the plain order
-/// increases only the best (or the chosen), accepted first.
+/// The report rows of an iteration: every candidate but those that
+/// diverged, of the plain order increases only the best (or the chosen),
+/// accepted first.
 fn rows(
     cands: &[Candidate],
-    chosen: Option<usize>,
+    (chosen, diverged): (Option<usize>, &[usize]),
     note: Option<&str>,
     ctx: &Context,
     it: usize,
@@ -301,6 +302,9 @@ fn rows(
     let mut out = vec![];
     for (i, c) in cands.iter().enumerate() {
         let accepted = Some(i) == chosen;
+        if diverged.contains(&i) {
+            continue;
+        }
         if c.cause() == Cause::Dynamics
             && c.role() == Role::NewCause
             && Some(i) != best_dyn
@@ -445,7 +449,14 @@ fn iterate(
             tried.insert(c.ext.name());
         }
     }
-    let rows = rows(&cands, chosen, note.as_deref(), &ctx, it);
+    let diverged: Vec<usize> = (0..cands.len())
+        .filter(|&i| Some(i) != chosen && diverged(&cands[i], cur, ctx.policy()))
+        .collect();
+    let rows = rows(&cands, (chosen, &diverged), note.as_deref(), &ctx, it);
+    let screened = match diverged_note(&cands, &diverged, cur, ctx.policy(), it) {
+        Some(d) => Some(screened.unwrap_or_default() + &d),
+        None => screened,
+    };
     let lost = cands
         .iter()
         .filter(|c| !c.pays)
@@ -461,6 +472,49 @@ fn iterate(
         lost,
         screened,
     })
+}
+
+/// Whether candidate `c` diverged: its RMS error on the decision data is
+/// above `diverged_ratio` × the current model's and its NRMSE there above
+/// `diverged_nrmse`.
+fn diverged(c: &Candidate, cur: &Evaluated, pol: &DecisionPolicy) -> bool {
+    let (after, before) = (c.fitted.scores.nrmse_select, cur.scores.nrmse_select);
+    !after.is_finite() || (after > pol.diverged_ratio * before && after > pol.diverged_nrmse)
+}
+
+/// The decisions line's note on the candidates of step `it` that diverged
+/// (indices `which` of `cands`), `None` when none did.
+fn diverged_note(
+    cands: &[Candidate],
+    which: &[usize],
+    cur: &Evaluated,
+    pol: &DecisionPolicy,
+    it: usize,
+) -> Option<String> {
+    if which.is_empty() {
+        return None;
+    }
+    let names: Vec<String> = which
+        .iter()
+        .map(|&i| {
+            let c = &cands[i];
+            format!(
+                "{} (NRMSE {:.3e})",
+                c.ext.name(),
+                c.fitted.scores.nrmse_select
+            )
+        })
+        .collect();
+    Some(format!(
+        "; step {it}: {} candidate{} diverged on the decision data (NRMSE above {}× the current model's {:.4} and above {}) and {} left out of the table: {}",
+        which.len(),
+        if which.len() == 1 { "" } else { "s" },
+        pol.diverged_ratio,
+        cur.scores.nrmse_select,
+        pol.diverged_nrmse,
+        if which.len() == 1 { "is" } else { "are" },
+        names.join(", ")
+    ))
 }
 
 /// What was tried, per cause: `nonlinearity (2 candidates, 1 accepted)`.

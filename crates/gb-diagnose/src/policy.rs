@@ -58,6 +58,7 @@ use crate::DiagnoseError;
 /// | `stop_when_adequate`, `search_stop_level` | true, 0.05 | before each step the current model's residuals on the decision data get the verdict's tests, each at 5 % without the Bonferroni correction (a lenient reading: any hint of structure counts), and the Jarque–Bera normality test (heavy tails: the `noise` cause); when none rejects and the residual is within `verdict_noise_ratio` × the white-noise level, no extension is searched — the search runs where the residual shows a cause (clean data: the baseline alone). After an accepted step the search also stops at the screen's reading (each test at `screen_level`, within `screen_noise_ratio` × the white-noise level: what already decides that the costly candidates are not needed; friction 1 of the sweep, at the floor after its first step, searched twelve physics terms because one test rejected at 5 %) |
 /// | `refit_on_training` | true | once the search has chosen the structure on the fit block, the chain (baseline, then every accepted extension in turn) is refitted on the whole training record (fit and select blocks) when decisions used the select block; a refitted model replaces its fit-block fit only when its free-run squared error over the whole training record is not larger (a refit that lands in a worse local minimum is dropped). The decisions and the verdict keep the fit-block fits' held-out residuals |
 /// | `screen_costly`, `screen_level`, `screen_noise_ratio` | true, 0.01, 1.1 | the candidates of a step are fitted in tiers ([`crate::Extension::screen_tier`]: the cheap ones; the static laws of the mechanical template; the hysteretic template, the Wiener–Hammerstein network and the hidden-state model), a tier only when the paying candidate with the largest gain so far does not leave a quiet residual on the decision data: the verdict's tests each pass at 1 % (uncorrected; at 5 % one of six or nine tests rejects by chance in a third of the cases at the floor), the Jarque–Bera test too, and the residual is within 1.1× the white-noise level. A structure that the cheap candidates already explain to the noise level leaves nothing a costly one could gain significantly (a wiener case: 4.3 → 1.7 s; a Duffing case whose spring law reaches the floor: 82 → 43 s without the hysteretic template) |
+/// | `diverged_ratio`, `diverged_nrmse` | 10, 1 | a candidate whose RMS error on the decision data exceeds 10× the current model's and the spread of the measured output there (NRMSE above 1: worse than its mean) diverged; it is left out of the report's table and the decisions line names it (on the sweep such fits reached select NRMSE up to 1e50: a hidden-state model, play operators on the simulated output) |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
@@ -206,6 +207,11 @@ pub struct DecisionPolicy {
     /// Largest residual RMS of that quiet residual, in units of the
     /// output's white-noise level.
     pub screen_noise_ratio: f64,
+    /// A candidate whose decision-data RMS error exceeds this many times
+    /// the current model's (and `diverged_nrmse`) diverged.
+    pub diverged_ratio: f64,
+    /// Smallest decision-data NRMSE of a diverged candidate.
+    pub diverged_nrmse: f64,
     /// Refit the chosen chain on the whole training record (fit and
     /// select blocks) for the final model.
     pub refit_on_training: bool,
@@ -277,6 +283,8 @@ impl Default for DecisionPolicy {
             screen_costly: true,
             screen_level: 0.01,
             screen_noise_ratio: 1.1,
+            diverged_ratio: 10.0,
+            diverged_nrmse: 1.0,
             refit_on_training: true,
         }
     }
@@ -318,8 +326,12 @@ impl DecisionPolicy {
             || self.verdict_noise_ratio < 1.0
             || self.screen_noise_ratio.is_nan()
             || self.screen_noise_ratio < 1.0
+            || self.diverged_ratio.is_nan()
+            || self.diverged_ratio < 1.0
+            || self.diverged_nrmse.is_nan()
+            || self.diverged_nrmse < 0.0
         {
-            return bad("tolerances, verdict_noise_ratio and screen_noise_ratio >= 1");
+            return bad("tolerances, verdict_noise_ratio, screen_noise_ratio and diverged_ratio >= 1, diverged_nrmse >= 0");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
         if !p_ok(self.heavy_tail_p)

@@ -132,3 +132,41 @@ fn costly_candidates_are_fitted_only_where_the_cheap_ones_leave_structure() {
         .iter()
         .any(|s| s.extension.contains("hysteretic state")));
 }
+
+/// `preisach` seed 3: at step 2 the hidden-state model diverges (its
+/// select-block RMS error is millions of times the current model's). With
+/// the policy's rule it is left out of the table and the decisions line
+/// names it; with the rule off (`diverged_ratio` infinite) its row is
+/// there. The causes and the final model are the same either way: a
+/// diverged candidate never pays.
+#[test]
+fn diverged_candidates_are_left_out_of_the_table_with_a_note() {
+    let kept = diagnosed_with("preisach", 3, DecisionPolicy::default());
+    let all = diagnosed_with(
+        "preisach",
+        3,
+        DecisionPolicy {
+            diverged_ratio: f64::INFINITY,
+            ..DecisionPolicy::default()
+        },
+    );
+    // a row whose select-block RMS error is 10x the current model's
+    let wild = |s: &gb_diagnose::Step| s.gain_metric == "nrmse" && s.gain_select < -9.0;
+    assert!(
+        all.steps.iter().any(wild),
+        "no diverged row without the rule"
+    );
+    assert!(!kept.steps.iter().any(wild));
+    assert!(
+        kept.structure
+            .decision
+            .contains("diverged on the decision data")
+            && kept.structure.decision.contains("hidden-state"),
+        "{}",
+        kept.structure.decision
+    );
+    assert!(!all.structure.decision.contains("diverged"));
+    assert_eq!(kept.steps.len() + 1, all.steps.len());
+    assert_eq!(kept.cause_names(), all.cause_names());
+    assert!((kept.final_model.nrmse - all.final_model.nrmse).abs() < 1e-12);
+}
