@@ -98,6 +98,9 @@ struct Iteration {
     chosen: Option<(Evaluated, crate::refit::Pick)>,
     /// The candidates that did not pay (extension, proposal text).
     lost: HashSet<Lost>,
+    /// The extensions whose every candidate lost decisively (the whole
+    /// 95 % interval of its select gain below zero).
+    beaten: HashSet<&'static str>,
     /// What the screening of the costly candidates left out, for the
     /// decisions line.
     screened: Option<String>,
@@ -375,7 +378,7 @@ fn iterate(
     run: &Run,
     cur: &Evaluated,
     causes: &[Cause],
-    (tried, skip): (&mut HashSet<&'static str>, &HashSet<Lost>),
+    (tried, skip): (&mut HashSet<&'static str>, &Skip),
     it: usize,
 ) -> Option<Iteration> {
     let Run { d, plan, opts, obs } = *run;
@@ -414,7 +417,9 @@ fn iterate(
     };
     let props: Vec<_> = proposals(&ctx, tried)
         .into_iter()
-        .filter(|(e, p)| !skip.contains(&(e.name(), p.text.clone())))
+        .filter(|(e, p)| {
+            !skip.lost.contains(&(e.name(), p.text.clone())) && !skip.beaten.contains(e.name())
+        })
         .collect();
     if props.is_empty() {
         return None;
@@ -462,6 +467,7 @@ fn iterate(
         .filter(|c| !c.pays)
         .map(|c| (c.ext.name(), c.proposal.text.clone()))
         .collect();
+    let beaten = beaten_extensions(&cands);
     let chosen = chosen.map(|i| {
         let c = cands.swap_remove(i);
         (c.fitted, (c.proposal.cause, c.ext, c.proposal))
@@ -470,8 +476,38 @@ fn iterate(
         rows,
         chosen,
         lost,
+        beaten,
         screened,
     })
+}
+
+/// The extensions of the step whose every candidate lost decisively: the
+/// whole 95 % interval of its select gain below zero.
+fn beaten_extensions(cands: &[Candidate]) -> HashSet<&'static str> {
+    beaten(cands.iter().map(|c| (c.ext.name(), c.pays, c.ci[1])))
+}
+
+/// Of the candidates `(extension, pays, upper end of the gain interval)`,
+/// the extensions none of whose candidates pays or reaches a gain of 0.
+fn beaten<'a>(cands: impl Iterator<Item = (&'a str, bool, f64)> + Clone) -> HashSet<&'a str> {
+    let mut out: HashSet<&'a str> = cands.clone().map(|c| c.0).collect();
+    for (name, pays, hi) in cands {
+        if pays || hi >= 0.0 || hi.is_nan() {
+            out.remove(name);
+        }
+    }
+    out
+}
+
+/// Candidates the next step does not fit again: after a step that changed
+/// only the noise model, those that did not pay (`retry_after_noise_step`
+/// false); after a refinement (more capacity for a named cause, policy
+/// `retry_after_refinement` false), the extensions whose every candidate
+/// lost decisively.
+#[derive(Default)]
+struct Skip {
+    lost: HashSet<Lost>,
+    beaten: HashSet<&'static str>,
 }
 
 /// Whether candidate `c` diverged: its RMS error on the decision data is
@@ -634,7 +670,7 @@ pub(crate) fn search(
     let mut tried = HashSet::new();
     // after a step that changed only the noise model: the candidates that
     // did not pay there (`retry_after_noise_step`)
-    let mut skip: HashSet<Lost> = HashSet::new();
+    let mut skip = Skip::default();
     let mut picks: Vec<crate::refit::Pick> = vec![];
     let inputs = plan.decision_inputs(d);
     for it in 1..=opts.max_steps {
@@ -681,9 +717,26 @@ pub(crate) fn search(
                         "; step {it} changed only the noise model: its {} candidates that did not pay were not fitted again",
                         step.lost.len()
                     ));
-                    skip.extend(step.lost);
+                    skip.lost.extend(step.lost);
                 } else {
-                    skip.clear();
+                    skip.lost.clear();
+                }
+                // skipped after a refinement: so long as refinements follow
+                let carried = std::mem::take(&mut skip.beaten);
+                if pick.1.role() == Role::Refinement
+                    && !opts.policy.retry_after_refinement
+                    && !step.beaten.is_empty()
+                {
+                    let mut names: Vec<&str> = step.beaten.iter().copied().collect();
+                    names.sort_unstable();
+                    choice.decision.push_str(&format!(
+                        "; step {it} added capacity to a named cause: the extensions whose every candidate lost decisively there ({}) were not fitted again",
+                        names.join(", ")
+                    ));
+                    skip.beaten = step.beaten;
+                }
+                if pick.1.role() == Role::Refinement && !opts.policy.retry_after_refinement {
+                    skip.beaten.extend(carried);
                 }
                 if !causes.contains(&pick.0) {
                     causes.push(pick.0);
@@ -786,5 +839,31 @@ pub(crate) fn assemble(
         report,
         model: final_model.model.clone(),
         chain,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::beaten;
+
+    /// An extension is beaten only when every candidate of it lost
+    /// decisively: one candidate whose interval reaches 0, or that pays,
+    /// keeps it.
+    #[test]
+    fn an_extension_is_beaten_only_when_every_candidate_lost_decisively() {
+        let rows = [
+            ("preisach-columns", false, -0.12),
+            ("preisach-columns", false, -1.08),
+            ("linear-order", false, -0.2),
+            ("linear-order", false, 0.10),
+            ("capacity", true, 0.13),
+            ("lolimot", false, 0.0),
+            ("wiener", false, f64::NAN),
+        ];
+        let b = beaten(rows.iter().copied());
+        assert_eq!(b.len(), 1, "{b:?}");
+        assert!(b.contains("preisach-columns"));
+        assert!(beaten([("x", true, -1.0)].iter().copied()).is_empty());
+        assert!(beaten(std::iter::empty()).is_empty());
     }
 }
