@@ -800,11 +800,16 @@ pub(crate) fn assemble(
     } else {
         pol.verdict_noise_ratio
     };
-    let mut verdict = crate::verdict::verdict(
+    let coloured = if noise.is_some() {
+        f64::INFINITY
+    } else {
+        pol.coloured_noise_ratio
+    };
+    let mut verdict = crate::verdict::verdict_coloured(
         &last.select.e,
         &last.select.yhat,
         &inputs,
-        (pol.verdict_level, ratio),
+        (pol.verdict_level, ratio, coloured),
         &tried_summary(&steps),
     );
     if let Some(n) = &noise {

@@ -92,6 +92,10 @@ pub struct Outcome {
     pub adequate: bool,
     /// The verdict says "adequate" or "coloured noise" (not unexplained).
     pub explained: bool,
+    /// The verdict's kind.
+    pub verdict: String,
+    /// The verdict's residual RMS over the white-noise level.
+    pub noise_ratio: Option<f64>,
 }
 
 /// The only place that calls the diagnosis API (adapt here when it changes).
@@ -124,6 +128,8 @@ pub fn run_diagnosis(case: &Case, order: OrderMode) -> Result<Outcome, String> {
         steps,
         adequate: r.verdict.kind == crate::VerdictKind::Adequate,
         explained: r.verdict.kind != crate::VerdictKind::Unexplained,
+        verdict: format!("{:?}", r.verdict.kind),
+        noise_ratio: r.verdict.noise_ratio,
     })
 }
 
@@ -179,6 +185,12 @@ pub struct CaseResult {
     pub order: usize,
     /// Candidate lines of the diagnosis.
     pub steps: Vec<String>,
+    /// The verdict's kind ("Adequate", "ColouredNoise", "Unexplained").
+    #[serde(default)]
+    pub verdict: String,
+    /// The verdict's residual RMS over the white-noise level.
+    #[serde(default)]
+    pub noise_ratio: Option<f64>,
     /// Generation or diagnosis error.
     pub error: Option<String>,
 }
@@ -208,6 +220,8 @@ fn failed(spec: &CaseSpec, case: Option<&Case>, e: String) -> CaseResult {
         effect_strength: case.map_or(f64::NAN, |c| c.effect_strength),
         order: 0,
         steps: vec![],
+        verdict: String::new(),
+        noise_ratio: None,
         error: Some(e),
     }
 }
@@ -245,6 +259,8 @@ pub fn run_one(spec: &CaseSpec, opts: &SweepOptions) -> CaseResult {
         seconds,
         order: out.order,
         steps: out.steps,
+        verdict: out.verdict,
+        noise_ratio: out.noise_ratio,
         error: None,
         ..failed(spec, Some(&case), String::new())
     }
