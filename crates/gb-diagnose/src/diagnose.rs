@@ -101,9 +101,9 @@ struct Iteration {
     /// The extensions whose every candidate lost decisively (the whole
     /// 95 % interval of its select gain below zero).
     beaten: HashSet<&'static str>,
-    /// What the screening of the costly candidates left out, for the
-    /// decisions line.
-    screened: Option<String>,
+    /// For the decisions line: what the screening of the costly candidates
+    /// left out, which candidates diverged.
+    notes: Option<String>,
 }
 
 /// A candidate that did not pay at a step: its extension and proposal text.
@@ -458,7 +458,7 @@ fn iterate(
         .filter(|&i| Some(i) != chosen && diverged(&cands[i], cur, ctx.policy()))
         .collect();
     let rows = rows(&cands, (chosen, &diverged), note.as_deref(), &ctx, it);
-    let screened = match diverged_note(&cands, &diverged, cur, ctx.policy(), it) {
+    let notes = match diverged_note(&cands, &diverged, cur, ctx.policy(), it) {
         Some(d) => Some(screened.unwrap_or_default() + &d),
         None => screened,
     };
@@ -477,7 +477,7 @@ fn iterate(
         chosen,
         lost,
         beaten,
-        screened,
+        notes,
     })
 }
 
@@ -508,6 +508,32 @@ fn beaten<'a>(cands: impl Iterator<Item = (&'a str, bool, f64)> + Clone) -> Hash
 struct Skip {
     lost: HashSet<Lost>,
     beaten: HashSet<&'static str>,
+}
+
+/// After step `it`: when it was a refinement (and the policy does not
+/// retry), the extensions it beat join those skipped since the last
+/// non-refinement step (the decisions line names the new ones); after any
+/// other step none is skipped.
+fn skip_beaten(
+    skip: &mut Skip,
+    (refined, beaten): (bool, HashSet<&'static str>),
+    opts: &DiagnoseOptions,
+    it: usize,
+    decision: &mut String,
+) {
+    if !refined || opts.policy.retry_after_refinement {
+        skip.beaten.clear();
+        return;
+    }
+    if !beaten.is_empty() {
+        let mut names: Vec<&str> = beaten.iter().copied().collect();
+        names.sort_unstable();
+        decision.push_str(&format!(
+            "; step {it} added capacity to a named cause: the extensions whose every candidate lost decisively there ({}) were not fitted again",
+            names.join(", ")
+        ));
+    }
+    skip.beaten.extend(beaten);
 }
 
 /// Whether candidate `c` diverged: its RMS error on the decision data is
@@ -707,7 +733,7 @@ pub(crate) fn search(
             break;
         };
         steps.extend(step.rows);
-        if let Some(note) = &step.screened {
+        if let Some(note) = &step.notes {
             choice.decision.push_str(note);
         }
         match step.chosen {
@@ -721,23 +747,14 @@ pub(crate) fn search(
                 } else {
                     skip.lost.clear();
                 }
-                // skipped after a refinement: so long as refinements follow
-                let carried = std::mem::take(&mut skip.beaten);
-                if pick.1.role() == Role::Refinement
-                    && !opts.policy.retry_after_refinement
-                    && !step.beaten.is_empty()
-                {
-                    let mut names: Vec<&str> = step.beaten.iter().copied().collect();
-                    names.sort_unstable();
-                    choice.decision.push_str(&format!(
-                        "; step {it} added capacity to a named cause: the extensions whose every candidate lost decisively there ({}) were not fitted again",
-                        names.join(", ")
-                    ));
-                    skip.beaten = step.beaten;
-                }
-                if pick.1.role() == Role::Refinement && !opts.policy.retry_after_refinement {
-                    skip.beaten.extend(carried);
-                }
+                let refined = pick.1.role() == Role::Refinement;
+                skip_beaten(
+                    &mut skip,
+                    (refined, step.beaten),
+                    opts,
+                    it,
+                    &mut choice.decision,
+                );
                 if !causes.contains(&pick.0) {
                     causes.push(pick.0);
                 }

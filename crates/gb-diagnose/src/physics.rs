@@ -25,21 +25,27 @@ pub(crate) fn fit_physics(
     rec: &Record,
     obs: &dyn Observer,
 ) -> Result<FittedModel, DiagnoseError> {
-    let mut spec = spec.clone();
-    if spec.sample_time.is_none() {
-        spec.sample_time = rec.sample_time;
-    }
-    let spec_name = spec.name.clone();
-    let mut params = PhysicsFitParams::new(spec);
-    if spec_is_template(&spec_name) {
-        params = params.stall(10, TEMPLATE_STALL_TOL);
-    }
-    let m = params
+    let m = fit_params(spec.clone(), rec)
         .check()
         .map_err(CoreError::from)?
         .identify_growing(&Records::single(rec.clone()), obs)
         .map_err(CoreError::from)?;
     Ok(m.to_fitted().map_err(CoreError::from)?)
+}
+
+/// The fit settings of `spec` on `rec`: the record's sample time when the
+/// spec has none, the template's stall rule for the blind template.
+fn fit_params(mut spec: PhysicsSpec, rec: &Record) -> PhysicsFitParams {
+    if spec.sample_time.is_none() {
+        spec.sample_time = rec.sample_time;
+    }
+    let template = spec_is_template(&spec.name);
+    let params = PhysicsFitParams::new(spec);
+    if template {
+        params.stall(10, TEMPLATE_STALL_TOL)
+    } else {
+        params
+    }
 }
 
 /// The stall rule of the fits of the blind mechanical template and its
@@ -245,17 +251,9 @@ fn raced(
     let rmse: Vec<f64> = (0..n)
         .into_par_iter()
         .map(|i| {
-            let Ok(mut spec) = spec_of(i) else {
-                return f64::INFINITY;
-            };
-            if spec.sample_time.is_none() {
-                spec.sample_time = rec.sample_time;
-            }
-            PhysicsFitParams::new(spec)
-                .stall(10, TEMPLATE_STALL_TOL)
-                .max_iter(RACE_ITERATIONS)
-                .check()
+            spec_of(i)
                 .ok()
+                .and_then(|spec| fit_params(spec, rec).max_iter(RACE_ITERATIONS).check().ok())
                 .and_then(|f| f.identify_outputs(&data, obs).ok())
                 .and_then(|m| m.fit_report().map(|r| r.rmse))
                 .unwrap_or(f64::INFINITY)
