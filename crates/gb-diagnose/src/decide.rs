@@ -254,6 +254,10 @@ pub(crate) fn choose(
         .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
         .map(|(i, _)| i);
     let mut note = None;
+    if let Some((pick, text)) = chosen.and_then(|ci| linear_first(cands, ci, ctx)) {
+        chosen = Some(pick);
+        note = Some(text);
+    }
     if let Some((pick, text)) = chosen.and_then(|ci| memory_priority(cands, ci, ctx)) {
         chosen = Some(pick);
         note = Some(text);
@@ -281,6 +285,39 @@ pub(crate) fn choose(
     (chosen, note)
 }
 
+/// The chosen candidate names a new `nonlinearity` or `hysteresis` cause
+/// and a higher linear order (`linear-order`) pays too: unless the
+/// chosen one also pays against that order's residuals (the best paying
+/// one's), the order increase — the smaller change (policy
+/// `linear_before_nonlinear`). Whatever the diagnosis picks must beat a
+/// plain linear model of selected order on held-out training data.
+fn linear_first(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
+    let pol = ctx.policy();
+    let c = &cands[ci];
+    if !pol.linear_before_nonlinear || !matches!(c.cause(), Cause::Nonlinearity | Cause::Hysteresis)
+    {
+        return None;
+    }
+    let (di, d) = cands
+        .iter()
+        .enumerate()
+        .filter(|(_, d)| d.pays && d.structural_new() && d.ext.name() == "linear-order")
+        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))?;
+    let seed = pol.seed.wrapping_add(7000 + ci as u64);
+    if pays_against(&d.fitted.select.e, &c.fitted.select.e, pol, seed) {
+        return None;
+    }
+    Some((
+        di,
+        format!(
+            "; the {} candidate ({:+.3}) does not pay against the higher linear order ({:+.3}): the order increase, the smaller change",
+            c.ext.name(),
+            c.gain,
+            d.gain
+        ),
+    ))
+}
+
 /// The chosen candidate is a plain order increase, the memory test on the
 /// current residuals rejects at the policy's `memory_priority_p` (the
 /// residual depends on the direction of motion at equal level: a loop), and
@@ -288,10 +325,16 @@ pub(crate) fn choose(
 /// increase's: the hysteresis candidate with the largest gain among those.
 /// Its model nests an order increase (hysteresis columns at lags 1..n+1, at
 /// the current order and one more), so it explains what the order increase
-/// explains and the loop.
+/// explains and the loop — not one that also changes the input delay.
 fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
     let memory = ctx.evidence.memory;
     if cands[ci].cause() != Cause::Dynamics || memory.1 >= ctx.policy().memory_priority_p {
+        return None;
+    }
+    // an order increase with a new input delay is not nested in the
+    // hysteresis candidates (they keep the current delay)
+    let delay = |l: &Lineage| l.io().map(|p| p.delay.clone());
+    if delay(&cands[ci].proposal.lineage) != delay(&ctx.current.lineage) {
         return None;
     }
     let best = cands[ci].ci;

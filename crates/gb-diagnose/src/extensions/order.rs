@@ -8,7 +8,11 @@ use gb_core::{FittedModel, ModelView, Series, ViewData};
 /// Raise the dynamic order by one and by two, and for a linear model also
 /// double it (n → 2n when 2n > n + 2): a structure with several resonant
 /// modes reaches a high order in a few steps, and only when the training
-/// data pay for it (up to the policy's `max_order`).
+/// data pay for it (up to the policy's `max_order`). For a plain linear
+/// model with a dead time of more than one sample, the orders n + 1 and
+/// n + 2 also with the delay of the ARX scan at that order when it is
+/// shorter (a lag the low order absorbed as a dead time is a pole of the
+/// higher one).
 pub struct LinearOrder;
 
 impl Extension for LinearOrder {
@@ -26,10 +30,11 @@ impl Extension for LinearOrder {
         if !p.network && !p.hysteresis && 2 * p.order > p.order + 2 {
             orders.push(2 * p.order);
         }
-        orders
-            .into_iter()
-            .filter(|&n| n <= ctx.policy().max_order)
-            .map(|n| Proposal {
+        let pol = ctx.policy();
+        let mut props: Vec<Proposal> = orders
+            .iter()
+            .filter(|&&n| n <= pol.max_order)
+            .map(|&n| Proposal {
                 cause: Cause::Dynamics,
                 lineage: Lineage::Io(gb_lmn::IoNetworkParams {
                     order: n,
@@ -37,7 +42,40 @@ impl Extension for LinearOrder {
                 }),
                 text: format!("order {} -> {n}", p.order),
             })
-            .collect()
+            .collect();
+        // a dead time of the plain linear model may stand in for a lag that
+        // a higher order models as a pole: the delay scanned again
+        let longest = p.delay.iter().copied().max().unwrap_or(0);
+        if !p.network && !p.hysteresis && longest > 1 {
+            for &n in orders.iter().filter(|&&n| n <= pol.max_order).take(2) {
+                let found = crate::structure::scan(
+                    std::slice::from_ref(ctx.fit),
+                    n,
+                    longest,
+                    pol.structure_scan_samples,
+                )
+                .best;
+                let shorter = found.iter().zip(&p.delay).all(|(a, b)| a <= b);
+                if found != p.delay && shorter {
+                    let fmt = |d: &[usize]| format!("{d:?}");
+                    props.push(Proposal {
+                        cause: Cause::Dynamics,
+                        text: format!(
+                            "order {} -> {n}, input delay {} -> {} (scanned again at the new order)",
+                            p.order,
+                            fmt(&p.delay),
+                            fmt(&found)
+                        ),
+                        lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                            order: n,
+                            delay: found,
+                            ..p.clone()
+                        }),
+                    });
+                }
+            }
+        }
+        props
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
         super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)

@@ -26,6 +26,7 @@ pub(crate) fn build(family: Family, r: &mut R, ctx: &mut Ctx) -> Result<Built, C
         Family::Preisach => preisach(r, ctx),
         Family::BoucWen => bouc_wen(r, ctx),
         Family::TwoMass => two_mass(r, ctx),
+        Family::Lag => lag(r, ctx),
         Family::TwoInput => two_input(r, ctx),
         Family::StudentT | Family::ColouredNoise | Family::ProcessNoise => noisy(family, r, ctx),
     }
@@ -422,6 +423,24 @@ fn bouc_wen(r: &mut R, ctx: &mut Ctx) -> Result<Built, CoreError> {
     b.param("alpha_rel", a_rel);
     b.param("zmax_rel", z_rel);
     b.param("beta_share", share);
+    Ok(b)
+}
+
+/// A third-order linear cascade (a resonance or a real pole with a
+/// further section within a factor 3 in frequency: an actuator or sensor
+/// lag) diagnosed from the engineer's order-2 model: the missing pole is
+/// the `dynamics` cause, which a low-order model can absorb as a dead
+/// time or a nonlinear model imitate.
+fn lag(r: &mut R, ctx: &mut Ctx) -> Result<Built, CoreError> {
+    let delay = r.random_range(0..=2);
+    let (mut sys, c) = cascade_system(r, ctx, 3, 1)?;
+    sys.delay = delay;
+    let mut b = Built::new(sys, 2, vec!["dynamics"]);
+    b.true_order = 3;
+    b.strength_engineer = true;
+    b.description = format!("lag: linear {}, input delay {delay}", c.text);
+    cascade_params(&mut b, &c);
+    b.param("delay", delay as f64);
     Ok(b)
 }
 

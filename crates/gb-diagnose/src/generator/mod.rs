@@ -22,6 +22,7 @@
 //! | `preisach` | relay-grid Preisach spring on the position, inside the loop | hysteresis |
 //! | `bouc-wen` | Bouc–Wen restoring force | hysteresis |
 //! | `two-mass` | a hidden second mass (the engineer's model has order 2) | dynamics |
+//! | `lag` | a cascade of order 3, input delay 0–2 (the engineer's model has order 2) | dynamics |
 //! | `two-input` | two inputs, a static nonlinearity on one ([`Case::nonlinear_input`]) | nonlinearity |
 //! | `student-t` | Student-t output noise, ν 2.5–4 | noise |
 //! | `coloured-noise` | ARMA(1,1) output noise | noise (or none) |
@@ -73,6 +74,7 @@ pub enum Family {
     Preisach,
     BoucWen,
     TwoMass,
+    Lag,
     TwoInput,
     StudentT,
     ColouredNoise,
@@ -80,7 +82,7 @@ pub enum Family {
 }
 
 /// Names of the families, in the order of [`Family::ALL`].
-pub const FAMILIES: [&str; 17] = [
+pub const FAMILIES: [&str; 18] = [
     "linear",
     "dead-time",
     "duffing",
@@ -94,6 +96,7 @@ pub const FAMILIES: [&str; 17] = [
     "preisach",
     "bouc-wen",
     "two-mass",
+    "lag",
     "two-input",
     "student-t",
     "coloured-noise",
@@ -102,7 +105,7 @@ pub const FAMILIES: [&str; 17] = [
 
 impl Family {
     /// Every family.
-    pub const ALL: [Self; 17] = [
+    pub const ALL: [Self; 18] = [
         Self::Linear,
         Self::DeadTime,
         Self::Duffing,
@@ -116,6 +119,7 @@ impl Family {
         Self::Preisach,
         Self::BoucWen,
         Self::TwoMass,
+        Self::Lag,
         Self::TwoInput,
         Self::StudentT,
         Self::ColouredNoise,
@@ -239,7 +243,8 @@ pub struct Case {
     /// Free-run validation NRMSE of the least-squares ARX model (orders
     /// true + 2, the true delay) fitted on noise-free training data, scored
     /// on noise-free validation data: how far the system is from linear. For
-    /// `two-mass` the ARX has the engineer's order (the unmodelled mode).
+    /// `two-mass` and `lag` the ARX has the engineer's order (the unmodelled
+    /// mode or pole).
     pub effect_strength: f64,
     /// Parameters (name, value); `*_rel` are relative to signal levels.
     pub parameters: Vec<(String, f64)>,
