@@ -456,9 +456,9 @@ mod tests {
     }
 
     /// Under independence the input–residual test holds its level for a
-    /// multisine input (the plain sum of squared lags rejected 2000-sample
-    /// white residuals at the 5 % level in most draws), and it still sees a
-    /// missed input term of a tenth of the noise.
+    /// multisine input (the plain sum of squared lags against χ²(26)
+    /// rejected 15 of these 100 white residuals at 5 %), and it still sees
+    /// a missed input term of a tenth of the noise.
     #[test]
     fn the_cross_correlation_test_holds_its_level_for_a_multisine() {
         let draws = 100;
@@ -467,9 +467,11 @@ mod tests {
             .filter(|&s| cross_test(&u, &noise(2000, 100 + s)).1 < 0.05)
             .count();
         assert!(rejected <= 12, "{rejected} of {draws} rejected at 5 %");
+        // the noise is uniform on ±0.5 (sd 1/√12), the multisine's sd √20
+        let (sd_noise, sd_u) = (12f64.sqrt().recip(), 20f64.sqrt());
         let w = noise(2000, 7);
         let e: Vec<f64> = (0..2000)
-            .map(|k| w[k] + 0.1 * 0.29 * u[k.saturating_sub(3)] / 4.5)
+            .map(|k| w[k] + 0.1 * sd_noise * u[k.saturating_sub(3)] / sd_u)
             .collect();
         assert!(cross_test(&u, &e).1 < 1e-3, "{:?}", cross_test(&u, &e));
     }

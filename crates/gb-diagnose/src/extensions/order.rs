@@ -57,14 +57,11 @@ impl Extension for LinearOrder {
                 .best;
                 let shorter = found.iter().zip(&p.delay).all(|(a, b)| a <= b);
                 if found != p.delay && shorter {
-                    let fmt = |d: &[usize]| format!("{d:?}");
                     props.push(Proposal {
                         cause: Cause::Dynamics,
                         text: format!(
-                            "order {} -> {n}, input delay {} -> {} (scanned again at the new order)",
-                            p.order,
-                            fmt(&p.delay),
-                            fmt(&found)
+                            "order {} -> {n}, input delay {:?} -> {found:?} (scanned again at the new order)",
+                            p.order, p.delay
                         ),
                         lineage: Lineage::Io(gb_lmn::IoNetworkParams {
                             order: n,
