@@ -189,6 +189,18 @@ fn order_by_hold_out(
     Ok(if e_plain < e_chosen { plain } else { chosen })
 }
 
+/// A bad option value of `spec` (`weights=cubes`, `max_leaves=0`), found
+/// before the order and delay are chosen (seconds on a long record): the
+/// recipes read their options before they fit, so a fit on the first 64
+/// rows names the bad value; any other outcome of that fit is ignored.
+fn options_valid(spec: &ModelSpec, train: &Record) -> Result<()> {
+    let head = Records::single(train.slice(0..train.len().min(64)));
+    match gb_model::recipes::fit(spec, &head, &gb_core::Silent) {
+        Err(gb_core::CoreError::InvalidArgument(m)) if m.starts_with("model spec") => Err(m),
+        _ => Ok(()),
+    }
+}
+
 /// Fit `spec` (with `--order auto`, its order and delay chosen on the
 /// first record) on `records`; prints the model, its notes and the training
 /// NRMSE (free run; the model's lags or an init window of 50 samples set
@@ -201,6 +213,7 @@ fn fit_output(
 ) -> Result<Fitted> {
     let data = Records::new(records).map_err(|e| e.to_string())?;
     if order_is_auto(a, &spec) {
+        options_valid(&spec, data.first())?;
         match auto_structure(spec.clone(), data.first(), data.len() > 1, quiet) {
             Ok(s) if spec.name == "linear" => spec = s,
             Ok(s) => spec = order_by_hold_out(&spec, s, data.first(), quiet)?,

@@ -121,6 +121,9 @@ fn fit_lmn_tree_oblique_pruned_then_simulate() {
             e.starts_with("greybox: error:") && e.lines().count() == 1,
             "{e}"
         );
+        // refused before the order and delay are chosen (seconds of work)
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(!out.contains("order auto"), "{out}");
         assert!(!bad.exists());
     }
     let _ = std::fs::remove_dir_all(&d);
@@ -388,9 +391,11 @@ fn fit_linear_feedback_models_a_nonlinear_spring() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let floor = number_after(&String::from_utf8_lossy(&o.stdout), "noise floor NRMSE ");
     let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
+    // order 2 given: the structure chosen on the data is tested in
+    // cli.rs (`fit_without_flags_chooses_the_structure_on_the_training_data`)
     let e: Vec<f64> = ["linear+feedback", "linear"]
         .iter()
-        .map(|m| fit_then_validate(&d, &train, &val, m, &[]))
+        .map(|m| fit_then_validate(&d, &train, &val, m, &["--order", "2"]))
         .collect();
     assert!(
         e[0] < 2.5 * floor && e[0] < 0.3 * e[1],
