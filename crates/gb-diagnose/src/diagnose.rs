@@ -822,10 +822,8 @@ pub(crate) fn assemble(
     } else {
         pol.coloured_noise_ratio
     };
-    let mut verdict = crate::verdict::verdict_coloured(
-        &last.select.e,
-        &last.select.yhat,
-        &inputs,
+    let mut verdict = crate::verdict::verdict_tested(
+        &plan.tested(last, d),
         (pol.verdict_level, ratio, coloured),
         &tried_summary(&steps),
     );

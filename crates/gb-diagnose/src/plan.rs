@@ -46,6 +46,18 @@ impl Fold {
     }
 }
 
+/// What the residual tests read ([`Plan::tested`]).
+#[derive(Debug, Clone)]
+pub(crate) struct Tested {
+    /// The model's residuals over the decision samples.
+    pub whole: Residuals,
+    /// The inputs over the same samples.
+    pub inputs: Vec<Vec<f64>>,
+    /// Under cross-validation: each fold's held-out residuals (its own
+    /// refit) with their inputs; empty otherwise.
+    pub folds: Vec<(Residuals, Vec<Vec<f64>>)>,
+}
+
 /// The plan of a diagnosis (see the module docs).
 #[derive(Debug, Clone)]
 pub(crate) struct Plan {
@@ -324,6 +336,67 @@ impl Plan {
                     .collect()
             })
             .collect()
+    }
+
+    /// The residuals the residual tests read for `ev` (the verdict, and the
+    /// `noise` extension's "coloured noise only" rule), with their inputs:
+    /// its decision residuals; under blocked cross-validation of one record,
+    /// `ev`'s own free-run residuals on the folds' scored samples (the model
+    /// fitted on the whole training range) and, apart, each fold's held-out
+    /// residuals (that fold's refit). See [`crate::verdict::verdict_tested`].
+    pub fn tested(&self, ev: &Evaluated, d: &DiagnoseData) -> Tested {
+        let inputs = self.decision_inputs(d);
+        let plain = |inputs| Tested {
+            whole: ev.select.clone(),
+            inputs,
+            folds: vec![],
+        };
+        if !self.cv() || d.multi() || ev.folds.len() != self.folds.len() {
+            return plain(inputs);
+        }
+        let end = self.folds.iter().map(|f| f.test.end).max().unwrap_or(0);
+        let Ok(all) = residuals_on(&ev.model, &d.train, &(0..end), self.w) else {
+            return plain(inputs);
+        };
+        // `all` starts at the init window
+        let idx: Vec<usize> = self
+            .folds
+            .iter()
+            .flat_map(|f| f.scored())
+            .filter_map(|k| k.checked_sub(self.w).filter(|&i| i < all.e.len()))
+            .collect();
+        let counts: Vec<usize> = self.folds.iter().map(|f| f.scored().count()).collect();
+        let fits = ev
+            .folds
+            .iter()
+            .zip(&counts)
+            .all(|(f, &n)| f.select.e.len() == n);
+        if idx.len() != counts.iter().sum::<usize>() || !fits {
+            return plain(inputs);
+        }
+        let mut start = 0;
+        let folds = ev
+            .folds
+            .iter()
+            .zip(&counts)
+            .map(|(f, &n)| {
+                let u = inputs
+                    .iter()
+                    .map(|u| u[start..start + n].to_vec())
+                    .collect();
+                start += n;
+                (f.select.clone(), u)
+            })
+            .collect();
+        Tested {
+            whole: Residuals {
+                e: idx.iter().map(|&i| all.e[i]).collect(),
+                yhat: idx.iter().map(|&i| all.yhat[i]).collect(),
+                nll: vec![],
+            },
+            inputs,
+            folds,
+        }
     }
 
     /// The decision data in words.

@@ -26,7 +26,7 @@ use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extension::{Context, Extension, GainMetric, Proposal};
 use crate::plan::core;
 use crate::report::NoiseFound;
-use crate::verdict::{verdict, VerdictKind};
+use crate::verdict::{verdict_tested, VerdictKind};
 use crate::{Cause, DecisionPolicy, DiagnoseError};
 use gb_core::{metrics, FittedModel, ModelView, NoiseModel, Record, Series, Silent, ViewData};
 use gb_model::{SmcParams, SparseStateSpace, SMC_MAX_STATES};
@@ -49,13 +49,10 @@ fn state_space(m: &FittedModel) -> Option<SparseStateSpace> {
 /// Whether the current model's decision residuals are coloured noise and
 /// nothing else: the verdict's tests at its level reject whiteness only.
 fn coloured_only(ctx: &Context) -> bool {
-    let cur = ctx.current;
-    let u = ctx.plan.decision_inputs(ctx.data);
-    let v = verdict(
-        &cur.select.e,
-        &cur.select.yhat,
-        &u,
-        (ctx.policy().verdict_level, f64::INFINITY),
+    let tested = ctx.plan.tested(ctx.current, ctx.data);
+    let v = verdict_tested(
+        &tested,
+        (ctx.policy().verdict_level, f64::INFINITY, f64::INFINITY),
         &[],
     );
     v.kind == VerdictKind::ColouredNoise
