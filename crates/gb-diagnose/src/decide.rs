@@ -75,10 +75,34 @@ pub(crate) fn score(
     ctx: &Context,
     seed: u64,
 ) -> Candidate {
+    let (gain, ci, pays) = match (ext.metric(), fitted.screened) {
+        (GainMetric::Nrmse, Some(g)) => (g, [g, g], false),
+        (metric, _) => score_gain(metric, &proposal, &fitted, ctx, seed),
+    };
+    let pays = pays && ext.admits(ctx, &fitted);
+    Candidate {
+        ext,
+        proposal,
+        fitted,
+        gain,
+        ci,
+        pays,
+    }
+}
+
+/// The gain of `fitted` over the current model on the decision data, its
+/// 95 % interval and whether it pays (before the extension's own check).
+fn score_gain(
+    metric: GainMetric,
+    proposal: &Proposal,
+    fitted: &Evaluated,
+    ctx: &Context,
+    seed: u64,
+) -> (f64, [f64; 2], bool) {
     let pol = ctx.policy();
     let cur = ctx.current;
     let block = pol.block_for(&cur.select.e);
-    let (gain, ci, pays) = match ext.metric() {
+    match metric {
         GainMetric::Nll => {
             let nb = cur.select.nll_per_sample(&cur.model.noise);
             let na = fitted.select.nll_per_sample(&fitted.model.noise);
@@ -89,21 +113,12 @@ pub(crate) fn score(
             let (g, ci) =
                 relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
             let large =
-                g >= pol.min_gain || answers_missing_dynamics(proposal.cause, &fitted, ctx, g);
+                g >= pol.min_gain || answers_missing_dynamics(proposal.cause, fitted, ctx, g);
             let pays = ci[0] > 0.0 && large;
-            let pays = pays && pays_from_a_fresh_start(&fitted, ctx, seed);
-            let pays = pays && wins_on_most_folds(&fitted, ctx);
-            (g, ci, pays && realised_by_the_refit(&fitted, ctx))
+            let pays = pays && pays_from_a_fresh_start(fitted, ctx, seed);
+            let pays = pays && wins_on_most_folds(fitted, ctx);
+            (g, ci, pays && realised_by_the_refit(fitted, ctx))
         }
-    };
-    let pays = pays && ext.admits(ctx, &fitted);
-    Candidate {
-        ext,
-        proposal,
-        fitted,
-        gain,
-        ci,
-        pays,
     }
 }
 

@@ -248,8 +248,28 @@ pub(crate) fn fit_proposal(
     p: &Proposal,
     ctx: &Context,
 ) -> Result<Evaluated, DiagnoseError> {
-    let mut c = assess_from(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
-        e.fit_choosing(p, &ctx.at_fold(t))
+    let screened = matches!(p.cause, Cause::Nonlinearity | Cause::Hysteresis)
+        && e.metric() == crate::extension::GainMetric::Nrmse
+        && ctx.plan.cv()
+        && !ctx.data.multi()
+        && ctx.policy().cv_in_sample_screen;
+    if !screened {
+        let mut c = assess_from(ctx.plan, ctx.data, p.lineage.clone(), &|t| {
+            e.fit_choosing(p, &ctx.at_fold(t))
+        })?;
+        e.rescore(ctx, &mut c)?;
+        return Ok(c);
+    }
+    let (raw, start) = e.fit_choosing(p, &ctx.at_fold(None))?;
+    let whole = ctx.plan.finish(raw.clone(), None)?;
+    let min_gain = ctx.policy().min_gain;
+    let cur = ctx.current;
+    if let Some(c) = crate::plan::screen(ctx.plan, ctx.data, (&whole, &p.lineage), cur, min_gain) {
+        return Ok(c);
+    }
+    let mut c = assess_from(ctx.plan, ctx.data, p.lineage.clone(), &|t| match t {
+        None => Ok((raw.clone(), start)),
+        Some(_) => e.fit_choosing(p, &ctx.at_fold(t)),
     })?;
     e.rescore(ctx, &mut c)?;
     Ok(c)
@@ -330,7 +350,13 @@ fn rows(
             iteration: it,
             cause: c.cause(),
             evidence,
-            extension: c.ext.row_text(&c.proposal, &f.model),
+            extension: match f.screened {
+                Some(_) => format!(
+                    "{} (select gain: on the training data in-sample, below min_gain, so not cross-validated)",
+                    c.ext.row_text(&c.proposal, &f.model)
+                ),
+                None => c.ext.row_text(&c.proposal, &f.model),
+            },
             nrmse_before: cur.scores.nrmse,
             nrmse_after: f.scores.nrmse,
             gain,

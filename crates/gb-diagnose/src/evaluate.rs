@@ -153,6 +153,12 @@ pub struct Evaluated {
     /// starts, the backlash half-width; a block-oriented model's folds
     /// choose their own map).
     pub start_choice: Option<usize>,
+    /// Under cross-validation, a `nonlinearity` or `hysteresis` candidate
+    /// whose fit on the whole training range gains less than the policy's
+    /// `min_gain` over the current model there (free-run residuals over the
+    /// folds' samples): that in-sample gain; its folds are not fitted and
+    /// it does not pay ([`crate::plan::screen`]).
+    pub screened: Option<f64>,
 }
 
 /// Residuals of `model` on `range` of `data`, simulating in free run from
@@ -248,5 +254,6 @@ pub(crate) fn evaluate_on(
         folds: vec![],
         finding: None,
         start_choice: None,
+        screened: None,
     })
 }

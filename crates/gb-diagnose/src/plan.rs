@@ -354,26 +354,15 @@ impl Plan {
         if !self.cv() || d.multi() || ev.folds.len() != self.folds.len() {
             return plain(inputs);
         }
-        let end = self.folds.iter().map(|f| f.test.end).max().unwrap_or(0);
-        let Ok(all) = residuals_on(&ev.model, &d.train, &(0..end), self.w) else {
-            return plain(inputs);
-        };
-        // `all` starts at the init window
-        let idx: Vec<usize> = self
-            .folds
-            .iter()
-            .flat_map(|f| f.scored())
-            .filter_map(|k| k.checked_sub(self.w).filter(|&i| i < all.e.len()))
-            .collect();
         let counts: Vec<usize> = self.folds.iter().map(|f| f.scored().count()).collect();
         let fits = ev
             .folds
             .iter()
             .zip(&counts)
             .all(|(f, &n)| f.select.e.len() == n);
-        if idx.len() != counts.iter().sum::<usize>() || !fits {
+        let Some(whole) = self.in_sample(&ev.model, d).filter(|_| fits) else {
             return plain(inputs);
-        }
+        };
         let mut start = 0;
         let folds = ev
             .folds
@@ -389,14 +378,34 @@ impl Plan {
             })
             .collect();
         Tested {
-            whole: Residuals {
-                e: idx.iter().map(|&i| all.e[i]).collect(),
-                yhat: idx.iter().map(|&i| all.yhat[i]).collect(),
-                nll: vec![],
-            },
+            whole,
             inputs,
             folds,
         }
+    }
+
+    /// Under cross-validation of one record: the free-run residuals of
+    /// `model` (fitted on the whole training range) on the folds' scored
+    /// samples, in fold order (aligned with [`Plan::decision_inputs`]).
+    pub fn in_sample(&self, model: &FittedModel, d: &DiagnoseData) -> Option<Residuals> {
+        if !self.cv() || d.multi() {
+            return None;
+        }
+        let end = self.folds.iter().map(|f| f.test.end).max().unwrap_or(0);
+        let all = residuals_on(model, &d.train, &(0..end), self.w).ok()?;
+        // `all` starts at the init window
+        let idx: Vec<usize> = self
+            .folds
+            .iter()
+            .flat_map(|f| f.scored())
+            .filter_map(|k| k.checked_sub(self.w).filter(|&i| i < all.e.len()))
+            .collect();
+        let n: usize = self.folds.iter().map(|f| f.scored().count()).sum();
+        (idx.len() == n).then(|| Residuals {
+            e: idx.iter().map(|&i| all.e[i]).collect(),
+            yhat: idx.iter().map(|&i| all.yhat[i]).collect(),
+            nll: vec![],
+        })
     }
 
     /// The decision data in words.
@@ -580,6 +589,38 @@ pub(crate) fn assess(
     })
 }
 
+/// The in-sample screen of cross-validation: `m`, fitted on the whole
+/// training range, and the current model `cur`, compared by their free-run
+/// residuals over the folds' samples. When `m` gains less than `min_gain`
+/// there, its held-out gain (what must reach `min_gain` to pay) is not
+/// expected to: the candidate is scored in-sample, marked `screened`, and
+/// its fold fits (four of its five fits) are skipped. `None`: not
+/// screened out (or no cross-validation).
+pub(crate) fn screen(
+    plan: &Plan,
+    d: &DiagnoseData,
+    (m, lineage): (&FittedModel, &Lineage),
+    cur: &Evaluated,
+    min_gain: f64,
+) -> Option<Evaluated> {
+    let after = plan.in_sample(m, d)?;
+    let before = plan.in_sample(&cur.model, d)?;
+    let gain = 1.0 - metrics::rms(&after.e) / metrics::rms(&before.e).max(f64::MIN_POSITIVE);
+    if gain >= min_gain || !gain.is_finite() {
+        return None;
+    }
+    let y: Vec<f64> = after
+        .yhat
+        .iter()
+        .zip(&after.e)
+        .map(|(a, b)| a + b)
+        .collect();
+    let sd = metrics::std(&y);
+    let mut e = evaluate_on(m.clone(), lineage.clone(), d, plan.w, Some((after, sd))).ok()?;
+    e.screened = Some(gain);
+    Some(e)
+}
+
 /// [`assess`] where the fit on the plan's record may say which of several
 /// starts won, and each fold's fit gets that choice (a multi-start fit
 /// then refits only that start per fold).
@@ -664,6 +705,7 @@ fn fold_scores(
         folds: vec![],
         finding: None,
         start_choice: None,
+        screened: None,
     })
 }
 

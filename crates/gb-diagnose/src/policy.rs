@@ -59,6 +59,7 @@ use crate::DiagnoseError;
 /// | `refit_on_training` | true | once the search has chosen the structure on the fit block, the chain (baseline, then every accepted extension in turn) is refitted on the whole training record (fit and select blocks) when decisions used the select block; a refitted model replaces its fit-block fit only when its free-run squared error over the whole training record is not larger (a refit that lands in a worse local minimum is dropped). The decisions and the verdict keep the fit-block fits' held-out residuals |
 /// | `retry_after_refinement` | false | after a step that only added capacity to a named cause (more local models, more Preisach cells: a refinement), an extension whose every candidate lost decisively at that step (the whole 95 % interval of its select gain below zero) is not proposed again: the refinement gave it no structure it lacked (Silverbox: five Preisach-column variants on the local model network lost −0.12 to −1.5 at step 2 and took 90 of the 180 CPU seconds of step 3) |
 /// | `linear_before_nonlinear` | true | a new `nonlinearity` or `hysteresis` cause is chosen over a paying higher linear order (`dynamics`) only when it also pays against that order's residuals on the decision data; else the order increase, the smaller change, is chosen (a third pole that the engineer's order-2 model absorbed as a dead time read as a Wiener–Hammerstein network at the same select gain, +0.397 against +0.392) |
+/// | `cv_in_sample_screen` | true | under cross-validation a `nonlinearity` or `hysteresis` candidate is first fitted on the whole training range; when its free-run residual over the folds' samples is not `min_gain` below the current model's (fitted the same way), its four fold fits are skipped and it does not pay (a held-out gain rarely exceeds the in-sample one; the row says so) |
 /// | `screen_costly`, `screen_level`, `screen_noise_ratio` | true, 0.01, 1.1 | the candidates of a step are fitted in tiers ([`crate::Extension::screen_tier`]: the cheap ones; the static laws of the mechanical template; the hysteretic template, the Wiener–Hammerstein network and the hidden-state model), a tier only when the paying candidate with the largest gain so far does not leave a quiet residual on the decision data: the verdict's tests each pass at 1 % (uncorrected; at 5 % one of six or nine tests rejects by chance in a third of the cases at the floor), the Jarque–Bera test too, and the residual is within 1.1× the white-noise level. A structure that the cheap candidates already explain to the noise level leaves nothing a costly one could gain significantly (a wiener case: 4.3 → 1.7 s; a Duffing case whose spring law reaches the floor: 82 → 43 s without the hysteretic template) |
 /// | `diverged_ratio`, `diverged_nrmse` | 10, 1 | a candidate whose RMS error on the decision data exceeds 10× the current model's and the spread of the measured output there (NRMSE above 1: worse than its mean) diverged; it is left out of the report's table and the decisions line names it (on the sweep such fits reached select NRMSE up to 1e50: a hidden-state model, play operators on the simulated output) |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
@@ -213,6 +214,8 @@ pub struct DecisionPolicy {
     /// A new nonlinearity or hysteresis cause must also pay against the
     /// best paying higher linear order (`false`: the largest gain wins).
     pub linear_before_nonlinear: bool,
+    /// See the table: the in-sample screen of cross-validated candidates.
+    pub cv_in_sample_screen: bool,
     /// Fit the costly candidates only when no cheap one that pays leaves
     /// a quiet residual.
     pub screen_costly: bool,
@@ -297,6 +300,7 @@ impl Default for DecisionPolicy {
             retry_after_noise_step: false,
             retry_after_refinement: false,
             linear_before_nonlinear: true,
+            cv_in_sample_screen: true,
             screen_costly: true,
             screen_level: 0.01,
             screen_noise_ratio: 1.1,
