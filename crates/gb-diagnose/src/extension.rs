@@ -8,7 +8,8 @@ use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Backlash, Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
     MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
-    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, Wiener, WienerHammerstein,
+    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, TreeLmn, Wiener,
+    WienerHammerstein,
 };
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
@@ -229,6 +230,7 @@ pub trait Extension: Sync {
 pub static EXTENSIONS: &[&dyn Extension] = &[
     &Capacity,
     &Lolimot,
+    &TreeLmn,
     &PolyNoe,
     &Hammerstein,
     &Wiener,

@@ -15,6 +15,7 @@ mod poly_noe;
 mod preisach;
 mod process_noise;
 mod student_t;
+mod tree_lmn;
 mod wiener;
 mod wiener_hammerstein;
 
@@ -34,6 +35,7 @@ pub use poly_noe::PolyNoe;
 pub use preisach::PreisachColumns;
 pub use process_noise::ProcessNoise;
 pub use student_t::StudentTNoise;
+pub use tree_lmn::TreeLmn;
 pub use wiener::Wiener;
 pub use wiener_hammerstein::WienerHammerstein;
 
