@@ -122,25 +122,45 @@ fn proposals(
 }
 
 /// Fit and score the proposals in parallel; seeds follow the proposal
-/// order (`i` of each pair, its index among the step's proposals).
+/// order (`i` of each pair, its index among the step's proposals). A
+/// proposal whose fit fails is left out; its extension and error are
+/// returned for the decisions line.
 fn fit_candidates(
     ctx: &Context,
     proposals: Vec<(usize, (&'static dyn Extension, Proposal))>,
     it: usize,
-) -> Vec<(usize, Candidate)> {
+) -> (Vec<(usize, Candidate)>, Vec<String>) {
     let pol = ctx.policy();
-    let fitted: Vec<Option<Evaluated>> = proposals
+    let fitted: Vec<Result<Evaluated, DiagnoseError>> = proposals
         .par_iter()
-        .map(|(_, (e, p))| timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx).ok()))
+        .map(|(_, (e, p))| timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx)))
         .collect();
-    proposals
-        .into_iter()
-        .zip(fitted)
-        .filter_map(|((i, (e, p)), f)| {
-            let seed = pol.seed.wrapping_add(1000 * it as u64 + i as u64);
-            f.map(|f| (i, score(e, p, f, ctx, seed)))
-        })
-        .collect()
+    let mut failed = vec![];
+    let mut cands = vec![];
+    for ((i, (e, p)), f) in proposals.into_iter().zip(fitted) {
+        match f {
+            Ok(f) => {
+                let seed = pol.seed.wrapping_add(1000 * it as u64 + i as u64);
+                cands.push((i, score(e, p, f, ctx, seed)));
+            }
+            Err(err) => failed.push(format!("{} ({err})", e.name())),
+        }
+    }
+    (cands, failed)
+}
+
+/// The decisions line's note on the proposals of step `it` whose fit
+/// failed, `None` when none did.
+fn failed_note(failed: &[String], it: usize) -> Option<String> {
+    (!failed.is_empty()).then(|| {
+        format!(
+            "; step {it}: {} candidate{} could not be fitted and {} left out of the table: {}",
+            failed.len(),
+            if failed.len() == 1 { "" } else { "s" },
+            if failed.len() == 1 { "is" } else { "are" },
+            failed.join(", ")
+        )
+    })
 }
 
 /// The candidates of one step in proposal order. With the policy's
@@ -168,6 +188,7 @@ fn screened_candidates(
     };
     let mut left: Vec<_> = props.into_iter().enumerate().collect();
     let mut cands = vec![];
+    let mut failed = vec![];
     let mut note = None;
     while let Some(t) = left.iter().map(|(_, (e, _))| tier(*e)).min() {
         let quiet = (!cands.is_empty())
@@ -191,9 +212,15 @@ fn screened_candidates(
         let (now, later): (Vec<_>, Vec<_>) =
             left.into_iter().partition(|(_, (e, _))| tier(*e) == t);
         left = later;
-        cands.extend(fit_candidates(ctx, now, it));
+        let (fitted, f) = fit_candidates(ctx, now, it);
+        cands.extend(fitted);
+        failed.extend(f);
     }
     cands.sort_by_key(|(i, _)| *i);
+    let note = match failed_note(&failed, it) {
+        Some(f) => Some(note.unwrap_or_default() + &f),
+        None => note,
+    };
     (cands.into_iter().map(|(_, c)| c).collect(), note)
 }
 

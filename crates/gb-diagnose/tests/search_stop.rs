@@ -223,3 +223,22 @@ fn candidates_that_gain_nothing_in_sample_are_not_cross_validated() {
         );
     }
 }
+
+/// A candidate whose fit fails (linear 1: the polynomial NOE does not
+/// simulate stably on the training data) is not silently dropped: the
+/// decisions line names its extension and the error, and it has no row.
+#[test]
+fn a_candidate_that_cannot_be_fitted_is_named_in_the_decisions_line() {
+    let r = diagnosed_with("linear", 1, DecisionPolicy::default());
+    let d = &r.data.decision;
+    assert!(
+        d.contains("could not be fitted") && d.contains("poly-noe (unstable"),
+        "{d}"
+    );
+    assert!(
+        r.steps
+            .iter()
+            .all(|s| !s.extension.starts_with("polynomial NOE")),
+        "a row for the failed candidate"
+    );
+}

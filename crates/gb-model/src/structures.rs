@@ -39,8 +39,13 @@ pub fn hysteretic_mechanical_start(
     Ok((start, lin))
 }
 
-/// Continuous-time `(ω², 2ζω, 1/m)` of a 2-state, 1-input discrete model with
-/// complex poles, from `s = ln λ / Ts` and the static gain (`1/m = ω²·G(1)`).
+/// Continuous-time `(ω², 2ζω, 1/m)` of a 2-state, 1-input discrete model
+/// from its poles, `s = ln λ / Ts`, and the static gain (`1/m = ω²·G(1)`):
+/// a complex pair (an oscillator, `ω² = |s|²`, `2ζω = −2 Re s`) or two
+/// stable positive real poles (an overdamped mass–spring–damper,
+/// `ω² = s₁s₂`, `2ζω = −(s₁ + s₂)`, ζ ≥ 1: friction or a stiff damper can
+/// make the best linear model of a mechanical system overdamped). A
+/// negative real pole has no continuous-time counterpart.
 pub fn second_order_parameters(lin: &SparseStateSpace, ts: f64) -> Result<(f64, f64, f64)> {
     if lin.n_states != 2 || lin.n_inputs != 1 || !(ts > 0.0 && ts.is_finite()) {
         return Err(ModelError::InvalidArgument(
@@ -52,15 +57,22 @@ pub fn second_order_parameters(lin: &SparseStateSpace, ts: f64) -> Result<(f64, 
     let det = a[0] * a[3] - a[1] * a[2];
     let re = 0.5 * tr;
     let disc = det - re * re;
-    if disc <= 0.0 || det <= 0.0 {
-        return Err(ModelError::InvalidArgument(
-            "the linear model has no complex pole pair (not an oscillator)".into(),
-        ));
-    }
-    let im = disc.sqrt();
-    let s_re = (re * re + im * im).sqrt().ln() / ts;
-    let s_im = im.atan2(re) / ts;
-    let w2 = s_re * s_re + s_im * s_im;
+    let (w2, cc) = if disc > 0.0 && det > 0.0 {
+        let im = disc.sqrt();
+        let s_re = (re * re + im * im).sqrt().ln() / ts;
+        let s_im = im.atan2(re) / ts;
+        (s_re * s_re + s_im * s_im, -2.0 * s_re)
+    } else {
+        let r = (-disc).sqrt();
+        let (p1, p2) = (re + r, re - r);
+        if !(p2 > 0.0 && p1 < 1.0) {
+            return Err(ModelError::InvalidArgument(format!(
+                "the linear model's poles {p1:.4} and {p2:.4} are neither a complex pair nor two stable positive real poles (not a mechanical second-order system)"
+            )));
+        }
+        let (s1, s2) = (p1.ln() / ts, p2.ln() / ts);
+        (s1 * s2, -(s1 + s2))
+    };
     let (i11, i12, i21, i22) = (1.0 - a[0], -a[1], -a[2], 1.0 - a[3]);
     let idet = i11 * i22 - i12 * i21;
     if idet.abs() < 1e-300 {
@@ -69,7 +81,7 @@ pub fn second_order_parameters(lin: &SparseStateSpace, ts: f64) -> Result<(f64, 
     let x1 = (i22 * lin.b[0] - i12 * lin.b[1]) / idet;
     let x2 = (-i21 * lin.b[0] + i11 * lin.b[1]) / idet;
     let dc = lin.c[0] * x1 + lin.c[1] * x2 + lin.d[0];
-    Ok((w2, -2.0 * s_re, w2 * dc))
+    Ok((w2, cc, w2 * dc))
 }
 
 /// The second-order mechanical structure `ÿ = −ω² y − 2ζω ẏ + u/m (− z)`
@@ -197,4 +209,42 @@ pub fn fit_state_space(
         .adapt_boxes(true)
         .check()?
         .fit(m, inputs, y, obs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::second_order_parameters;
+    use crate::SparseStateSpace;
+
+    /// `ẍ = −k x − c ẋ + g u` sampled at `ts` in modal form: the discrete
+    /// poles `e^{s·ts}` of its continuous poles `s`, and output weights that
+    /// give the static gain `g/k`.
+    fn modal(s1: f64, s2: f64, g: f64, ts: f64) -> SparseStateSpace {
+        let (p1, p2) = ((s1 * ts).exp(), (s2 * ts).exp());
+        let k = s1 * s2;
+        // c (I − A)⁻¹ b = c₁/(1 − p₁) + c₂/(1 − p₂) with b = (1, 1):
+        // split the gain g/k equally between the modes
+        let c = vec![0.5 * g / k * (1.0 - p1), 0.5 * g / k * (1.0 - p2)];
+        SparseStateSpace::linear(vec![p1, 0.0, 0.0, p2], vec![1.0, 1.0], c, vec![0.0]).unwrap()
+    }
+
+    /// An overdamped system (poles −1 and −4 rad/s: k = 4, c = 5) comes
+    /// back as its continuous-time parameters; a negative real pole and an
+    /// unstable pole are refused.
+    #[test]
+    fn an_overdamped_model_has_its_mechanical_parameters() {
+        let (w2, cc, g) = second_order_parameters(&modal(-1.0, -4.0, 3.0, 0.1), 0.1).unwrap();
+        assert!((w2 - 4.0).abs() < 1e-9, "k {w2}");
+        assert!((cc - 5.0).abs() < 1e-9, "c {cc}");
+        assert!((g - 3.0).abs() < 1e-9, "g {g}");
+        let neg = SparseStateSpace::linear(
+            vec![0.5, 0.0, 0.0, -0.3],
+            vec![1.0, 1.0],
+            vec![1.0, 1.0],
+            vec![0.0],
+        )
+        .unwrap();
+        assert!(second_order_parameters(&neg, 0.1).is_err());
+        assert!(second_order_parameters(&modal(0.5, -4.0, 1.0, 0.1), 0.1).is_err());
+    }
 }
