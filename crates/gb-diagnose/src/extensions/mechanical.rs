@@ -165,13 +165,16 @@ fn fitted_template(ctx: &Context, order: usize) -> Result<Template, DiagnoseErro
 }
 
 /// The order (1 or 2) of the current model when it is the plain linear
-/// model of one input (the template's start).
+/// model of one input (the template's start), not of an integrating
+/// system's increments (the template's output is a position with a
+/// spring, not a velocity: on EMPS the templates of the increments took
+/// 41 s of fits and changed nothing).
 fn plain_order(ctx: &Context) -> Option<usize> {
     ctx.current
         .lineage
         .io()
         .filter(|p| !p.network && !p.hysteresis && (p.order == 1 || p.order == 2))
-        .filter(|_| ctx.fit.inputs.len() == 1)
+        .filter(|_| ctx.fit.inputs.len() == 1 && !ctx.plan.integrating)
         .map(|p| p.order)
 }
 
