@@ -304,17 +304,19 @@ pub(crate) fn fit_proposal(
 
 /// The escalation (tried once per diagnosis) when no new cause was chosen:
 /// it must pay against the current model and against the simple choice.
+/// A failed fit comes back as its extension and error (for the decisions
+/// line).
 fn escalate(
     ctx: &Context,
     (ext, p): (&'static dyn Extension, Proposal),
     cands: &mut Vec<Candidate>,
     chosen: Option<usize>,
     it: usize,
-) -> Option<usize> {
+) -> Result<Option<usize>, String> {
     let pol = ctx.policy();
     ctx.observer
         .progress(it, it + 1, "fitting the hidden-state model");
-    let f = fit_proposal(ext, &p, ctx).ok()?;
+    let f = fit_proposal(ext, &p, ctx).map_err(|e| format!("{} ({e})", ext.name()))?;
     let seed = pol.seed.wrapping_add(1000 * it as u64 + 999);
     let mut c = score(ext, p, f, ctx, seed);
     if let Some(simple) = chosen.map(|i| &cands[i].fitted) {
@@ -329,7 +331,7 @@ fn escalate(
     }
     let pays = c.pays;
     cands.push(c);
-    pays.then_some(cands.len() - 1)
+    Ok(pays.then_some(cands.len() - 1))
 }
 
 /// The report rows of an iteration: every candidate but those that
@@ -478,7 +480,7 @@ fn iterate(
         return None;
     }
     let inputs = plan.decision_inputs(d);
-    let (mut cands, screened) = timed_phase("candidates", || {
+    let (mut cands, mut screened) = timed_phase("candidates", || {
         screened_candidates(&ctx, props, &inputs, it)
     });
     let (mut chosen, note) = timed_phase("choose", || choose(&mut cands, &ctx, it));
@@ -497,8 +499,13 @@ fn iterate(
             .find_map(|e| e.propose(&ctx).into_iter().next().map(|p| (*e, p)));
         if let Some(esc) = escalation {
             tried.insert(esc.0.name());
-            if let Some(i) = escalate(&ctx, esc, &mut cands, chosen, it) {
-                chosen = Some(i);
+            match escalate(&ctx, esc, &mut cands, chosen, it) {
+                Ok(Some(i)) => chosen = Some(i),
+                Ok(None) => {}
+                Err(f) => {
+                    let f = failed_note(&[f], it).unwrap_or_default();
+                    screened = Some(screened.unwrap_or_default() + &f);
+                }
             }
         }
     }
