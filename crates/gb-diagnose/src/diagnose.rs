@@ -143,10 +143,23 @@ fn fit_candidates(
                 let seed = pol.seed.wrapping_add(1000 * it as u64 + i as u64);
                 cands.push((i, score(e, p, f, ctx, seed)));
             }
-            Err(err) => failed.push(format!("{} ({err})", e.name())),
+            Err(err) => failed.push(failure(e, &err)),
         }
     }
     (cands, failed)
+}
+
+/// `note` with `more` appended (each a `; …` clause of the decisions line).
+fn appended(note: Option<String>, more: Option<String>) -> Option<String> {
+    match more {
+        Some(m) => Some(note.unwrap_or_default() + &m),
+        None => note,
+    }
+}
+
+/// A failed fit of extension `e` for the decisions line: `name (error)`.
+fn failure(e: &dyn Extension, err: &DiagnoseError) -> String {
+    format!("{} ({err})", e.name())
 }
 
 /// The decisions line's note on the proposals of step `it` whose fit
@@ -217,10 +230,7 @@ fn screened_candidates(
         failed.extend(f);
     }
     cands.sort_by_key(|(i, _)| *i);
-    let note = match failed_note(&failed, it) {
-        Some(f) => Some(note.unwrap_or_default() + &f),
-        None => note,
-    };
+    let note = appended(note, failed_note(&failed, it));
     (cands.into_iter().map(|(_, c)| c).collect(), note)
 }
 
@@ -316,7 +326,7 @@ fn escalate(
     let pol = ctx.policy();
     ctx.observer
         .progress(it, it + 1, "fitting the hidden-state model");
-    let f = fit_proposal(ext, &p, ctx).map_err(|e| format!("{} ({e})", ext.name()))?;
+    let f = fit_proposal(ext, &p, ctx).map_err(|e| failure(ext, &e))?;
     let seed = pol.seed.wrapping_add(1000 * it as u64 + 999);
     let mut c = score(ext, p, f, ctx, seed);
     if let Some(simple) = chosen.map(|i| &cands[i].fitted) {
@@ -502,10 +512,7 @@ fn iterate(
             match escalate(&ctx, esc, &mut cands, chosen, it) {
                 Ok(Some(i)) => chosen = Some(i),
                 Ok(None) => {}
-                Err(f) => {
-                    let f = failed_note(&[f], it).unwrap_or_default();
-                    screened = Some(screened.unwrap_or_default() + &f);
-                }
+                Err(f) => screened = appended(screened, failed_note(&[f], it)),
             }
         }
     }
@@ -518,10 +525,10 @@ fn iterate(
         .filter(|&i| Some(i) != chosen && diverged(&cands[i], cur, ctx.policy()))
         .collect();
     let rows = rows(&cands, (chosen, &diverged), note.as_deref(), &ctx, it);
-    let notes = match diverged_note(&cands, &diverged, cur, ctx.policy(), it) {
-        Some(d) => Some(screened.unwrap_or_default() + &d),
-        None => screened,
-    };
+    let notes = appended(
+        screened,
+        diverged_note(&cands, &diverged, cur, ctx.policy(), it),
+    );
     let lost = cands
         .iter()
         .filter(|c| !c.pays)

@@ -287,8 +287,7 @@ impl Extension for Backlash {
         let nk = fitted_delays(fitted)
             .filter(|_| !r.is_empty())
             .map_or(String::new(), |k| {
-                let k: Vec<String> = k.iter().map(usize::to_string).collect();
-                format!(", input delay {}", k.join("/"))
+                format!(", input delay {}", super::slash_list(&k))
             });
         format!("{}{r}{nk}", p.text)
     }

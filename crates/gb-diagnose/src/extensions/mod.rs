@@ -45,14 +45,18 @@ use crate::DiagnoseError;
 use gb_core::{FittedModel, ModelSpec, Records};
 use gb_lmn::{IoNetworkParams, WarmStart};
 
+/// A list of per-input numbers as a model spec writes it: `4/0/1`.
+pub(crate) fn slash_list(v: &[usize]) -> String {
+    v.iter().map(usize::to_string).collect::<Vec<_>>().join("/")
+}
+
 /// The order and the dead times (`1/1`) of an input–output model.
 pub(crate) fn io_structure(p: &IoNetworkParams, n_inputs: usize) -> (usize, String) {
-    let delay: Vec<String> = if p.delay.len() == n_inputs {
-        p.delay.iter().map(|d| d.to_string()).collect()
+    if p.delay.len() == n_inputs {
+        (p.order, slash_list(&p.delay))
     } else {
-        vec!["1".into(); n_inputs]
-    };
-    (p.order, delay.join("/"))
+        (p.order, slash_list(&vec![1; n_inputs]))
+    }
 }
 
 /// The order and delay list (`a/b`) of the current model when it is a
@@ -79,12 +83,7 @@ pub(crate) fn delay_variants(d: &str) -> Vec<String> {
     let Some(v) = parsed else {
         return vec![d.to_string()];
     };
-    let join = |w: Vec<usize>| {
-        w.iter()
-            .map(|x| x.to_string())
-            .collect::<Vec<_>>()
-            .join("/")
-    };
+    let join = |w: Vec<usize>| slash_list(&w);
     let mut out = vec![d.to_string()];
     if v.iter().all(|&x| x >= 1) {
         out.push(join(v.iter().map(|x| x - 1).collect()));

@@ -1,6 +1,6 @@
 //! `nonlinearity`: a local model network with decision-tree weights
 //! (gb-lmn's tree network) on the current input–output model's regressors.
-use super::fit_spec;
+use super::{fit_spec, slash_list};
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::{Cause, DiagnoseError};
@@ -31,18 +31,12 @@ const MAX_LEAVES: usize = 15;
 /// or behind a direct feedthrough).
 pub(crate) fn tree_spec(p: &IoNetworkParams, n_inputs: usize) -> String {
     let s = p.network_spec(n_inputs);
-    let join = |v: &[usize]| {
-        v.iter()
-            .map(|x| x.to_string())
-            .collect::<Vec<_>>()
-            .join("/")
-    };
     format!(
         "lmn:order={},output_lags={},dead_time={},input_lags={},max_leaves={MAX_LEAVES},weights=tree",
         p.order,
         s.na,
-        join(&s.nk),
-        join(&s.nb)
+        slash_list(&s.nk),
+        slash_list(&s.nb)
     )
 }
 
