@@ -159,7 +159,20 @@ fn appended(note: Option<String>, more: Option<String>) -> Option<String> {
 
 /// A failed fit of extension `e` for the decisions line: `name (error)`.
 fn failure(e: &dyn Extension, err: &DiagnoseError) -> String {
-    format!("{} ({err})", e.name())
+    format!("{} ({})", e.name(), kind_once(err.to_string()))
+}
+
+/// `text` with a leading error kind said once: an error passed up through
+/// the crates' error types repeats it ("invalid argument: invalid
+/// argument: …").
+fn kind_once(mut text: String) -> String {
+    while let Some((kind, rest)) = text.split_once(": ") {
+        if !rest.starts_with(&format!("{kind}: ")) {
+            break;
+        }
+        text = rest.to_string();
+    }
+    text
 }
 
 /// The decisions line's note on the proposals of step `it` whose fit
@@ -931,7 +944,21 @@ pub(crate) fn assemble(
 
 #[cfg(test)]
 mod tests {
-    use super::beaten;
+    use super::{beaten, kind_once};
+
+    /// A failed candidate's error says its kind once, and a message that
+    /// merely contains a colon is left whole.
+    #[test]
+    fn a_failed_candidates_error_says_its_kind_once() {
+        let nested =
+            "invalid argument: invalid argument: invalid argument: the poles 0.93 and -0.97";
+        assert_eq!(
+            kind_once(nested.into()),
+            "invalid argument: the poles 0.93 and -0.97"
+        );
+        let plain = "unstable: the simulation diverged: at sample 12";
+        assert_eq!(kind_once(plain.into()), plain);
+    }
 
     /// An extension is beaten only when every candidate of it lost
     /// decisively: one candidate whose interval reaches 0, or that pays,

@@ -522,8 +522,9 @@ impl LeastSquaresProblem for InitWindowProblem<'_> {
         if !ok {
             return None;
         }
-        let jtj = jac.transpose() * &jac;
-        let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+        // tall and narrow (w × k0): column dot products, no transposed copy
+        let jtj = jac.tr_mul(&jac);
+        let jtr = jac.tr_mul(&DVector::from_column_slice(&r0));
         for i in 0..k0 {
             for j in 0..k0 {
                 gram[i * k0 + j] = jtj[(i, j)];
@@ -1038,8 +1039,9 @@ impl LocalModelNetwork {
                     &fd
                 }
             };
-            let jtj = jac.transpose() * jac;
-            let jtr = jac.transpose() * DVector::from_column_slice(&r0);
+            // tall and narrow (w × k0): column dot products, no transposed copy
+            let jtj = jac.tr_mul(jac);
+            let jtr = jac.tr_mul(&DVector::from_column_slice(&r0));
             let Some(ch) = (jtj + DMatrix::<f64>::identity(k0, k0) * 1e-9).cholesky() else {
                 break;
             };

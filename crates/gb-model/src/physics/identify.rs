@@ -14,11 +14,13 @@ use gb_core::{Identify, Observer, Record, Records};
 /// | `max_iter` | 200 | Levenberg–Marquardt iterations |
 /// | `tol` | 1e-10 | relative cost decrease that counts as converged |
 /// | `stall` | (10, 1e-5) | stop when 10 iterations together lower the cost by less than 0.001 % (a crawl along a flat valley; 1e-4 also stopped the overflow limit of the tanks test while it was still on its way) |
+/// | `direct_max_iter` | `max_iter` | iterations of the fit from the start values in [`PhysicsFit::identify_growing`] (the path beside the growing prefixes) |
 #[derive(Debug, Clone)]
 pub struct PhysicsFitParams {
     spec: PhysicsSpec,
     source: Option<String>,
     lm: LmParams,
+    direct_max_iter: Option<usize>,
 }
 
 impl PhysicsFitParams {
@@ -28,11 +30,20 @@ impl PhysicsFitParams {
             spec,
             source: None,
             lm: LmParams::default().max_iter(200).tol(1e-10).stall(10, 1e-5),
+            direct_max_iter: None,
         }
     }
     /// Most iterations.
     pub fn max_iter(mut self, n: usize) -> Self {
         self.lm = self.lm.max_iter(n);
+        self
+    }
+    /// Most iterations of the fit from the start values beside the growing
+    /// prefixes of [`PhysicsFit::identify_growing`] (default: `max_iter`).
+    /// Where the start is already a fitted model (a term added at 0) and
+    /// the direct fit crawls, the growing path has usually long converged.
+    pub fn direct_max_iter(mut self, n: usize) -> Self {
+        self.direct_max_iter = Some(n);
         self
     }
     /// Convergence tolerance.
@@ -57,9 +68,14 @@ impl PhysicsFitParams {
         if let Some(s) = self.source {
             model = model.with_source(s);
         }
+        let direct = match self.direct_max_iter {
+            Some(n) => self.lm.max_iter(n),
+            None => self.lm,
+        };
         Ok(PhysicsFit {
             model,
             lm: self.lm.check()?,
+            direct_lm: direct.check()?,
         })
     }
 }
@@ -69,12 +85,33 @@ impl PhysicsFitParams {
 pub struct PhysicsFit {
     model: PhysicsModel,
     lm: LevenbergMarquardt,
+    /// The solver of the direct path of [`identify_growing`](Self::identify_growing).
+    direct_lm: LevenbergMarquardt,
 }
 
 impl PhysicsFit {
     /// The unfitted model (start values).
     pub fn model(&self) -> &PhysicsModel {
         &self.model
+    }
+
+    /// The same settings started from `model`.
+    fn with_model(&self, model: PhysicsModel) -> PhysicsFit {
+        PhysicsFit {
+            model,
+            lm: self.lm,
+            direct_lm: self.direct_lm,
+        }
+    }
+
+    /// The direct path of [`identify_growing`](Self::identify_growing):
+    /// these settings with the direct fit's solver.
+    fn direct(&self) -> PhysicsFit {
+        PhysicsFit {
+            model: self.model.clone(),
+            lm: self.direct_lm,
+            direct_lm: self.direct_lm,
+        }
     }
 
     /// The sample time, after checking `data` (one [`Records`] per model
@@ -196,11 +233,7 @@ impl PhysicsFit {
         let Some(start) = self.forced_cells_start(data, obs) else {
             return plain;
         };
-        let forced = PhysicsFit {
-            model: start,
-            lm: self.lm,
-        }
-        .identify_outputs(data, obs);
+        let forced = self.with_model(start).identify_outputs(data, obs);
         better_of(forced, plain)
     }
 
@@ -314,7 +347,7 @@ impl PhysicsFit {
                 self.model.initial_state().to_vec(),
             )
             .ok()?;
-        PhysicsFit { model, lm: self.lm }
+        self.with_model(model)
             .identify_growing_plain(&[Records::new(records).ok()?], obs)
             .ok()
     }
@@ -337,7 +370,7 @@ impl PhysicsFit {
             if let Some(t) = self.model.source() {
                 model = model.with_source(t.to_string());
             }
-            let stage1 = PhysicsFit { model, lm: self.lm }.identify_growing_plain(data, obs)?;
+            let stage1 = self.with_model(model).identify_growing_plain(data, obs)?;
             let start = self
                 .model
                 .clone()
@@ -346,16 +379,12 @@ impl PhysicsFit {
                     stage1.initial_state().to_vec(),
                 )?
                 .with_start_at_values()?;
-            return PhysicsFit {
-                model: start,
-                lm: self.lm,
-            }
-            .identify_outputs(data, obs);
+            return self.with_model(start).identify_outputs(data, obs);
         }
         // the two paths are independent: run them side by side when a
         // thread is free (the same fits, the same choice)
         let (direct, grown) = rayon::join(
-            || self.identify_outputs(data, obs),
+            || self.direct().identify_outputs(data, obs),
             || self.identify_grown(data, obs),
         );
         better_of(grown?, direct)
@@ -379,19 +408,14 @@ impl PhysicsFit {
                 .iter()
                 .map(|d| Records::single(d.first().slice(0..n / part)))
                 .collect();
-            let fit = PhysicsFit {
-                model: start.clone(),
-                lm: self.lm,
-            };
+            let fit = self.with_model(start.clone());
             if let Ok(m) = fit.identify_outputs(&sub, obs) {
                 start = start.with_values(m.parameters().to_vec(), m.initial_state().to_vec())?;
             }
         }
-        Ok(PhysicsFit {
-            model: start.with_start_at_values()?,
-            lm: self.lm,
-        }
-        .identify_outputs(data, obs))
+        Ok(self
+            .with_model(start.with_start_at_values()?)
+            .identify_outputs(data, obs))
     }
 }
 
