@@ -491,6 +491,7 @@ fn iterate(
         fold_sims: &fold_sims,
         fold_sims_all: &fold_sims_all,
         start_choice: None,
+        whole_fit: None,
         templates: Some(&templates),
     };
     let props: Vec<_> = proposals(&ctx, tried)

@@ -11,6 +11,7 @@ use crate::extensions::{
     PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, TreeLmn, Wiener,
     WienerHammerstein,
 };
+use crate::plan::Chosen;
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
 use gb_core::{FittedModel, ModelView, Observer, Record};
 
@@ -99,6 +100,10 @@ pub struct Context<'a> {
     /// the same candidate chose on the whole fit block
     /// ([`Extension::fit_choosing`]).
     pub(crate) start_choice: Option<usize>,
+    /// In a fold's fit (cross-validation): the same candidate fitted on the
+    /// whole fit block, a start for the fits whose own start leads astray
+    /// on a shorter record ([`Extension::fit_choosing`]).
+    pub(crate) whole_fit: Option<&'a FittedModel>,
     /// The linear mechanical templates fitted so far in this step, shared
     /// by its mechanical candidates (`None`: not shared).
     pub(crate) templates: Option<&'a crate::extensions::TemplateCache>,
@@ -108,23 +113,46 @@ impl<'a> Context<'a> {
     /// The context of a fit for fold `t` (`None`: this context): the fold's
     /// fit record and the current structure refitted on it.
     pub(crate) fn at(&self, t: Option<usize>) -> Context<'a> {
-        self.at_fold(t.map(|k| (k, None)))
+        match t {
+            Some(k) => self.fold(k, None, None),
+            None => *self,
+        }
     }
 
-    /// [`Context::at`] for fold `k`, with the start the candidate's fit on
-    /// the whole fit block chose, when it had several.
-    pub(crate) fn at_fold(&self, t: Option<(usize, Option<usize>)>) -> Context<'a> {
+    /// [`Context::at`] for fold `k`, with the candidate's fit on the whole
+    /// fit block and the start it chose, when it had several.
+    pub(crate) fn at_fold<'b>(&self, t: Option<(usize, &'b Chosen)>) -> Context<'b>
+    where
+        'a: 'b,
+    {
         match t {
-            Some((k, start_choice)) if k < self.current.folds.len() => Context {
-                start_choice,
-                fit: self.plan.fit_of(Some(k)),
-                fits: self.plan.fits_of(Some(k)),
-                current: &self.current.folds[k],
-                simulated_fit: self.fold_sims.get(k).and_then(|s| s.as_deref()),
-                simulated_fits: self.fold_sims_all.get(k).and_then(|s| s.as_deref()),
-                ..*self
-            },
-            _ => *self,
+            Some((k, (whole, start))) => self.fold(k, *start, Some(whole)),
+            None => *self,
+        }
+    }
+
+    /// The context of fold `k` (this context when there is no such fold).
+    fn fold<'b>(
+        &self,
+        k: usize,
+        start_choice: Option<usize>,
+        whole_fit: Option<&'b FittedModel>,
+    ) -> Context<'b>
+    where
+        'a: 'b,
+    {
+        if k >= self.current.folds.len() {
+            return *self;
+        }
+        Context {
+            start_choice,
+            whole_fit,
+            fit: self.plan.fit_of(Some(k)),
+            fits: self.plan.fits_of(Some(k)),
+            current: &self.current.folds[k],
+            simulated_fit: self.fold_sims.get(k).and_then(|s| s.as_deref()),
+            simulated_fits: self.fold_sims_all.get(k).and_then(|s| s.as_deref()),
+            ..*self
         }
     }
 }

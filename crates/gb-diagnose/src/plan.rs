@@ -93,10 +93,10 @@ pub(crate) type FitFn<'a> = dyn Fn(Option<usize>) -> Result<FittedModel, Diagnos
 /// won.
 pub(crate) type Chosen = (FittedModel, Option<usize>);
 
-/// A fit for the plan's record (`None`) or for fold `k` given the start
-/// the fit on the plan's record chose (`Some((k, start))`).
+/// A fit for the plan's record (`None`) or for fold `k` given the fit on
+/// the plan's record and the start it chose (`Some((k, whole))`).
 pub(crate) type FoldFitFn<'a> =
-    dyn Fn(Option<(usize, Option<usize>)>) -> Result<Chosen, DiagnoseError> + Sync + 'a;
+    dyn Fn(Option<(usize, &Chosen)>) -> Result<Chosen, DiagnoseError> + Sync + 'a;
 
 impl Plan {
     /// The plan of `d`: cross-validation when the select block has fewer
@@ -630,8 +630,9 @@ pub(crate) fn assess_from(
     lineage: Lineage,
     fit: &FoldFitFn,
 ) -> Result<Evaluated, DiagnoseError> {
-    let (raw, start) = fit(None)?;
-    let m = plan.finish(raw, None)?;
+    let whole = fit(None)?;
+    let start = whole.1;
+    let m = plan.finish(whole.0.clone(), None)?;
     if !plan.cv() {
         let mut e = evaluate_on(m, lineage, d, plan.w, None)?;
         e.start_choice = start;
@@ -640,7 +641,7 @@ pub(crate) fn assess_from(
     let folds: Vec<Evaluated> = (0..plan.folds.len())
         .into_par_iter()
         .map(|k| {
-            let mk = plan.finish(fit(Some((k, start)))?.0, Some(k))?;
+            let mk = plan.finish(fit(Some((k, &whole)))?.0, Some(k))?;
             fold_scores(mk, lineage.clone(), d, plan, k)
         })
         .collect::<Result<_, _>>()?;
@@ -879,5 +880,45 @@ mod tests {
         let held: usize = plan.folds.iter().map(|f| f.test.len() - plan.w).sum();
         let scored: usize = plan.folds.iter().map(|f| f.scored().count()).sum();
         assert!(scored < held, "scored {scored} of {held}");
+    }
+
+    /// Under cross-validation every fold's fit is given the fit on the
+    /// whole training record and the start it chose (a warm start for the
+    /// fits that can use one), and each fold is fitted on its own record.
+    #[test]
+    fn each_fold_fit_is_given_the_whole_records_fit() {
+        use gb_core::Records;
+        let mut rng = gb_core::rng::seeded(5);
+        let u: Vec<f64> = (0..600).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let d = data(u);
+        let plan = Plan::new(&d, &DecisionPolicy::default());
+        assert!(plan.cv(), "600 samples: cross-validation");
+        let spec: gb_core::ModelSpec = "linear:order=1".parse().expect("spec");
+        let fit_on = |rec: &Record| {
+            gb_model::recipes::fit(&spec, &Records::single(rec.clone()), &gb_core::Silent)
+                .map(|f| f.model)
+                .map_err(crate::DiagnoseError::from)
+        };
+        let whole = fit_on(&plan.fit).expect("whole fit");
+        let seen = std::sync::Mutex::new(vec![]);
+        let lineage = crate::evaluate::Lineage::Other {
+            spec: "linear:order=1".into(),
+            order: 1,
+        };
+        let e = super::assess_from(&plan, &d, lineage, &|t| match t {
+            None => Ok((whole.clone(), Some(3))),
+            Some((k, (w, start))) => {
+                let same = w.dynamics.describe() == whole.dynamics.describe();
+                seen.lock().expect("lock").push((k, *start, same));
+                fit_on(plan.fit_of(Some(k))).map(|m| (m, None))
+            }
+        })
+        .expect("assessed");
+        let mut seen = seen.into_inner().expect("lock");
+        seen.sort_by_key(|s| s.0);
+        let want: Vec<_> = (0..plan.folds.len()).map(|k| (k, Some(3), true)).collect();
+        assert_eq!(seen, want);
+        assert_eq!(e.folds.len(), plan.folds.len());
+        assert_eq!(e.start_choice, Some(3));
     }
 }

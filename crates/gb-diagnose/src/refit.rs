@@ -226,6 +226,7 @@ impl<'a> Refit<'a> {
             fold_sims: &[],
             fold_sims_all: &[],
             start_choice: None,
+            whole_fit: None,
             templates: None,
         }
     }

@@ -164,6 +164,26 @@ fn fitted_template(ctx: &Context, order: usize) -> Result<Template, DiagnoseErro
         .map_err(DiagnoseError::InvalidArgument)
 }
 
+/// A fold's fit (cross-validation) of a template law, started where the
+/// law's fit on the whole fit block ended, on the fold's template record:
+/// from its own linear template with the law at 0, a fold on three
+/// quarters of the record lands in another optimum of the dry-friction
+/// law than the fit block did (friction on a slow sweep: the fit block's
+/// fit within 1 % of the noise floor on held-out data, the folds' fits
+/// diverging on theirs), and the candidate is judged by fits it would
+/// never make.
+fn fit_from_whole(
+    whole: &gb_model::physics::PhysicsModel,
+    ctx: &Context,
+) -> Result<FittedModel, DiagnoseError> {
+    let core = |e| DiagnoseError::from(gb_core::CoreError::from(e));
+    let rec = ctx
+        .fit
+        .slice(0..crate::physics::template_fit_len(ctx.fit, ctx.policy()));
+    let spec = whole.with_start_at_values().map_err(core)?.spec().clone();
+    fit_physics(&spec, &rec, ctx.observer)
+}
+
 /// The order (1 or 2) of the current model when it is the plain linear
 /// model of one input (the template's start), not of an integrating
 /// system's increments (the template's output is a position with a
@@ -256,6 +276,9 @@ impl Extension for MechanicalNonlinearity {
             .into_iter()
             .find(|(law, _, v, _)| spec.contains(&format!("+ {law}({v})")))
             .ok_or_else(|| bad("unknown law"))?;
+        if let Some(whole) = ctx.whole_fit.and_then(physics_of) {
+            return fit_from_whole(whole, ctx);
+        }
         let (rec, lin) = fitted_template(ctx, order)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
         let spec = if spec.contains("+ friction(") {
