@@ -177,11 +177,9 @@ fn fit_from_whole(
     ctx: &Context,
 ) -> Result<FittedModel, DiagnoseError> {
     let core = |e| DiagnoseError::from(gb_core::CoreError::from(e));
-    let rec = ctx
-        .fit
-        .slice(0..crate::physics::template_fit_len(ctx.fit, ctx.policy()));
-    let spec = whole.with_start_at_values().map_err(core)?.spec().clone();
-    fit_physics(&spec, &rec, ctx.observer)
+    let rec = crate::physics::physics_fit_record(ctx, whole);
+    let start = whole.with_start_at_values().map_err(core)?;
+    fit_physics(start.spec(), &rec, ctx.observer)
 }
 
 /// The order (1 or 2) of the current model when it is the plain linear
