@@ -24,6 +24,7 @@ mod csv_io;
 mod data;
 mod error;
 mod fitted;
+pub mod gram;
 pub mod metrics;
 mod model;
 pub mod noise;

@@ -6,10 +6,13 @@
 //!   Gaussians (classic LOLIMOT);
 //! * `noe_simulate/20_leaves/1000000`: free-run simulation of a 20-leaf NOE
 //!   network (x: y(k−1), y(k−2), u(k−1), u(k−2); z: y(k−1), u(k−1)),
-//!   target ≥ 10 M samples/s.
+//!   target ≥ 10 M samples/s;
+//! * `block_fit/{hammerstein,wiener}_order2/8000`: a block-oriented fit
+//!   with its map-structure choice on 8000 samples (the diagnosis' most
+//!   frequent candidates).
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use gb_core::{Record, Records};
-use gb_lmn::{Criterion as Crit, Focus, LmnParams, RegressorSpec, WeightKind};
+use gb_lmn::{BlockParams, Criterion as Crit, Focus, LmnParams, RegressorSpec, WeightKind};
 use rand::{Rng, SeedableRng};
 use rand_xoshiro::Xoshiro256PlusPlus;
 use std::hint::black_box;
@@ -99,6 +102,24 @@ fn bench(c: &mut Criterion) {
     g.bench_function(BenchmarkId::new("20_leaves", n), |b| {
         b.iter(|| black_box(m.simulate(test.first(), 2).unwrap()))
     });
+    g.finish();
+
+    // block-oriented fits as the diagnosis runs them (every default map
+    // structure fitted on 80 % and judged on the rest, then refitted):
+    // their Levenberg-Marquardt Gram matrices dominate (gb_core::gram)
+    let d = dynamic_data(8000);
+    let one = d.first().clone();
+    let mut g = c.benchmark_group("block_fit");
+    g.sample_size(10);
+    for (name, p) in [
+        ("hammerstein_order2", BlockParams::hammerstein(2, 1)),
+        ("wiener_order2", BlockParams::wiener(2)),
+    ] {
+        let v = p.check().unwrap();
+        g.bench_function(BenchmarkId::new(name, 8000), |b| {
+            b.iter(|| black_box(v.fit(&one).unwrap()))
+        });
+    }
     g.finish();
 }
 

@@ -615,7 +615,7 @@ impl Problem<'_> {
         // s[k·nf + p]: ∂x(k)/∂θ_p for the parameters of the linear block and the input maps
         let mut s = vec![0.0; n * nf];
         let mut r = vec![0.0; nf];
-        let mut row = vec![0.0; np];
+        let mut acc = gb_core::gram::GramAccumulator::new(np);
         let (mut gphi, mut gd) = (vec![], vec![]);
         if let Some((g, _)) = &m.output_map {
             gphi = vec![0.0; g.coef.len()];
@@ -632,6 +632,7 @@ impl Problem<'_> {
                 }
                 s[k * nf + p] = v;
             }
+            let row = acc.next_row(gram);
             let gp = match &m.output_map {
                 Some((g, _)) => {
                     g.basis(x[k], &mut gphi, &mut gd);
@@ -642,22 +643,15 @@ impl Problem<'_> {
                 }
                 None => 1.0,
             };
-            for p in 0..nf {
-                row[p] = gp * s[k * nf + p];
+            for (rp, sp) in row[..nf].iter_mut().zip(&s[k * nf..(k + 1) * nf]) {
+                *rp = gp * sp;
             }
             let e = self.yn[k] - y[k];
-            for a in 0..np {
-                grad[a] += row[a] * e;
-                for b in 0..=a {
-                    gram[a * np + b] += row[a] * row[b];
-                }
+            for (g, rp) in grad.iter_mut().zip(row.iter()) {
+                *g += rp * e;
             }
         }
-        for a in 0..np {
-            for b in 0..a {
-                gram[b * np + a] = gram[a * np + b];
-            }
-        }
+        acc.finish(gram);
     }
 
     /// The unfiltered regressor of every linear-block parameter at k.

@@ -83,46 +83,6 @@ pub struct TrainReport {
     pub mse_final: f64,
 }
 
-/// Upper triangle of G += BᵀB for a row-major block B (`rows` × n, n = G's
-/// size) of sensitivity rows: packed GEMMs (matrixmultiply) on column
-/// panels, each covering rows 0..end of its panel, so about (1/2 + 1/2P) of
-/// the full product's flops. Call [`mirror_upper`] once after the last block.
-fn add_gram(g: &mut DMatrix<f64>, block: &[f64], rows: usize) {
-    let n = g.nrows();
-    assert!(g.ncols() == n && block.len() >= rows * n);
-    let panels = if n >= 96 { 4 } else { 1 };
-    for p in 0..panels {
-        let (j0, j1) = (n * p / panels, n * (p + 1) / panels);
-        if j1 == j0 {
-            continue;
-        }
-        // SAFETY: Bᵀ restricted to rows 0..j1 is j1 × rows with strides
-        // (1, n) into `block`; B restricted to columns j0..j1 is rows ×
-        // (j1 − j0) with strides (n, 1) starting at block[j0]; both stay
-        // within block[..rows·n] (checked above). C is G's columns j0..j1,
-        // rows 0..j1: strides (1, n) starting at G[(0, j0)], inside the n × n
-        // column-major storage. G does not alias `block`.
-        unsafe {
-            matrixmultiply::dgemm(
-                j1,
-                rows,
-                j1 - j0,
-                1.0,
-                block.as_ptr(),
-                1,
-                n as isize,
-                block.as_ptr().add(j0),
-                n as isize,
-                1,
-                1.0,
-                g.as_mut_ptr().add(j0 * n),
-                1,
-                n as isize,
-            );
-        }
-    }
-}
-
 /// dst += Σ_j c_j · src[o_j .. o_j + len] over `terms` = [(c_j, o_j)], four
 /// rows per pass over `dst` (a quarter of the loads and stores of one axpy
 /// per row).
@@ -220,14 +180,17 @@ fn spd_solve(a: &mut [f64], n: usize, b: &[f64]) -> Option<Vec<f64>> {
     Some(y)
 }
 
+/// `G += BᵀB` (upper triangle) for the `rows` × n row-major block `B`
+/// ([`gb_core::gram::add_gram`]); [`mirror_upper`] after the last block.
+fn add_gram(g: &mut DMatrix<f64>, block: &[f64], rows: usize) {
+    let n = g.nrows();
+    gb_core::gram::add_gram(g.as_mut_slice(), n, block, rows);
+}
+
 /// Copy the upper triangle of a square matrix onto its lower triangle.
 fn mirror_upper(g: &mut DMatrix<f64>) {
     let n = g.nrows();
-    for j in 0..n {
-        for i in j + 1..n {
-            g[(i, j)] = g[(j, i)];
-        }
-    }
+    gb_core::gram::mirror_upper(g.as_mut_slice(), n);
 }
 
 /// Normalised signals of one experiment prepared for simulation.

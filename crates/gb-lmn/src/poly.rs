@@ -52,6 +52,7 @@
 //! assert!(gb_core::metrics::nrmse(&y, &sim).unwrap() < 1e-6);
 //! ```
 use crate::{Focus, LmnError, Scaling, Signal, Tap};
+use gb_core::gram::{add_gram, mirror_upper};
 use gb_core::solver::{LeastSquaresProblem, LmParams};
 use gb_core::{
     check_inputs, CoreError, DynamicModel, FittedModel, Identify, Init, ModelSpec, ModelView,
@@ -530,26 +531,25 @@ impl NoeProblem<'_> {
             if !self.s.simulate(theta, &r.u, &mut self.y, k0, sens) {
                 return None;
             }
-            for k in k0..r.y.len() {
+            let n = r.y.len();
+            for k in k0..n {
                 let e = r.y[k] - self.y[k];
                 cost += e * e;
-                if let Some((gram, grad)) = lin.as_mut() {
+                if let Some((_, grad)) = lin.as_mut() {
                     let row = &self.sens[k * p..(k + 1) * p];
-                    for a in 0..p {
-                        grad[a] += row[a] * e;
-                        for b in 0..=a {
-                            gram[a * p + b] += row[a] * row[b];
-                        }
+                    for (g, rp) in grad.iter_mut().zip(row) {
+                        *g += rp * e;
                     }
+                }
+            }
+            if let Some((gram, _)) = lin.as_mut() {
+                if n > k0 {
+                    add_gram(gram, p, &self.sens[k0 * p..n * p], n - k0);
                 }
             }
         }
         if let Some((gram, _)) = lin {
-            for a in 0..p {
-                for b in 0..a {
-                    gram[b * p + a] = gram[a * p + b];
-                }
-            }
+            mirror_upper(gram, p);
         }
         cost.is_finite().then_some(cost)
     }

@@ -229,7 +229,7 @@ impl<'a> OeProblem<'a> {
         gram.fill(0.0);
         grad.fill(0.0);
         let scale: Vec<f64> = self.coords.iter().map(|c| c.scale).collect();
-        let mut j = vec![0.0; l];
+        let mut acc = gb_core::gram::GramAccumulator::new(l);
         let mut sse = 0.0;
         for seg in &self.segments {
             let len = seg.len();
@@ -237,15 +237,12 @@ impl<'a> OeProblem<'a> {
                 for (o, (ym, w)) in seg.y.iter().zip(&self.weights).enumerate() {
                     let e = w * (ym[t] - y[o]);
                     sse += e * e;
-                    for k in 0..l {
-                        j[k] = w * dy[o * l + k] * scale[k];
+                    let j = acc.next_row(gram);
+                    for ((jk, d), s) in j.iter_mut().zip(&dy[o * l..(o + 1) * l]).zip(&scale) {
+                        *jk = w * d * s;
                     }
-                    for a in 0..l {
-                        grad[a] += j[a] * e;
-                        let row = &mut gram[a * l..(a + 1) * l];
-                        for b in a..l {
-                            row[b] += j[a] * j[b];
-                        }
+                    for (g, jk) in grad.iter_mut().zip(j.iter()) {
+                        *g += jk * e;
                     }
                 }
             };
@@ -262,11 +259,7 @@ impl<'a> OeProblem<'a> {
             )
             .ok()?;
         }
-        for a in 0..l {
-            for b in 0..a {
-                gram[a * l + b] = gram[b * l + a];
-            }
-        }
+        acc.finish(gram);
         sse.is_finite().then_some(sse)
     }
 }
