@@ -82,3 +82,20 @@ fn a_nonlinear_candidate_must_beat_the_higher_linear_order() {
         "{causes:?}, final/floor {ratio:.3}, rule named: {rule}"
     );
 }
+
+/// `lag` seed 30 (three real poles, 25 samples per period, multisine,
+/// 1399 training samples; the engineer's order 2): the order increase
+/// 2 → 4 gains +0.377 [+0.27, +0.48], and the lagging residual of the
+/// missing poles reads as a loop to the memory test (p = 4e-7). The memory
+/// rule used to prefer any overlapping hysteresis candidate, here play
+/// operators on the output at order 3 (+0.182 [+0.11, +0.28]), which do
+/// not nest order 4: `hysteresis` at 1.65× the floor. Only a hysteresis
+/// candidate at the increased order or above may take its place.
+#[test]
+fn a_missing_pole_read_as_a_loop_stays_dynamics() {
+    let (_, causes, ratio) = diagnosed("lag", 30);
+    assert!(
+        causes == ["dynamics"] && ratio <= 1.1,
+        "{causes:?}, final/floor {ratio:.3}"
+    );
+}
