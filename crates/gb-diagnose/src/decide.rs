@@ -358,13 +358,9 @@ fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usi
     }
     let best = cands[ci].ci;
     let order = cands[ci].proposal.lineage.order();
-    let h = cands
-        .iter()
-        .enumerate()
-        .filter(|(_, c)| c.proposal.lineage.order() >= order)
-        .filter(|(_, c)| overlapping(c, best, Cause::Hysteresis))
-        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
-        .map(|(i, _)| i)?;
+    let h = best_overlapping_where(cands, best, Cause::Hysteresis, |c| {
+        c.proposal.lineage.order() >= order
+    })?;
     Some((
         h,
         format!(
@@ -377,18 +373,23 @@ fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usi
 /// Of the paying new structural candidates of `cause` whose gain interval
 /// overlaps `best`, the one with the largest gain.
 fn best_overlapping(cands: &[Candidate], best: [f64; 2], cause: Cause) -> Option<usize> {
+    best_overlapping_where(cands, best, cause, |_| true)
+}
+
+/// [`best_overlapping`] among the candidates that `keep` admits.
+fn best_overlapping_where(
+    cands: &[Candidate],
+    best: [f64; 2],
+    cause: Cause,
+    keep: impl Fn(&Candidate) -> bool,
+) -> Option<usize> {
     cands
         .iter()
         .enumerate()
-        .filter(|(_, c)| overlapping(c, best, cause))
+        .filter(|(_, c)| c.pays && c.structural_new() && c.cause() == cause)
+        .filter(|(_, c)| c.ci[1] >= best[0] && best[1] >= c.ci[0] && keep(c))
         .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
         .map(|(i, _)| i)
-}
-
-/// A paying new structural candidate of `cause` whose gain interval
-/// overlaps `best`.
-fn overlapping(c: &Candidate, best: [f64; 2], cause: Cause) -> bool {
-    c.pays && c.structural_new() && c.cause() == cause && c.ci[1] >= best[0] && best[1] >= c.ci[0]
 }
 
 /// Hysteresis and nonlinearity both pay and their intervals overlap: fit

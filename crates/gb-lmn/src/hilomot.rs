@@ -476,7 +476,7 @@ impl LeastSquaresProblem for ObliqueProblem<'_> {
         };
         gram.fill(0.0);
         let mut jte = vec![0.0; nv];
-        let mut jrow = vec![0.0; nv];
+        let mut acc = gb_core::gram::GramAccumulator::new(nv);
         for (i, &r) in self.st.idx.iter().enumerate() {
             let zr = self.rows.zrow(r as usize);
             let p = self.psi[i];
@@ -486,21 +486,17 @@ impl LeastSquaresProblem for ObliqueProblem<'_> {
             if g == 0.0 {
                 continue;
             }
+            let jrow = acc.next_row(gram);
             jrow[..nz].iter_mut().zip(zr).for_each(|(j, z)| *j = g * z);
             jrow[nz] = g;
-            for a in 0..nv {
-                jte[a] += jrow[a] * e;
-                for b in a..nv {
-                    gram[a * nv + b] += jrow[a] * jrow[b];
-                }
+            for (t, j) in jte.iter_mut().zip(jrow.iter()) {
+                *t += j * e;
             }
         }
-        for a in 0..nv {
-            for b in 0..a {
-                gram[a * nv + b] = gram[b * nv + a];
-            }
-            // jrow is ∂e/∂v = −∂ŷ/∂v: the gradient Jᵀe is −jte
-            grad[a] = -jte[a];
+        acc.finish(gram);
+        // jrow is ∂e/∂v = −∂ŷ/∂v: the gradient Jᵀe is −jte
+        for (g, t) in grad.iter_mut().zip(&jte) {
+            *g = -t;
         }
         Some(cost)
     }
