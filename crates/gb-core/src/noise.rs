@@ -84,6 +84,9 @@ impl NoiseModel {
         if res.is_empty() {
             return 0.0;
         }
+        if let NoiseModel::StudentT { nu, scale } = self {
+            return -student_t_log_likelihood(res, *nu, *scale) / res.len() as f64;
+        }
         res.iter().map(|&e| self.nll(e)).sum::<f64>() / res.len() as f64
     }
 
@@ -165,10 +168,25 @@ impl NoiseModel {
 /// `ln` density of the standard Student-t distribution with ν degrees of
 /// freedom: `ln Γ((ν+1)/2) − ln Γ(ν/2) − ½ ln(νπ) − (ν+1)/2 · ln(1 + t²/ν)`.
 pub fn student_t_logpdf(t: f64, nu: f64) -> f64 {
-    ln_gamma(0.5 * (nu + 1.0))
-        - ln_gamma(0.5 * nu)
-        - 0.5 * (nu * std::f64::consts::PI).ln()
-        - 0.5 * (nu + 1.0) * (1.0 + t * t / nu).ln()
+    student_t_norm(nu) - 0.5 * (nu + 1.0) * (1.0 + t * t / nu).ln()
+}
+
+/// The normalising term of [`student_t_logpdf`],
+/// `ln Γ((ν+1)/2) − ln Γ(ν/2) − ½ ln(νπ)`.
+fn student_t_norm(nu: f64) -> f64 {
+    ln_gamma(0.5 * (nu + 1.0)) - ln_gamma(0.5 * nu) - 0.5 * (nu * std::f64::consts::PI).ln()
+}
+
+/// `Σₖ ln p(eₖ)` for `e ~ s·t_ν`, the normalising term taken once.
+fn student_t_log_likelihood(res: &[f64], nu: f64, s: f64) -> f64 {
+    let tails: f64 = res
+        .iter()
+        .map(|&e| {
+            let t = e / s;
+            (1.0 + t * t / nu).ln()
+        })
+        .sum();
+    res.len() as f64 * (student_t_norm(nu) - s.ln()) - 0.5 * (nu + 1.0) * tails
 }
 
 /// Maximum-likelihood `(ν, s)` for residuals `e ~ s·t_ν`: EM iterations for
@@ -194,10 +212,7 @@ pub fn fit_student_t(res: &[f64]) -> (f64, f64) {
             }
         }
         let s = s2.sqrt();
-        let ll: f64 = res
-            .iter()
-            .map(|&e| student_t_logpdf(e / s, nu) - s.ln())
-            .sum();
+        let ll = student_t_log_likelihood(res, nu, s);
         if ll > best.0 {
             best = (ll, nu, s);
         }
@@ -259,6 +274,30 @@ mod tests {
         assert!((s - 0.1).abs() < 0.01, "scale {s}");
         let gm = NoiseModel::gaussian(&[3.0, -4.0]);
         assert!((gm.sd() - (12.5f64).sqrt()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn student_t_mean_nll_is_the_mean_of_the_densities() {
+        let t = NoiseModel::StudentT {
+            nu: 3.5,
+            scale: 0.7,
+        };
+        let res = [0.1, -2.0, 0.35, 4.0, -0.01];
+        // ln p(e) = ln Γ(2.25) − ln Γ(1.75) − ½ ln(3.5π) − ln 0.7 − 2.25 ln(1 + (e/0.7)²/3.5)
+        let c = 0.12487171489239657
+            - (-0.08440112102048558)
+            - 0.5 * (3.5 * std::f64::consts::PI).ln()
+            - 0.7f64.ln();
+        let want = -res
+            .iter()
+            .map(|e| c - 2.25 * (1.0 + (e / 0.7f64).powi(2) / 3.5).ln())
+            .sum::<f64>()
+            / 5.0;
+        assert!(
+            (t.mean_nll(&res) - want).abs() < 1e-12,
+            "{} {want}",
+            t.mean_nll(&res)
+        );
     }
 
     #[test]

@@ -297,11 +297,7 @@ impl LmnModel {
             if ph < crate::tree::TINY && grad_p.is_none() && !grad_xz {
                 continue;
             }
-            let th = &part.nodes[l].theta;
-            let mut v = 0.0;
-            for (a, b) in th.iter().zip(&ev.phi) {
-                v += a * b;
-            }
+            let v = gb_core::gram::dot(&part.nodes[l].theta, &ev.phi);
             ev.w.yc[l] = v;
             y += ph * v;
         }

@@ -7,8 +7,8 @@
 //! S(k) = ∂f/∂p + Σ_{x taps y(k−i)} ∂f/∂x_j · S(k−i) + Σ_{z taps y(k−i)} ∂f/∂z_d · S(k−i)
 //!
 //! with ∂f/∂z from the weight-function derivatives (see [`crate::tree`]);
-//! samples of the init window have S = 0. JᵀJ and Jᵀe are accumulated in
-//! blocks of 64 rows (one GEMM per block), J is never stored. A step solves
+//! samples of the init window have S = 0. JᵀJ is accumulated in blocks of
+//! rows ([`gb_core::gram::GramAccumulator`]), J is never stored. A step solves
 //! (JᵀJ + λ diag JᵀJ) δ = Jᵀe and is accepted only if the cost falls, the
 //! simulation stays bounded and (stability guard, affine local models) every
 //! local model's autoregressive part has spectral radius < 0.9995.
@@ -16,17 +16,19 @@ use crate::lmn::{Eval, Focus, LmnModel, DIVERGED};
 use crate::regressors::Experiment;
 use crate::regressors::{NormExp, Signal};
 use crate::LmnError;
+use gb_core::gram::GramAccumulator;
 use gb_core::solver::{LeastSquaresProblem, LmParams};
 use gb_core::Records;
 use gb_core::{Observer, Silent};
-use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
 const MAX_RADIUS: f64 = 0.9995;
 
 /// Cost Σ e² and, with `jac`, JᵀJ and Jᵀe over the first `nact` parameters,
 /// for one experiment. `None` if the simulation diverged.
-type Part = (f64, DMatrix<f64>, DVector<f64>);
+/// (JᵀJ column-major `nact × nact`, Jᵀe of length `nact`; both empty
+/// without `jac`.)
+type Part = (f64, Vec<f64>, Vec<f64>);
 
 fn accumulate(m: &LmnModel, e: &NormExp, focus: Focus, nact: usize, jac: bool) -> Option<Part> {
     let mut ev: Eval = m.eval_scratch();
@@ -34,8 +36,10 @@ fn accumulate(m: &LmnModel, e: &NormExp, focus: Focus, nact: usize, jac: bool) -
     let n = e.y.len();
     let k0 = m.max_lag().min(n);
     let sim = focus == Focus::Simulation && m.regressors.max_output_lag() > 0;
-    let mut jtj = DMatrix::<f64>::zeros(if jac { nact } else { 0 }, if jac { nact } else { 0 });
-    let mut jte = DVector::<f64>::zeros(if jac { nact } else { 0 });
+    let d = if jac { nact } else { 0 };
+    let mut jtj = vec![0.0; d * d];
+    let mut jte = vec![0.0; d];
+    let mut acc = GramAccumulator::new(d);
     let mut out = e.y.clone();
     let ring = m.regressors.max_output_lag().max(1);
     let mut sy = if jac && sim {
@@ -45,9 +49,6 @@ fn accumulate(m: &LmnModel, e: &NormExp, focus: Focus, nact: usize, jac: bool) -
     };
     let mut gp = vec![0.0; if jac { np } else { 0 }];
     let mut snew = vec![0.0; nact];
-    const BLOCK: usize = 64;
-    let mut blk = DMatrix::<f64>::zeros(if jac { BLOCK } else { 0 }, nact);
-    let mut nb = 0;
     let mut cost = 0.0;
     let xt = ev.lay.x.clone();
     let zt = ev.lay.z.clone();
@@ -96,19 +97,13 @@ fn accumulate(m: &LmnModel, e: &NormExp, focus: Focus, nact: usize, jac: bool) -
             let slot = (k % ring) * nact;
             sy[slot..slot + nact].copy_from_slice(&snew);
         }
-        for (a, s) in snew.iter().enumerate() {
-            jte[a] += s * err;
-            blk[(nb, a)] = *s;
+        for (g, s) in jte.iter_mut().zip(&snew) {
+            *g += s * err;
         }
-        nb += 1;
-        if nb == BLOCK {
-            jtj.gemm_tr(1.0, &blk, &blk, 1.0);
-            nb = 0;
-        }
+        acc.push(&mut jtj, &snew);
     }
-    if jac && nb > 0 {
-        let part = blk.rows(0, nb);
-        jtj.gemm_tr(1.0, &part, &part, 1.0);
+    if jac {
+        acc.finish(&mut jtj);
     }
     Some((cost, jtj, jte))
 }
@@ -139,7 +134,7 @@ fn chunks(m: &LmnModel, exps: &[NormExp], focus: Focus) -> Vec<NormExp> {
     out
 }
 
-type Acc = (f64, DMatrix<f64>, DVector<f64>, usize);
+type Acc = (f64, Vec<f64>, Vec<f64>, usize);
 
 fn total(m: &LmnModel, parts: &[NormExp], focus: Focus, nact: usize, jac: bool) -> Option<Acc> {
     let res: Vec<Option<Part>> = parts
@@ -148,16 +143,18 @@ fn total(m: &LmnModel, parts: &[NormExp], focus: Focus, nact: usize, jac: bool) 
         .collect();
     let mut cost = 0.0;
     let d = if jac { nact } else { 0 };
-    let mut jtj = DMatrix::<f64>::zeros(d, d);
-    let mut jte = DVector::<f64>::zeros(d);
+    let mut jtj = vec![0.0; d * d];
+    let mut jte = vec![0.0; d];
     let mut cnt = 0;
     for (r, e) in res.into_iter().zip(parts) {
         let (c, a, b) = r?;
         cost += c;
         cnt += e.y.len().saturating_sub(m.max_lag());
-        if jac {
-            jtj += a;
-            jte += b;
+        for (t, v) in jtj.iter_mut().zip(&a) {
+            *t += v;
+        }
+        for (t, v) in jte.iter_mut().zip(&b) {
+            *t += v;
         }
     }
     Some((cost, jtj, jte, cnt))
@@ -200,13 +197,9 @@ impl LeastSquaresProblem for GlobalProblem<'_> {
             return None;
         }
         let (c, jtj, jte, _) = total(&self.model, self.parts, self.focus, self.nact, true)?;
-        let n = self.nact;
-        for i in 0..n {
-            for j in 0..n {
-                gram[i * n + j] = jtj[(i, j)];
-            }
-        }
-        grad.copy_from_slice(jte.as_slice());
+        // symmetric: the column-major layout is the row-major one
+        gram.copy_from_slice(&jtj);
+        grad.copy_from_slice(&jte);
         Some(c)
     }
     fn admissible(&mut self, theta: &[f64]) -> bool {

@@ -1,4 +1,5 @@
 use crate::{LmnError, NetworkSpec, Scaling};
+use gb_core::gram::dot;
 use gb_core::NoiseModel;
 use gb_preisach::PlayOperatorBank;
 use serde::{Deserialize, Serialize};
@@ -166,16 +167,11 @@ impl LocalModelNetwork {
         let mut y = 0.0;
         for (i, leaf) in self.leaves.iter().enumerate() {
             let th = &leaf.theta;
-            let mut l = th[0];
-            for j in 0..nd {
-                l += th[j + 1] * x[j];
-            }
+            let l = th[0] + dot(&th[1..], &x[..nd]);
             s.local[i] = l;
             y += s.phi[i] * l;
         }
-        for (b, h) in self.beta.iter().zip(&x[nd..]) {
-            y += b * h;
-        }
+        y += dot(&self.beta, &x[nd..]);
         if let Some(gt) = grad_theta {
             let w = nd + 1;
             for i in 0..m {
