@@ -5,7 +5,7 @@ use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::physics_row_text;
 use crate::physics::{
-    best_of_starts, current_physics, fit_physics, physics_fit_record, physics_of,
+    best_of_starts, current_physics, fit_physics_warm, physics_fit_record, physics_of,
 };
 use crate::{Cause, DiagnoseError};
 use gb_core::{DynamicModel, FittedModel, Init};
@@ -559,7 +559,7 @@ impl Extension for PhysicsTerms {
         let rec = physics_fit_record(ctx, cur);
         if !matches!(kind, Kind::Ceiling | Kind::Floor | Kind::Clip) {
             let s = extended(cur, &rec, (kind, &at, &var), 1.0)?;
-            return Ok((fit_physics(&s, &rec, ctx.observer)?, None));
+            return Ok((fit_physics_warm(&s, &rec, ctx.observer)?, None));
         }
         best_of_starts(
             LIMIT_STARTS.len(),
