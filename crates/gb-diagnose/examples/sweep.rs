@@ -12,7 +12,7 @@
 //! `--cases fam:seed,..` (just these cases; overrides `--families` and
 //! `--seeds`), `--markdown FILE`, `--json FILE`, `--order case|auto|N` (default: the
 //! case's engineer order), `--sequential`, `--dry-run` (list the cases),
-//! knob overrides `--n-train N`, `--snr DB`, `--excitation multisine|noise|prbs|sweep`,
+//! knob overrides `--n-train N`, `--n-validate N`, `--snr DB`, `--excitation multisine|noise|prbs|sweep`,
 //! `--spp X`.
 use gb_diagnose::generator::{draw_with, ExcitationKind, Knobs, FAMILIES};
 use gb_diagnose::sweep::{markdown, run, CaseResult, CaseSpec, OrderMode, SweepOptions};
@@ -76,6 +76,7 @@ fn parse() -> Result<Args, String> {
                 }
             }
             "--n-train" => a.knobs.n_train = Some(num(val()?)? as usize),
+            "--n-validate" => a.knobs.n_validate = Some(num(val()?)? as usize),
             "--snr" => a.knobs.snr_db = Some(num(val()?)?),
             "--spp" => a.knobs.samples_per_period = Some(num(val()?)?),
             "--excitation" => {

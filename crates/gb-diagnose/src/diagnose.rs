@@ -913,6 +913,24 @@ pub(crate) fn assemble(
             .text
             .push_str(&format!("; the noise model found {}", n.text));
     }
+    let scored = d.report_scored(plan.w);
+    let report_inputs: Vec<&[f64]> = d.report.inputs.iter().map(|u| &u[scored.clone()]).collect();
+    if let Some(note) = crate::verdict::report_carry_over(
+        (&last.select.e, &final_model.report.e),
+        (&plan.fit_y, &report_inputs),
+        pol.report_carry_ratio,
+    ) {
+        if verdict.kind != crate::verdict::VerdictKind::Unexplained {
+            verdict.kind = crate::verdict::VerdictKind::Unexplained;
+            let seen = verdict
+                .text
+                .split_once(": ")
+                .map_or(verdict.text.as_str(), |(_, rest)| rest);
+            verdict.text = format!("unexplained misfit{note}; on the decision data {seen}");
+        } else {
+            verdict.text.push_str(&note);
+        }
+    }
     let report = Report {
         version: REPORT_VERSION,
         data: DataSummary {

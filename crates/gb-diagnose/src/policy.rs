@@ -63,6 +63,7 @@ use crate::DiagnoseError;
 /// | `screen_costly`, `screen_level`, `screen_noise_ratio` | true, 0.01, 1.1 | the candidates of a step are fitted in tiers ([`crate::Extension::screen_tier`]: the cheap ones; the static laws of the mechanical template; the hysteretic template, the Wiener–Hammerstein network and the hidden-state model), a tier only when the paying candidate with the largest gain so far does not leave a quiet residual on the decision data: the verdict's tests each pass at 1 % (uncorrected; at 5 % one of six or nine tests rejects by chance in a third of the cases at the floor), the Jarque–Bera test too, and the residual is within 1.1× the white-noise level. A structure that the cheap candidates already explain to the noise level leaves nothing a costly one could gain significantly (a wiener case: 4.3 → 1.7 s; a Duffing case whose spring law reaches the floor: 82 → 43 s without the hysteretic template) |
 /// | `diverged_ratio`, `diverged_nrmse` | 10, 1 | a candidate whose RMS error on the decision data exceeds 10× the current model's and the spread of the measured output there (NRMSE above 1: worse than its mean) diverged; it is left out of the report's table and the decisions line names it (on the sweep such fits reached select NRMSE up to 1e50: a hidden-state model, play operators on the simulated output) |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
+/// | `report_carry_ratio` | 1.5 | "adequate" or "coloured noise" only while the final model's residual RMS on the report block (held out, scored once, used for no decision) is at most 1.5× its RMS on the decision data; above, the verdict says the model does not carry over to the report block (and names an input that leaves the fit record's range there) and the misfit is unexplained. A verdict reads the decision data's residual, which a model that extrapolates can pass (a saturation case at 8000 + 4000 samples: "adequate" at 1.0× the noise level on the folds, 68× the noise floor on the validation record, whose input went 30 % beyond the training range) |
 /// | `coloured_noise_ratio` | 1.5 | "coloured noise" (only whiteness rejects) only while the residual RMS is at most 1.5× that white-noise level, unless a noise model paid: a coloured residual further above it is a misfit the tests cannot place (on the sweep of session 26 the two cases called coloured noise above 1.5× the noise floor, preisach 1 and 7, were at 2.8 and 2.4× the white-noise level; every case at the floor called coloured noise without a noise model was within 1.41×) |
 #[derive(Debug, Clone, PartialEq)]
 pub struct DecisionPolicy {
@@ -197,6 +198,10 @@ pub struct DecisionPolicy {
     /// that "coloured noise" (only whiteness rejects) may leave, unless a
     /// noise model paid.
     pub coloured_noise_ratio: f64,
+    /// Largest ratio of the final model's residual RMS on the report block
+    /// to its RMS on the decision data that "adequate" or "coloured noise"
+    /// may leave.
+    pub report_carry_ratio: f64,
     /// Search no extension while the current model's residuals pass the
     /// verdict's tests.
     pub stop_when_adequate: bool,
@@ -295,6 +300,7 @@ impl Default for DecisionPolicy {
             prediction_horizon: 10,
             verdict_noise_ratio: 3.0,
             coloured_noise_ratio: 1.5,
+            report_carry_ratio: 1.5,
             stop_when_adequate: true,
             search_stop_level: 0.05,
             retry_after_noise_step: false,
@@ -347,6 +353,8 @@ impl DecisionPolicy {
             || self.verdict_noise_ratio < 1.0
             || self.coloured_noise_ratio.is_nan()
             || self.coloured_noise_ratio < 1.0
+            || self.report_carry_ratio.is_nan()
+            || self.report_carry_ratio < 1.0
             || self.screen_noise_ratio.is_nan()
             || self.screen_noise_ratio < 1.0
             || self.diverged_ratio.is_nan()
@@ -354,7 +362,7 @@ impl DecisionPolicy {
             || self.diverged_nrmse.is_nan()
             || self.diverged_nrmse < 0.0
         {
-            return bad("tolerances, verdict_noise_ratio, coloured_noise_ratio, screen_noise_ratio and diverged_ratio >= 1, diverged_nrmse >= 0");
+            return bad("tolerances, verdict_noise_ratio, coloured_noise_ratio, report_carry_ratio, screen_noise_ratio and diverged_ratio >= 1, diverged_nrmse >= 0");
         }
         let p_ok = |p: f64| p > 0.0 && p < 1.0;
         if !p_ok(self.heavy_tail_p)

@@ -195,6 +195,57 @@ pub fn white_noise_level(y: &[f64]) -> Option<f64> {
     (s.is_finite() && s > 0.0).then_some(s)
 }
 
+/// The verdict's clause when the final model does not carry over to the
+/// report block: `RMS(report) > ratio · RMS(decision)` over the residuals
+/// `(decision, report)` (the report block held out, scored once, used for
+/// no decision), `None` otherwise or when either is shorter than 100
+/// samples. It names the inputs whose report values leave the range of
+/// the fit record `fit` by more than 5 % of that range (extrapolation).
+///
+/// ```text
+/// ; on the report block the residual RMS is 66.2× the decision data's: the model does not carry over there (…)
+/// ```
+pub(crate) fn report_carry_over(
+    (decision, report): (&[f64], &[f64]),
+    (fit, report_inputs): (&gb_core::Record, &[&[f64]]),
+    ratio: f64,
+) -> Option<String> {
+    if decision.len() < 100 || report.len() < 100 {
+        return None;
+    }
+    let r = gb_core::metrics::rms(report) / gb_core::metrics::rms(decision).max(f64::MIN_POSITIVE);
+    if r.is_nan() || r <= ratio {
+        return None;
+    }
+    let range = |v: &[f64]| {
+        v.iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            })
+    };
+    let outside: Vec<String> = fit
+        .inputs
+        .iter()
+        .zip(report_inputs)
+        .zip(&fit.input_names)
+        .filter_map(|((u, v), name)| {
+            let ((lo, hi), (a, b)) = (range(u), range(v));
+            let margin = 0.05 * (hi - lo);
+            (a < lo - margin || b > hi + margin).then(|| {
+                format!("input '{name}' spans [{a:.4e}, {b:.4e}] there, [{lo:.4e}, {hi:.4e}] in the fit record")
+            })
+        })
+        .collect();
+    let why = if outside.is_empty() {
+        "behaviour the training record does not show".to_string()
+    } else {
+        format!("extrapolation: {}", outside.join("; "))
+    };
+    Some(format!(
+        "; on the report block (held out, used for no decision) the residual RMS is {r:.1}× the decision data's: the model does not carry over there ({why})"
+    ))
+}
+
 /// Every residual test of the final model at overall `level`; `ratio`
 /// bounds the residual RMS, in units of the white-noise level of the
 /// measured output `yhat + e`, that "adequate" or "coloured noise" may
@@ -610,5 +661,37 @@ mod tests {
             &[],
         );
         assert_eq!(v.kind, VerdictKind::Unexplained, "{v:?}");
+    }
+
+    /// The report block's residual against the decision data's: within
+    /// the ratio no clause; above it a clause with the ratio, naming an
+    /// input that leaves the fit record's range; nothing for short blocks.
+    #[test]
+    fn a_model_that_does_not_carry_over_to_the_report_block_is_named() {
+        // alternating ±a: RMS exactly a
+        let pm = |a: f64, n: usize| -> Vec<f64> {
+            (0..n).map(|k| if k % 2 == 0 { a } else { -a }).collect()
+        };
+        let u: Vec<f64> = (0..400).map(|k| (k as f64 * 0.1).sin()).collect();
+        let fit = gb_core::Record::new(
+            vec!["u".into()],
+            "y".into(),
+            vec![u.clone()],
+            vec![0.0; 400],
+        )
+        .unwrap();
+        let inside: Vec<f64> = u.iter().map(|v| 0.9 * v).collect();
+        let beyond: Vec<f64> = u.iter().map(|v| 1.3 * v).collect();
+        let dec = pm(1.0, 400);
+        let within = report_carry_over((&dec, &pm(1.4, 400)), (&fit, &[&inside]), 1.5);
+        assert!(within.is_none(), "{within:?}");
+        let far = report_carry_over((&dec, &pm(3.0, 400)), (&fit, &[&inside]), 1.5).unwrap();
+        assert!(
+            far.contains("3.0×") && far.contains("does not show"),
+            "{far}"
+        );
+        let out = report_carry_over((&dec, &pm(3.0, 400)), (&fit, &[&beyond]), 1.5).unwrap();
+        assert!(out.contains("input 'u' spans"), "{out}");
+        assert!(report_carry_over((&dec, &pm(3.0, 99)), (&fit, &[&inside]), 1.5).is_none());
     }
 }
