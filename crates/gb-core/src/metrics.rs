@@ -24,6 +24,18 @@ pub fn std(x: &[f64]) -> f64 {
     (x.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / x.len() as f64).sqrt()
 }
 
+/// `(min, max)` of a slice; `(∞, −∞)` when it is empty.
+///
+/// ```
+/// assert_eq!(gb_core::metrics::min_max(&[0.5, -2.0, 3.0]), (-2.0, 3.0));
+/// ```
+pub fn min_max(x: &[f64]) -> (f64, f64) {
+    x.iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        })
+}
+
 /// Root mean square of a slice.
 pub fn rms(x: &[f64]) -> f64 {
     if x.is_empty() {

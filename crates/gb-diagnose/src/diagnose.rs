@@ -920,16 +920,7 @@ pub(crate) fn assemble(
         (&plan.fit_y, &report_inputs),
         pol.report_carry_ratio,
     ) {
-        if verdict.kind != crate::verdict::VerdictKind::Unexplained {
-            verdict.kind = crate::verdict::VerdictKind::Unexplained;
-            let seen = verdict
-                .text
-                .split_once(": ")
-                .map_or(verdict.text.as_str(), |(_, rest)| rest);
-            verdict.text = format!("unexplained misfit{note}; on the decision data {seen}");
-        } else {
-            verdict.text.push_str(&note);
-        }
+        verdict.not_carried_over(&note);
     }
     let report = Report {
         version: REPORT_VERSION,

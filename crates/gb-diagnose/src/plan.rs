@@ -540,11 +540,7 @@ pub(crate) fn record_shift(
             (d2 / (v.len() - 1) as f64).sqrt() / sd.max(1e-300)
         };
         let pace_ratio = pace(xs, metrics::std(xs)) / pace(xf, sf).max(1e-300);
-        let (lo, hi) = xf
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                (a.min(v), b.max(v))
-            });
+        let (lo, hi) = metrics::min_max(xf);
         let pad = 0.1 * (hi - lo);
         let outside =
             xs.iter().filter(|&&v| v < lo - pad || v > hi + pad).count() as f64 / xs.len() as f64;
@@ -738,11 +734,7 @@ fn covered(
     let bounds: Vec<(f64, f64)> = signals(fit)
         .iter()
         .map(|x| {
-            let (lo, hi) = x
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                    (a.min(v), b.max(v))
-                });
+            let (lo, hi) = metrics::min_max(x);
             let pad = pol.cv_cover_pad * (hi - lo);
             (lo - pad, hi + pad)
         })

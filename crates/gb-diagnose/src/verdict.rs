@@ -217,19 +217,13 @@ pub(crate) fn report_carry_over(
     if r.is_nan() || r <= ratio {
         return None;
     }
-    let range = |v: &[f64]| {
-        v.iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                (a.min(x), b.max(x))
-            })
-    };
     let outside: Vec<String> = fit
         .inputs
         .iter()
         .zip(report_inputs)
         .zip(&fit.input_names)
         .filter_map(|((u, v), name)| {
-            let ((lo, hi), (a, b)) = (range(u), range(v));
+            let ((lo, hi), (a, b)) = (gb_core::metrics::min_max(u), gb_core::metrics::min_max(v));
             let margin = 0.05 * (hi - lo);
             (a < lo - margin || b > hi + margin).then(|| {
                 format!("input '{name}' spans [{a:.4e}, {b:.4e}] there, [{lo:.4e}, {hi:.4e}] in the fit record")
@@ -244,6 +238,25 @@ pub(crate) fn report_carry_over(
     Some(format!(
         "; on the report block (held out, used for no decision) the residual RMS is {r:.1}× the decision data's: the model does not carry over there ({why})"
     ))
+}
+
+impl Verdict {
+    /// This verdict with the clause `note` of [`report_carry_over`]: an
+    /// "adequate" or "coloured noise" verdict becomes unexplained, its own
+    /// reading kept as what the decision data show.
+    pub(crate) fn not_carried_over(&mut self, note: &str) {
+        if self.kind == VerdictKind::Unexplained {
+            self.text.push_str(note);
+            return;
+        }
+        let seen = self
+            .text
+            .strip_prefix("adequate: ")
+            .unwrap_or(&self.text)
+            .to_string();
+        self.kind = VerdictKind::Unexplained;
+        self.text = format!("unexplained misfit{note}; on the decision data: {seen}");
+    }
 }
 
 /// Every residual test of the final model at overall `level`; `ratio`
@@ -693,5 +706,35 @@ mod tests {
         let out = report_carry_over((&dec, &pm(3.0, 400)), (&fit, &[&beyond]), 1.5).unwrap();
         assert!(out.contains("input 'u' spans"), "{out}");
         assert!(report_carry_over((&dec, &pm(3.0, 99)), (&fit, &[&inside]), 1.5).is_none());
+    }
+
+    /// A verdict that does not carry over becomes unexplained: "adequate"
+    /// keeps its reading after "on the decision data", "coloured noise"
+    /// its whole text, an unexplained one only gains the clause.
+    #[test]
+    fn a_verdict_that_does_not_carry_over_is_unexplained() {
+        let v = |kind, text: &str| Verdict {
+            kind,
+            level: 0.01,
+            tests: vec![],
+            text: text.into(),
+            noise_ratio: None,
+        };
+        let mut a = v(VerdictKind::Adequate, "adequate: no residual test rejects");
+        a.not_carried_over("; X");
+        assert_eq!(a.kind, VerdictKind::Unexplained);
+        assert_eq!(
+            a.text,
+            "unexplained misfit; X; on the decision data: no residual test rejects"
+        );
+        let mut c = v(
+            VerdictKind::ColouredNoise,
+            "the remaining error is coloured noise (whiteness (p=0.001)): a noise model",
+        );
+        c.not_carried_over("; X");
+        assert!(c.text.ends_with("on the decision data: the remaining error is coloured noise (whiteness (p=0.001)): a noise model"), "{}", c.text);
+        let mut u = v(VerdictKind::Unexplained, "unexplained misfit: whiteness");
+        u.not_carried_over("; X");
+        assert_eq!(u.text, "unexplained misfit: whiteness; X");
     }
 }
