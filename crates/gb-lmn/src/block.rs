@@ -1854,6 +1854,33 @@ mod tests {
         assert!(e_spline > 3.0 * e, "spline {e_spline} vs cubic {e}");
     }
 
+    /// A wavy input law `w = sin(2u)` (two periods over the input's
+    /// range): the cubic polynomial, the smallest structure, cannot follow
+    /// it, and the hold-out choice of the map structure takes a spline or
+    /// piecewise-linear map with many knots, which reaches the law on
+    /// fresh data.
+    #[test]
+    fn a_law_that_needs_many_knots_is_followed_to_them() {
+        let law = |u: &[f64]| filter(&u.iter().map(|v| (2.0 * v).sin()).collect::<Vec<_>>());
+        let (u, v) = (input(3000, 51), input(2000, 53));
+        let y0 = law(&u);
+        let (d, _) = noisy_record(u, &y0, 52);
+        let yv = law(&v);
+        let m = BlockParams::hammerstein(2, 1)
+            .check()
+            .unwrap()
+            .fit(&d)
+            .unwrap();
+        let (basis, knots) = m.map_structure().unwrap();
+        let sim = m.simulate(&[v], Init::History(&yv[..2])).unwrap();
+        let (e, scale) = (rms_err(&sim, &yv), gb_core::metrics::std(&yv));
+        assert!(
+            basis != MapBasis::Cubic && knots >= 8 && e < 0.05 * scale,
+            "{}: fresh-data error {e} (output sd {scale})",
+            m.describe()
+        );
+    }
+
     /// An asymmetric dead zone on [−0.3, 1.0]: the two knots of a
     /// piecewise-linear map start at the input's terciles (about ±0.54)
     /// and move to the kinks, so the fit reaches the noise on fresh data.
