@@ -274,9 +274,8 @@ fn oe_delay_scan(
             // every delay from the poles of the best of them
             let near = |d: usize| d <= 2 || d.abs_diff(start[j]) <= 2;
             let fits: Vec<(usize, f64, LocalModelNetwork)> = (0..=bound)
-                .filter(|&d| pass == 1 || near(d))
-                .collect::<Vec<_>>()
                 .into_par_iter()
+                .filter(|&d| pass == 1 || near(d))
                 .filter_map(|d| {
                     let mut t = best.clone();
                     t[j] = d;
