@@ -44,6 +44,10 @@ pub struct FitOptions {
     /// filter (β[l, i] = c_l wᵢ, c_0 = 1): W + L − 1
     /// parameters instead of W·L. `false` by default.
     pub separable_hysteresis: bool,
+    /// With a warm start ([`fit_linear_oe_warm`]) and hysteresis columns,
+    /// also fit from the cold least-squares start and keep the better fit.
+    /// `false` by default: the warm fit alone.
+    pub cold_with_hysteresis: bool,
 }
 
 impl Default for FitOptions {
@@ -55,6 +59,7 @@ impl Default for FitOptions {
             robust: false,
             estimate_start: true,
             separable_hysteresis: false,
+            cold_with_hysteresis: false,
         }
     }
 }
@@ -1786,6 +1791,18 @@ fn fit_linear_oe_cold(
     opts: &FitOptions,
     observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
+    let start = cold_start(spec, exps, opts)?;
+    refine_output_error_records(&start, exps, opts, observer).map(|(m, _)| m)
+}
+
+/// The cold start of an output-error fit: least squares on the measured
+/// regressors, then up to three rounds of least squares on the simulated
+/// output lags while they lower the simulation error (stabilised).
+fn cold_start(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    opts: &FitOptions,
+) -> Result<LocalModelNetwork, LmnError> {
     let first = exps
         .first()
         .ok_or_else(|| LmnError::InvalidArgument("no experiment given".into()))?;
@@ -1845,13 +1862,22 @@ fn fit_linear_oe_cold(
         // fall back to a heavily damped start
         best.stabilise(0.5);
     }
-    refine_output_error_records(&best, exps, opts, observer).map(|(m, _)| m)
+    Ok(best)
 }
 
-/// [`fit_linear_oe`], and also Levenberg–Marquardt started from `warm`
-/// embedded into `spec` (see [`embed_linear`]); the fit with the smaller
-/// simulation error on the data wins. Output-error costs have local minima,
-/// and a warm start from a smaller nested model can never do worse than it.
+/// Levenberg–Marquardt started from `warm` embedded into `spec` (see
+/// [`embed_linear`]), and for a structure without hysteresis columns also
+/// the cold least-squares start of [`fit_linear_oe`] (without its staged
+/// lower orders: the warm start is the nested smaller model); the fit with
+/// the smaller simulation error on the data wins. Output-error costs have
+/// local minima, and a warm start from a smaller nested model can never do
+/// worse than it. With hysteresis columns the warm fit alone is kept
+/// unless [`FitOptions::cold_with_hysteresis`] asks for both: on the 54
+/// cases of seeds 1–3 of the diagnosis sweep (8000 + 4000 samples) the
+/// cold start beat it by more than 1 % in 5 of 2369 such fits and changed
+/// no decision, while costing as much again; on 4000-sample records of a
+/// slow sweep it found a backlash the warm start missed (RMS 2.1e-4 against
+/// 7.8e-4). Without `warm`: the full [`fit_linear_oe`].
 pub fn fit_linear_oe_warm(
     spec: &NetworkSpec,
     inputs: &[Vec<f64>],
@@ -1882,11 +1908,14 @@ pub fn fit_linear_oe_warm_records(
     warm: Option<&LocalModelNetwork>,
     observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let cold = fit_linear_oe_records(spec, exps, opts, observer);
     let Some(start) = warm.and_then(|w| embed_linear(w, spec)) else {
-        return cold;
+        return fit_linear_oe_records(spec, exps, opts, observer);
     };
     let warm_fit = refine_output_error_records(&start, exps, opts, observer).map(|(m, _)| m);
+    if spec.n_hysteresis() > 0 && !opts.cold_with_hysteresis && warm_fit.is_ok() {
+        return warm_fit;
+    }
+    let cold = fit_linear_oe_cold(spec, exps, opts, observer);
     match (cold, warm_fit) {
         (Ok(c), Ok(w)) => {
             let ec = gb_core::metrics::rms(&c.simulation_residuals_records(exps)?);
@@ -2252,6 +2281,52 @@ mod tests {
                 "param {q}: fd {fd} analytic {an}"
             );
         }
+    }
+
+    #[test]
+    fn a_hysteresis_fit_from_the_linear_model_alone_reaches_the_noise() {
+        // y0 = the plant of `simulate_true` driven by a backlash v = play₀.₅(u)
+        // instead of u; the hysteresis structure is fitted only from the
+        // linear model's warm start (no cold least-squares start)
+        let mut r = rand::rngs::SmallRng::seed_from_u64(11);
+        let n = 3000;
+        let mut u = vec![0.0; n];
+        for k in 1..n {
+            let e: f64 = StandardNormal.sample(&mut r);
+            u[k] = 0.8 * u[k - 1] + 0.6 * e;
+        }
+        let (mean, sd) = {
+            let m = u.iter().sum::<f64>() / n as f64;
+            let v = u.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n as f64;
+            (m, v.sqrt())
+        };
+        let half = 0.5 * sd;
+        let mut v = vec![0.0; n];
+        v[0] = u[0];
+        for k in 1..n {
+            v[k] = v[k - 1].clamp(u[k] - half, u[k] + half);
+        }
+        let y = simulate_true(&v, 0.05, 12);
+        let inputs = vec![u];
+        let linear = NetworkSpec::order(2, 1);
+        let opts = FitOptions::default();
+        let lin = fit_linear_oe(&linear, &inputs, &y, &opts).unwrap();
+        let e_lin = gb_core::metrics::rms(&lin.simulation_residuals(&inputs, &y).unwrap());
+        let mut spec = linear.clone();
+        // the play thresholds are in normalised input units (÷ sd, mean removed)
+        assert!(mean.abs() < sd);
+        spec.input_play = vec![vec![0.5]];
+        spec.hysteresis_lags = 2;
+        let m = fit_linear_oe_warm(&spec, &inputs, &y, &opts, Some(&lin)).unwrap();
+        let e = gb_core::metrics::rms(&m.simulation_residuals(&inputs, &y).unwrap());
+        assert!(
+            e_lin > 0.1,
+            "the backlash must be visible to a linear model: {e_lin}"
+        );
+        assert!(
+            e < 0.06,
+            "warm-started hysteresis fit {e} (linear {e_lin}, noise 0.05)"
+        );
     }
 
     #[test]

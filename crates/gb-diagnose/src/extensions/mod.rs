@@ -246,12 +246,18 @@ fn with_option(spec: &str, key: &str, value: &str) -> String {
 
 /// Fit an input–output model on the fit block, warm-started from the
 /// current model (its network for linear fits, its simulated output for
-/// LOLIMOT's output-error construction). With several training records
-/// the model (linear or a LOLIMOT network) is fitted on the fit parts of
+/// LOLIMOT's output-error construction; with hysteresis columns under
+/// cross-validation also from the cold start,
+/// `FitOptions::cold_with_hysteresis`). With several training records the
+/// model (linear or a LOLIMOT network) is fitted on the fit parts of
 /// all of them as separate experiments ([`Context::fits`]).
 pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
     let mut p = p.clone();
     p.fit = ctx.options.fit.clone();
+    // under cross-validation (short or unrepresentative records) a
+    // hysteresis structure is also fitted from the cold start: a fold's
+    // warm fit can stay in a poorer basin
+    p.fit.cold_with_hysteresis |= ctx.plan.cv();
     p.lolimot = ctx.options.lolimot.clone();
     let warm_net = crate::plan::core(&ctx.current.model)
         .as_any()
