@@ -335,7 +335,8 @@ fn linear_first(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize,
 
 /// The chosen candidate is a plain order increase, the memory test on the
 /// current residuals rejects at the policy's `memory_priority_p` (the
-/// residual depends on the direction of motion at equal level: a loop), and
+/// residual depends on the direction of motion at equal level: a loop) and
+/// still rejects on the order increase's own residuals, and
 /// a paying hysteresis candidate's gain interval overlaps the order
 /// increase's: the hysteresis candidate with the largest gain among those
 /// whose linear order is at least the increased one. Its model nests the
@@ -354,6 +355,14 @@ fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usi
     // hysteresis candidates (they keep the current delay)
     let delay = |l: &Lineage| l.io().map(|p| p.delay.clone());
     if delay(&cands[ci].proposal.lineage) != delay(&ctx.current.lineage) {
+        return None;
+    }
+    // the loop must outlive the order increase: a missing pole's lagging
+    // residual is gone once the pole is there
+    let inputs = ctx.plan.decision_inputs(ctx.data);
+    let sel = &cands[ci].fitted.select;
+    let after = crate::Evidence::compute(&sel.e, &sel.yhat, &inputs).memory;
+    if after.1 >= ctx.policy().memory_priority_p {
         return None;
     }
     let best = cands[ci].ci;
