@@ -2295,11 +2295,7 @@ mod tests {
             let e: f64 = StandardNormal.sample(&mut r);
             u[k] = 0.8 * u[k - 1] + 0.6 * e;
         }
-        let (mean, sd) = {
-            let m = u.iter().sum::<f64>() / n as f64;
-            let v = u.iter().map(|x| (x - m).powi(2)).sum::<f64>() / n as f64;
-            (m, v.sqrt())
-        };
+        let (mean, sd) = (gb_core::metrics::mean(&u), gb_core::metrics::std(&u));
         let half = 0.5 * sd;
         let mut v = vec![0.0; n];
         v[0] = u[0];
