@@ -10,7 +10,6 @@ use crate::report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, Evidence};
 use gb_core::{FittedModel, Init, Observer, Silent};
 use gb_lmn::{FitOptions, LolimotOptions};
-use rayon::prelude::*;
 use std::collections::HashSet;
 use std::time::{Duration, Instant};
 
@@ -131,10 +130,14 @@ fn fit_candidates(
     it: usize,
 ) -> (Vec<(usize, Candidate)>, Vec<String>) {
     let pol = ctx.policy();
-    let fitted: Vec<Result<Evaluated, DiagnoseError>> = proposals
-        .par_iter()
-        .map(|(_, (e, p))| timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx)))
-        .collect();
+    let fitted: Vec<Result<Evaluated, DiagnoseError>> = longest_first(
+        proposals.len(),
+        |k| proposals[k].1 .0.fit_cost(),
+        |k| {
+            let (e, p) = &proposals[k].1;
+            timed(e.name(), &p.lineage, || fit_proposal(*e, p, ctx))
+        },
+    );
     let mut failed = vec![];
     let mut cands = vec![];
     for ((i, (e, p)), f) in proposals.into_iter().zip(fitted) {
@@ -147,6 +150,39 @@ fn fit_candidates(
         }
     }
     (cands, failed)
+}
+
+/// `run(k)` for `k` in `0..n`, in order, computed by one worker per thread
+/// of the pool, each taking the next job of the largest `cost` first (a
+/// step's costly fit started last ran alone at its end); the jobs' own
+/// parallel work is helped by idle workers.
+fn longest_first<T: Send>(
+    n: usize,
+    cost: impl Fn(usize) -> u8,
+    run: impl Fn(usize) -> T + Sync,
+) -> Vec<T> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Mutex;
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by_key(|&k| std::cmp::Reverse(cost(k)));
+    let next = AtomicUsize::new(0);
+    let out: Vec<Mutex<Option<T>>> = (0..n).map(|_| Mutex::new(None)).collect();
+    let work = || {
+        while let Some(&k) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
+            let r = run(k);
+            *out[k].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
+        }
+    };
+    rayon::scope(|s| {
+        for _ in 1..rayon::current_num_threads().min(n) {
+            s.spawn(|_| work());
+        }
+        work();
+    });
+    out.into_iter()
+        .map(|m| m.into_inner().unwrap_or_else(|e| e.into_inner()))
+        .map(|r| r.expect("every job ran"))
+        .collect()
 }
 
 /// `note` with `more` appended (each a `; …` clause of the decisions line).
@@ -280,15 +316,21 @@ pub(crate) fn timed_phase<T>(name: &str, f: impl FnOnce() -> T) -> T {
     timed_line("phase", || name.to_string(), f)
 }
 
-/// `f()`, and with `GREYBOX_TIMING` set, the line `kind: seconds  label`
-/// on stderr.
+/// `f()`, and with `GREYBOX_TIMING` set, the line `kind: seconds  label
+/// (from start)` on stderr, the start counted from the first timed call.
 fn timed_line<T>(kind: &str, label: impl FnOnce() -> String, f: impl FnOnce() -> T) -> T {
     if std::env::var_os("GREYBOX_TIMING").is_none() {
         return f();
     }
+    static FIRST: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
     let t0 = Instant::now();
+    let since = t0.duration_since(*FIRST.get_or_init(|| t0)).as_secs_f64();
     let r = f();
-    eprintln!("{kind}: {:8.3} s  {}", t0.elapsed().as_secs_f64(), label());
+    eprintln!(
+        "{kind}: {:8.3} s  {}  (from {since:.3} s)",
+        t0.elapsed().as_secs_f64(),
+        label()
+    );
     r
 }
 
@@ -954,7 +996,7 @@ pub(crate) fn assemble(
 
 #[cfg(test)]
 mod tests {
-    use super::{beaten, kind_once};
+    use super::{beaten, kind_once, longest_first};
 
     /// A failed candidate's error says its kind once, and a message that
     /// merely contains a colon is left whole.
@@ -989,5 +1031,49 @@ mod tests {
         assert!(b.contains("preisach-columns"));
         assert!(beaten([("x", true, -1.0)].iter().copied()).is_empty());
         assert!(beaten(std::iter::empty()).is_empty());
+    }
+
+    /// The parallel fits of a step come back in proposal order, each run
+    /// once, and a single worker starts them costliest first (stable among
+    /// equal costs).
+    #[test]
+    fn fits_run_once_each_costliest_first_and_come_back_in_order() {
+        use std::sync::Mutex;
+        let cost = [1u8, 3, 0, 3, 2, 1];
+        let started = Mutex::new(vec![]);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("a one-thread pool");
+        let out = pool.install(|| {
+            longest_first(
+                cost.len(),
+                |k| cost[k],
+                |k| {
+                    started.lock().expect("not poisoned").push(k);
+                    10 * k
+                },
+            )
+        });
+        assert_eq!(out, vec![0, 10, 20, 30, 40, 50]);
+        assert_eq!(
+            *started.lock().expect("not poisoned"),
+            vec![1, 3, 4, 0, 5, 2]
+        );
+        // on the global pool too, every job exactly once, results in order
+        let ran = Mutex::new(vec![]);
+        let out = longest_first(
+            40,
+            |k| (k % 4) as u8,
+            |k| {
+                ran.lock().expect("not poisoned").push(k);
+                k * k
+            },
+        );
+        assert_eq!(out, (0..40).map(|k| k * k).collect::<Vec<_>>());
+        let mut ran = ran.into_inner().expect("not poisoned");
+        ran.sort_unstable();
+        assert_eq!(ran, (0..40).collect::<Vec<_>>());
+        assert!(longest_first(0, |_| 0, |k| k).is_empty());
     }
 }

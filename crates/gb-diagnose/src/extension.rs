@@ -190,6 +190,13 @@ pub trait Extension: Sync {
     fn screen_tier(&self) -> u8 {
         0
     }
+    /// A rough class of what one candidate's fit costs, for scheduling a
+    /// step's fits longest first (the decisions never depend on it): 0 a
+    /// few linear fits, 1 (the default) one nonlinear fit, 2 several, 3 a
+    /// search over structures or starts, each a nonlinear fit.
+    fn fit_cost(&self) -> u8 {
+        1
+    }
     /// Tried at most once per diagnosis.
     fn once(&self) -> bool {
         false

@@ -49,6 +49,7 @@ use gb_core::{
     check_inputs, CoreError, DynamicModel, Init, ModelView, Record, Series, Stepper, ViewData,
     Workspace,
 };
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::any::Any;
 
@@ -1176,7 +1177,7 @@ impl ValidBlockParams {
         };
         self.0
             .other_delays
-            .iter()
+            .par_iter()
             .filter_map(|delay| {
                 let q = ValidBlockParams(BlockParams {
                     delay: delay.clone(),
@@ -1303,7 +1304,9 @@ impl ValidBlockParams {
     /// The map structure (in `maps`, ordered by size) whose fit on the first
     /// 80 % (both starts, [`fit_maps`](Self::fit_maps)) simulates the rest
     /// best (the smallest within 0.2 % of the best squared error): the
-    /// structure and that fit, to be refined on all the data.
+    /// structure and that fit, to be refined on all the data. The
+    /// structures are fitted in parallel (the choice does not depend on
+    /// the number of threads).
     fn choose_maps(
         &self,
         lin: &BlockModel,
@@ -1314,21 +1317,18 @@ impl ValidBlockParams {
         let n = yn.len();
         let cut = n * 4 / 5;
         let ui: Vec<Vec<f64>> = un.iter().map(|u| u[..cut].to_vec()).collect();
-        let mut scored: Vec<(f64, (MapBasis, usize), BlockModel)> = vec![];
-        for &mp in maps {
-            let Some((_, m)) = self.fit_maps(lin, mp, &ui, &yn[..cut]) else {
-                continue;
-            };
-            let mapped = m.mapped(un);
-            let hist = m.start_history(&mapped, &yn[..cut]);
-            let Some(y) = m.simulate_norm(&mapped, &hist, n) else {
-                continue;
-            };
-            let sse: f64 = (cut..n).map(|k| (yn[k] - y[k]).powi(2)).sum();
-            if sse.is_finite() {
-                scored.push((sse, mp, m));
-            }
-        }
+        // every structure is an independent fit: in parallel, kept in order
+        let scored: Vec<(f64, (MapBasis, usize), BlockModel)> = maps
+            .par_iter()
+            .filter_map(|&mp| {
+                let (_, m) = self.fit_maps(lin, mp, &ui, &yn[..cut])?;
+                let mapped = m.mapped(un);
+                let hist = m.start_history(&mapped, &yn[..cut]);
+                let y = m.simulate_norm(&mapped, &hist, n)?;
+                let sse: f64 = (cut..n).map(|k| (yn[k] - y[k]).powi(2)).sum();
+                sse.is_finite().then_some((sse, mp, m))
+            })
+            .collect();
         let best = scored.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
         scored
             .into_iter()

@@ -29,10 +29,16 @@
 //!    iterations, then the best `candidates` by the held-out error for the
 //!    rest (successive halving); the one with the smallest error on a
 //!    held-out tail of the training data is kept and trained on all of it.
+//!
+//! The BLA orders of step 1, the splits of step 2 and the refinements of
+//! each round of step 3 are independent fits: they run in parallel (rayon)
+//! and are kept in their sequential order, so the result is the same on
+//! any number of threads.
 use crate::LmnError;
 use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
 use gb_core::{Identify, Observer, Records, Silent};
 use nalgebra::{Complex, DMatrix, DVector};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 type Result<T> = std::result::Result<T, LmnError>;
@@ -849,15 +855,16 @@ impl WhFitter {
         y: &[f64],
         n_fit: usize,
     ) -> ((usize, usize), Vec<(usize, f64)>) {
-        let mut bla_holdout_rmse = vec![];
+        // the orders are independent fits: in parallel, kept in order
+        let bla_holdout_rmse: Vec<(usize, f64)> = (1..=self.p.max_bla_order)
+            .into_par_iter()
+            .filter_map(|k| {
+                let (b, a, _, _) = self.bla(&u[..n_fit], &y[..n_fit], (k, k), &Silent).ok()?;
+                Some((k, tail_rms(&filtered(&b, &a, u), y, n_fit)))
+            })
+            .collect();
         let mut best = (1, f64::INFINITY);
-        for k in 1..=self.p.max_bla_order {
-            let Ok((b, a, _, _)) = self.bla(&u[..n_fit], &y[..n_fit], (k, k), &Silent) else {
-                continue;
-            };
-            let sim = filtered(&b, &a, u);
-            let e = tail_rms(&sim, y, n_fit);
-            bla_holdout_rmse.push((k, e));
+        for &(k, e) in &bla_holdout_rmse {
             if e < best.1 {
                 best = (k, e);
             }
@@ -881,39 +888,38 @@ impl WhFitter {
         let pg = root_groups(&roots(ab));
         let zg = root_groups(&roots(bb));
         let lead = bb.iter().copied().find(|v| *v != 0.0).unwrap_or(1.0);
-        let mut scored: Vec<ScoredNetwork> = vec![];
-        let mut tried = 0;
-        for pm in 0u32..(1 << pg.len()) {
-            for zm in 0u32..(1 << zg.len()) {
-                let pick = |g: &[Vec<Complex<f64>>], mask: u32, inside: bool| {
-                    g.iter()
-                        .enumerate()
-                        .filter(|(i, _)| ((mask >> i) & 1 == 1) == inside)
-                        .flat_map(|(_, r)| r.iter().copied())
-                        .collect::<Vec<_>>()
-                };
+        let pick = |g: &[Vec<Complex<f64>>], mask: u32, inside: bool| {
+            g.iter()
+                .enumerate()
+                .filter(|(i, _)| ((mask >> i) & 1 == 1) == inside)
+                .flat_map(|(_, r)| r.iter().copied())
+                .collect::<Vec<_>>()
+        };
+        // the splits with a usable G₁ (unit static gain, the rest of the
+        // gain in G₂), in scan order
+        let splits: Vec<[Vec<f64>; 4]> = (0u32..(1 << pg.len()))
+            .flat_map(|pm| (0u32..(1 << zg.len())).map(move |zm| (pm, zm)))
+            .filter_map(|(pm, zm)| {
                 let a1 = poly_from_roots(&pick(&pg, pm, true));
                 let a2 = poly_from_roots(&pick(&pg, pm, false));
                 let mut b1 = poly_from_roots(&pick(&zg, zm, true));
                 let mut b2 = poly_from_roots(&pick(&zg, zm, false));
-                // G₁ with unit static gain, the rest of the gain in G₂
                 let g1 = b1.iter().sum::<f64>() / a1.iter().sum::<f64>();
                 if !(g1.is_finite() && g1.abs() > 1e-12) {
-                    continue;
+                    return None;
                 }
-                for v in b1.iter_mut() {
-                    *v /= g1;
-                }
-                for v in b2.iter_mut() {
-                    *v *= g1 * lead;
-                }
-                tried += 1;
-                let Some((e, m)) = self.start_network(b1, a1, b2, a2, us, ys, skip) else {
-                    continue;
-                };
-                scored.push((e, m));
-            }
-        }
+                b1.iter_mut().for_each(|v| *v /= g1);
+                b2.iter_mut().for_each(|v| *v *= g1 * lead);
+                Some([b1, a1, b2, a2])
+            })
+            .collect();
+        let tried = splits.len();
+        // each start is an independent least-squares fit: in parallel, kept
+        // in scan order (the stable sort then breaks ties as the scan did)
+        let mut scored: Vec<ScoredNetwork> = splits
+            .into_par_iter()
+            .filter_map(|[b1, a1, b2, a2]| self.start_network(b1, a1, b2, a2, us, ys, skip))
+            .collect();
         scored.sort_by(|a, b| a.0.total_cmp(&b.0));
         (scored, tried)
     }
@@ -946,36 +952,48 @@ impl WhFitter {
             }
         };
         let first = self.p.max_iter.div_ceil(3);
-        // (hold-out RMSE, fit RMSE, network) after the first round
-        let mut round: Vec<(f64, f64, WienerHammersteinNetwork)> = vec![];
-        for m0 in starts {
-            for &extra in extras {
+        // (hold-out RMSE, fit RMSE, network) after the first round; every
+        // refinement is independent: in parallel, kept in start-major order
+        let jobs: Vec<(usize, &WienerHammersteinNetwork, usize)> = starts
+            .iter()
+            .flat_map(|m0| extras.iter().map(move |&extra| (m0, extra)))
+            .enumerate()
+            .map(|(i, (m0, extra))| (i, m0, extra))
+            .collect();
+        let mut round: Vec<(f64, f64, WienerHammersteinNetwork)> = jobs
+            .into_par_iter()
+            .map(|(i, m0, extra)| {
                 observer.progress(
-                    2 + round.len(),
+                    2 + i,
                     total,
                     "Wiener-Hammerstein: joint Levenberg-Marquardt of a split",
                 );
                 let mut m = m0.clone();
-                for _ in 0..extra {
-                    m.b1.push(0.0);
-                    m.a1.push(0.0);
-                }
+                m.b1.extend(std::iter::repeat_n(0.0, extra));
+                m.a1.extend(std::iter::repeat_n(0.0, extra));
                 let (m, fit, _) =
                     self.refine(m, &u[..n_fit], &y[..n_fit], first, skip, observer)?;
-                round.push((holdout(&m), fit, m));
-            }
-        }
+                Ok((holdout(&m), fit, m))
+            })
+            .collect::<Result<_>>()?;
         let score = |r: &(f64, f64, WienerHammersteinNetwork)| if n_fit < n { r.0 } else { r.1 };
         let mut order: Vec<usize> = (0..round.len()).collect();
         order.sort_by(|&a, &b| score(&round[a]).total_cmp(&score(&round[b])));
         let rest = self.p.max_iter.saturating_sub(first);
-        for &i in order.iter().take(self.p.candidates) {
-            if rest == 0 {
-                break;
+        if rest > 0 {
+            let best: Vec<usize> = order.into_iter().take(self.p.candidates).collect();
+            let second: Vec<(usize, (f64, f64, WienerHammersteinNetwork))> = best
+                .into_par_iter()
+                .map(|i| {
+                    let m = round[i].2.clone();
+                    let (m, fit, _) =
+                        self.refine(m, &u[..n_fit], &y[..n_fit], rest, skip, observer)?;
+                    Ok((i, (holdout(&m), fit, m)))
+                })
+                .collect::<Result<_>>()?;
+            for (i, r) in second {
+                round[i] = r;
             }
-            let m = round[i].2.clone();
-            let (m, fit, _) = self.refine(m, &u[..n_fit], &y[..n_fit], rest, skip, observer)?;
-            round[i] = (holdout(&m), fit, m);
         }
         let holdout_rmse = round.iter().map(|r| r.0).collect();
         let refined = round

@@ -162,6 +162,9 @@ impl Backlash {
 }
 
 impl Extension for Backlash {
+    fn fit_cost(&self) -> u8 {
+        3
+    }
     fn name(&self) -> &'static str {
         "backlash"
     }

@@ -36,6 +36,9 @@ fn maps(p: &Proposal) -> Vec<bool> {
 }
 
 impl Extension for Hammerstein {
+    fn fit_cost(&self) -> u8 {
+        3
+    }
     fn name(&self) -> &'static str {
         "hammerstein"
     }

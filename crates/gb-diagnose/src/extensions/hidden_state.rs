@@ -13,6 +13,9 @@ use gb_core::{FittedModel, NoiseModel};
 pub struct HiddenState;
 
 impl Extension for HiddenState {
+    fn fit_cost(&self) -> u8 {
+        3
+    }
     fn name(&self) -> &'static str {
         "hidden-state"
     }

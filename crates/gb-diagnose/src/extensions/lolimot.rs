@@ -10,6 +10,9 @@ use gb_core::{FittedModel, ModelView, Series, ViewData};
 pub struct Lolimot;
 
 impl Extension for Lolimot {
+    fn fit_cost(&self) -> u8 {
+        2
+    }
     fn name(&self) -> &'static str {
         "lolimot"
     }

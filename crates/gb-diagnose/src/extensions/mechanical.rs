@@ -232,6 +232,9 @@ fn laws(order: usize) -> Vec<(&'static str, &'static str, &'static str, &'static
 pub struct MechanicalNonlinearity;
 
 impl Extension for MechanicalNonlinearity {
+    fn fit_cost(&self) -> u8 {
+        2
+    }
     fn name(&self) -> &'static str {
         "mechanical-nonlinearity"
     }
@@ -295,6 +298,9 @@ impl Extension for MechanicalNonlinearity {
 }
 
 impl Extension for MechanicalHysteresis {
+    fn fit_cost(&self) -> u8 {
+        2
+    }
     fn name(&self) -> &'static str {
         "mechanical-hysteresis"
     }

@@ -16,6 +16,9 @@ use gb_core::{FittedModel, ModelView, Series, ViewData};
 pub struct LinearOrder;
 
 impl Extension for LinearOrder {
+    fn fit_cost(&self) -> u8 {
+        0
+    }
     fn name(&self) -> &'static str {
         "linear-order"
     }

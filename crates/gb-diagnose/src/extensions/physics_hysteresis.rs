@@ -155,6 +155,9 @@ pub(super) fn fit_state(
 }
 
 impl Extension for PhysicsHysteresis {
+    fn fit_cost(&self) -> u8 {
+        2
+    }
     fn name(&self) -> &'static str {
         "physics-hysteresis"
     }

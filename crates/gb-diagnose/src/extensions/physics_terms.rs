@@ -508,6 +508,9 @@ fn places(spec: &PhysicsSpec, kind: Kind) -> Vec<(Place, String)> {
 }
 
 impl Extension for PhysicsTerms {
+    fn fit_cost(&self) -> u8 {
+        2
+    }
     fn name(&self) -> &'static str {
         "physics-terms"
     }

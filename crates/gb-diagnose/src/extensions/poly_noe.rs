@@ -12,6 +12,9 @@ use gb_core::FittedModel;
 pub struct PolyNoe;
 
 impl Extension for PolyNoe {
+    fn fit_cost(&self) -> u8 {
+        0
+    }
     fn name(&self) -> &'static str {
         "poly-noe"
     }

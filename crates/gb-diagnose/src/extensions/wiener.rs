@@ -14,6 +14,9 @@ use gb_core::FittedModel;
 pub struct Wiener;
 
 impl Extension for Wiener {
+    fn fit_cost(&self) -> u8 {
+        2
+    }
     fn name(&self) -> &'static str {
         "wiener"
     }

@@ -19,6 +19,9 @@ const MIN_FIT_SAMPLES: usize = 1000;
 pub struct WienerHammerstein;
 
 impl Extension for WienerHammerstein {
+    fn fit_cost(&self) -> u8 {
+        3
+    }
     fn name(&self) -> &'static str {
         "wiener-hammerstein"
     }
