@@ -954,15 +954,14 @@ impl WhFitter {
         let first = self.p.max_iter.div_ceil(3);
         // (hold-out RMSE, fit RMSE, network) after the first round; every
         // refinement is independent: in parallel, kept in start-major order
-        let jobs: Vec<(usize, &WienerHammersteinNetwork, usize)> = starts
+        let jobs: Vec<(&WienerHammersteinNetwork, usize)> = starts
             .iter()
             .flat_map(|m0| extras.iter().map(move |&extra| (m0, extra)))
-            .enumerate()
-            .map(|(i, (m0, extra))| (i, m0, extra))
             .collect();
         let mut round: Vec<(f64, f64, WienerHammersteinNetwork)> = jobs
             .into_par_iter()
-            .map(|(i, m0, extra)| {
+            .enumerate()
+            .map(|(i, (m0, extra))| {
                 observer.progress(
                     2 + i,
                     total,
