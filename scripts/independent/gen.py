@@ -97,11 +97,11 @@ else:
     raise SystemExit("unknown family")
 
 
-def simulate(u, x_scale=None, eff=None, wproc=None, lin=False):
+def simulate(u, x_scale=None, eff=None, wproc=None, lin=False, q_start=0.0):
     fam_ = "linear" if lin else fam
     """RK4 with ZOH; returns q sampled at the start of each hold and the accel."""
     h = ts / sub
-    q = v = z = 0.0
+    q, v, z = q_start, 0.0, 0.0
     xe = 0.0  # third-order electrical state
     bl = 0.0  # backlash output
     n = len(u)
@@ -171,6 +171,20 @@ vr = xr * w0
 eff = dict(eff0)
 if fam == "duffing":
     eff["k3"] = rng.uniform(0.3, 1.5) * k / xr**2
+if fam == "duffing":
+    # a hardening spring driven near its resonance can be chaotic: the true
+    # model started 1e-3 of the response away then drifts to the output's
+    # size, and no model can be judged by its free-run simulation. Such a
+    # draw is softened until the start is forgotten (below a quarter of the
+    # noise level on the validation part).
+    while True:
+        qa, _ = simulate(u, eff=eff)
+        qb, _ = simulate(u, eff=eff, q_start=1e-3 * xr)
+        gap = np.sqrt(np.mean((qa[N_TR:] - qb[N_TR:]) ** 2))
+        if gap <= 0.25 * np.std(qa) / 10 ** (snr / 20):
+            break
+        eff["k3"] *= 0.6
+        desc += " softened"
 if fam == "friction":
     eff["fc"] = rng.uniform(0.1, 0.4) * k * xr
     eff["eps"] = rng.uniform(0.005, 0.05) * vr
@@ -240,7 +254,7 @@ for name, sl in [("train.csv", slice(0, N_TR)), ("validate.csv", slice(N_TR, N))
             fh.write(f"{i * ts:.9g},{u[i]:.9g},{y[i]:.9g}\n")
 json.dump(
     dict(family=fam, seed=seed, expected=expected, floor=floor, ts=ts, f0=f0, zeta=zeta,
-         snr=snr, excitation=str(kind), spp=spp, eff={k: (v if not isinstance(v, bool) else 1) for k, v in eff.items()}),
+         snr=snr, excitation=str(kind), spp=spp, softened=desc.count("softened"), eff={k: (v if not isinstance(v, bool) else 1) for k, v in eff.items()}),
     open(os.path.join(out, "meta.json"), "w"),
 )
 print(fam, seed, expected, floor, kind, f"spp {spp:.1f} snr {snr:.1f}")

@@ -1717,7 +1717,9 @@ pub fn embed_hysteresis(net: &LocalModelNetwork, spec: &NetworkSpec) -> Option<L
 /// simulated output lags (instrumental-variable style), stabilisation, then
 /// Levenberg–Marquardt on the simulation error. For order n ≥ 2 (without
 /// hysteresis columns) the model of order n−1 is also fitted, embedded and
-/// trained further (staged start); the better of the two simulations wins.
+/// trained further (staged start); with hysteresis columns the linear
+/// structure is the staged start ([`embed_hysteresis`]). The better of the
+/// two simulations wins.
 pub fn fit_linear_oe(
     spec: &NetworkSpec,
     inputs: &[Vec<f64>],
@@ -1757,7 +1759,10 @@ pub fn fit_linear_oe_records(
     observer: &dyn Observer,
 ) -> Result<LocalModelNetwork, LmnError> {
     let cold = fit_linear_oe_cold(spec, exps, opts, observer);
-    if spec.na < 2 || spec.n_hysteresis() > 0 {
+    if spec.n_hysteresis() > 0 {
+        return better_of(cold, staged_hysteresis(spec, exps, opts, observer), exps);
+    }
+    if spec.na < 2 {
         return cold;
     }
     // Staged start: the model one order lower, embedded and trained further.
@@ -1773,7 +1778,46 @@ pub fn fit_linear_oe_records(
         .and_then(|w| embed_linear(&w, spec))
         .and_then(|start| refine_output_error_records(&start, exps, opts, observer).ok())
         .map(|(m, _)| m);
-    match (cold, staged) {
+    better_of(cold, staged, exps)
+}
+
+/// The linear structure of `spec` fitted first ([`fit_linear_oe_records`]),
+/// its hysteresis columns added at zero weight ([`embed_hysteresis`]) and
+/// everything trained further: a start that simulates like the linear
+/// model. The least-squares start with the hysteresis columns regressed on
+/// the measured output can land far from it (a Preisach spring in a
+/// lightly damped loop: training NRMSE 0.98 from that start alone, 0.03
+/// from this one).
+fn staged_hysteresis(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    opts: &FitOptions,
+    observer: &dyn Observer,
+) -> Option<LocalModelNetwork> {
+    let linear = NetworkSpec {
+        output_play: vec![],
+        output_relays: 0,
+        output_knots: vec![],
+        input_play: vec![vec![]; spec.input_play.len()],
+        ..spec.clone()
+    };
+    let start = embed_hysteresis(
+        &fit_linear_oe_records(&linear, exps, opts, observer).ok()?,
+        spec,
+    )?;
+    refine_output_error_records(&start, exps, opts, observer)
+        .ok()
+        .map(|(m, _)| m)
+}
+
+/// Of a fit and an alternative, the one with the smaller simulation error
+/// over `exps` (the fit's error when there is no alternative).
+fn better_of(
+    fit: Result<LocalModelNetwork, LmnError>,
+    alt: Option<LocalModelNetwork>,
+    exps: &[Experiment],
+) -> Result<LocalModelNetwork, LmnError> {
+    match (fit, alt) {
         (Ok(c), Some(s)) => Ok(if rms_error(&s, exps) < rms_error(&c, exps) {
             s
         } else {
