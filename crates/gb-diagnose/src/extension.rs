@@ -8,8 +8,8 @@ use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Backlash, Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
     MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
-    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StudentTNoise, TreeLmn, Wiener,
-    WienerHammerstein,
+    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StateNetwork, StudentTNoise, TreeLmn,
+    Wiener, WienerHammerstein,
 };
 use crate::plan::Chosen;
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
@@ -270,6 +270,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &Hammerstein,
     &Wiener,
     &WienerHammerstein,
+    &StateNetwork,
     &PreisachColumns,
     &Backlash,
     &MechanicalHysteresis,
