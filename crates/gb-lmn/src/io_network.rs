@@ -457,6 +457,11 @@ mod tests {
         (e / v).sqrt()
     }
 
+    /// `p` fitted on `train` without a warm start.
+    fn cold_fit(train: &Record, p: IoNetworkParams) -> LocalModelNetwork {
+        p.check().unwrap().fit(train, WarmStart::default()).unwrap()
+    }
+
     /// A hysteretic spring in a lightly damped loop: a play operator of
     /// half-width 0.5 on the output pulls it back,
     /// x(k) = 1.92 x(k−1) − 0.96 x(k−2) − 0.01 p(k−1) + 0.002 u(k−1),
@@ -499,12 +504,7 @@ mod tests {
     #[test]
     fn a_cold_hysteresis_fit_starts_from_its_linear_part() {
         let (train, test) = (play_spring(4000, 3), play_spring(3000, 4));
-        let fit = |p: IoNetworkParams| {
-            p.check()
-                .unwrap()
-                .fit(&train, WarmStart::default())
-                .unwrap()
-        };
+        let fit = |p: IoNetworkParams| cold_fit(&train, p);
         let linear = fit(IoNetworkParams::linear(2));
         let play = fit(IoNetworkParams {
             hysteresis: true,
@@ -529,12 +529,7 @@ mod tests {
     #[test]
     fn a_feedback_map_models_a_nonlinear_spring_inside_the_loop() {
         let (train, test) = (lure(3000, 1), lure(2000, 2));
-        let fit = |p: IoNetworkParams| {
-            p.check()
-                .unwrap()
-                .fit(&train, WarmStart::default())
-                .unwrap()
-        };
+        let fit = |p: IoNetworkParams| cold_fit(&train, p);
         let linear = fit(IoNetworkParams::linear(2));
         let map = fit(IoNetworkParams {
             output_map: 8,
