@@ -56,6 +56,26 @@ pub(crate) struct Tested {
     /// Under cross-validation: each fold's held-out residuals (its own
     /// refit) with their inputs; empty otherwise.
     pub folds: Vec<(Residuals, Vec<Vec<f64>>)>,
+    /// Where `whole` restarts after a gap (indices into it; empty: one
+    /// contiguous run): the folds' blocks, and the held-out samples left
+    /// out inside a block. The tests take lag products inside a run only.
+    pub whole_starts: Vec<usize>,
+    /// The same for each fold's held-out residuals.
+    pub fold_starts: Vec<Vec<usize>>,
+}
+
+/// The indices of `idx` (increasing sample numbers) where a new contiguous
+/// run starts.
+fn run_starts(idx: impl Iterator<Item = usize>) -> Vec<usize> {
+    let mut out = vec![];
+    let mut prev: Option<usize> = None;
+    for (i, k) in idx.enumerate() {
+        if prev.is_some_and(|p| k != p + 1) {
+            out.push(i);
+        }
+        prev = Some(k);
+    }
+    out
 }
 
 /// The plan of a diagnosis (see the module docs).
@@ -350,6 +370,8 @@ impl Plan {
             whole: ev.select.clone(),
             inputs,
             folds: vec![],
+            whole_starts: vec![],
+            fold_starts: vec![],
         };
         if !self.cv() || d.multi() || ev.folds.len() != self.folds.len() {
             return plain(inputs);
@@ -381,6 +403,8 @@ impl Plan {
             whole,
             inputs,
             folds,
+            whole_starts: run_starts(self.folds.iter().flat_map(|f| f.scored())),
+            fold_starts: self.folds.iter().map(|f| run_starts(f.scored())).collect(),
         }
     }
 
