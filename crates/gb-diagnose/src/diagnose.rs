@@ -89,6 +89,19 @@ pub struct Diagnosis {
     /// lineage, scores and select/report residuals (`chain[0]` is the
     /// baseline, the last entry is the final model).
     pub chain: Vec<Evaluated>,
+    /// The final structure refitted on all of a single training file, its
+    /// report block included (the policy's `refit_on_all_samples`); `None`
+    /// when that does not apply or was not kept. See [`Diagnosis::to_save`].
+    pub saved: Option<FittedModel>,
+}
+
+impl Diagnosis {
+    /// The model a user keeps: the final structure refitted on all of the
+    /// training file when that was done and kept, else the final model
+    /// (the one the report scores).
+    pub fn to_save(&self) -> &FittedModel {
+        self.saved.as_ref().unwrap_or(&self.model)
+    }
 }
 
 /// What one iteration decided.
@@ -903,7 +916,18 @@ pub(crate) fn search(
         Some(r) => (r, Some(chain)),
         None => (chain, None),
     };
-    Ok(assemble(
+    let saved = refit
+        .then(|| {
+            timed_phase("refit on all samples", || {
+                crate::refit::refit_on_all_samples(d, &plan, &reported, &picks, opts, obs)
+            })
+        })
+        .flatten()
+        .and_then(|(m, note)| {
+            choice.decision.push_str(&note);
+            m
+        });
+    let mut diagnosis = assemble(
         d,
         &plan,
         (reported, judged.as_deref()),
@@ -911,7 +935,9 @@ pub(crate) fn search(
         causes,
         choice,
         &opts.policy,
-    ))
+    );
+    diagnosis.saved = saved;
+    Ok(diagnosis)
 }
 
 /// The diagnosis from its chain of models and its rows: `(chain, judged)`,
@@ -991,6 +1017,7 @@ pub(crate) fn assemble(
         report,
         model: final_model.model.clone(),
         chain,
+        saved: None,
     }
 }
 

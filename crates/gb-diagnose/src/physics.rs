@@ -95,7 +95,7 @@ const TEMPLATE_DIRECT_ITERATIONS: usize = 40;
 
 /// Whether a physics spec is the blind mechanical template (or one of its
 /// extensions), not the user's model.
-fn spec_is_template(name: &str) -> bool {
+pub(crate) fn spec_is_template(name: &str) -> bool {
     name == TEMPLATE_NAME
 }
 

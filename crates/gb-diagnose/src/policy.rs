@@ -57,6 +57,7 @@ use crate::DiagnoseError;
 /// | `retry_after_noise_step` | false | after a step that changed only the noise model (a heavy-tailed or process-noise model), the candidates that did not pay at that step are not proposed again: their deterministic part was judged against the same deterministic model, and the select gain is the same squared simulation error (on the sweep, no case named a second cause after `noise`; student-t cases spent half their time refitting every candidate robustly) |
 /// | `stop_when_adequate`, `search_stop_level` | true, 0.05 | before each step the current model's residuals on the decision data get the verdict's tests, each at 5 % without the Bonferroni correction (a lenient reading: any hint of structure counts), and the Jarque–Bera normality test (heavy tails: the `noise` cause); when none rejects and the residual is within `verdict_noise_ratio` × the white-noise level, no extension is searched — the search runs where the residual shows a cause (clean data: the baseline alone). After an accepted step the search also stops at the screen's reading (each test at `screen_level`, within `screen_noise_ratio` × the white-noise level: what already decides that the costly candidates are not needed; friction 1 of the sweep, at the floor after its first step, searched twelve physics terms because one test rejected at 5 %) |
 /// | `refit_on_training` | true | once the search has chosen the structure on the fit block, the chain (baseline, then every accepted extension in turn) is refitted on the whole training record (fit and select blocks) when decisions used the select block; a refitted model replaces its fit-block fit only when its free-run squared error over the whole training record is not larger (a refit that lands in a worse local minimum is dropped). The decisions and the verdict keep the fit-block fits' held-out residuals |
+/// | `refit_on_all_samples` | true | with one training file and no validation record, the report block is the last quarter of that file: the scores are measured there, and then the model a user saves is the chosen chain refitted on all of the file (fit, select and report blocks), kept only when its free-run squared error over the file is not larger than the scored model's. The report states both RMSEs; its scores, decisions and verdict stay those of the model fitted without the report block |
 /// | `retry_after_refinement` | false | after a step that only added capacity to a named cause (more local models, more Preisach cells: a refinement), an extension whose every candidate lost decisively at that step (the whole 95 % interval of its select gain below zero) is not proposed again: the refinement gave it no structure it lacked (Silverbox: five Preisach-column variants on the local model network lost −0.12 to −1.5 at step 2 and took 90 of the 180 CPU seconds of step 3) |
 /// | `linear_before_nonlinear` | true | a new `nonlinearity` or `hysteresis` cause is chosen over a paying higher linear order (`dynamics`) only when it also pays against that order's residuals on the decision data; else the order increase, the smaller change, is chosen (a third pole that the engineer's order-2 model absorbed as a dead time read as a Wiener–Hammerstein network at the same select gain, +0.397 against +0.392) |
 /// | `cv_in_sample_screen` | true | under cross-validation a `nonlinearity` or `hysteresis` candidate is first fitted on the whole training range; when its free-run residual over the folds' samples is not `min_gain` below the current model's (fitted the same way), its four fold fits are skipped and it does not pay (a held-out gain rarely exceeds the in-sample one; the row says so) |
@@ -237,6 +238,10 @@ pub struct DecisionPolicy {
     /// Refit the chosen chain on the whole training record (fit and
     /// select blocks) for the final model.
     pub refit_on_training: bool,
+    /// For the model a user saves from one training file without a
+    /// validation record: refit the chosen chain on all of the record,
+    /// its report block included.
+    pub refit_on_all_samples: bool,
 }
 
 impl Default for DecisionPolicy {
@@ -313,6 +318,7 @@ impl Default for DecisionPolicy {
             diverged_ratio: 10.0,
             diverged_nrmse: 1.0,
             refit_on_training: true,
+            refit_on_all_samples: true,
         }
     }
 }

@@ -82,28 +82,11 @@ pub(crate) fn refit_chain(
         // a noise model's criterion is not the squared simulation error
         return None;
     }
-    let Some(base) = refit_baseline(&chain[0], &whole, d, opts, obs) else {
-        return kept("the baseline's refit failed");
+    let inputs = plan.decision_inputs(d);
+    let out = match refit_over(&whole, (d, &inputs), chain, picks, opts, obs) {
+        Ok(out) => out,
+        Err(why) => return kept(&why),
     };
-    let mut out: Vec<Evaluated> = vec![base];
-    let mut causes: Vec<Cause> = vec![];
-    for (i, (cause, ext, p)) in picks.iter().enumerate() {
-        let run = Refit {
-            whole: &whole,
-            d,
-            causes: &causes,
-            opts,
-            obs,
-        };
-        let choice = chain.get(i + 1).and_then(|e| e.start_choice);
-        let Some(next) = run.step(*ext, p, &out[i], &chain[i], choice) else {
-            return kept(&format!("the refit of step {} failed", i + 1));
-        };
-        out.push(next);
-        if !causes.contains(cause) {
-            causes.push(*cause);
-        }
-    }
     let n = chain.len();
     let (before, after) = (sse(&chain[n - 1].model), sse(&out[n - 1].model));
     let scored = whole_y.len() - plan.w.min(whole_y.len());
@@ -123,6 +106,118 @@ pub(crate) fn refit_chain(
     Some((Some(out), note))
 }
 
+/// The chain refitted on `whole`'s fit record: the baseline, then each
+/// accepted step in turn on the refitted model before it (with the start
+/// its search fit chose); `Err` says which refit failed.
+fn refit_over(
+    whole: &Plan,
+    (d, inputs): (&DiagnoseData, &[Vec<f64>]),
+    chain: &[Evaluated],
+    picks: &[Pick],
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+) -> Result<Vec<Evaluated>, String> {
+    let base = refit_baseline(&chain[0], whole, (d, inputs), opts, obs)
+        .ok_or_else(|| "the baseline's refit failed".to_string())?;
+    let mut out: Vec<Evaluated> = vec![base];
+    let mut causes: Vec<Cause> = vec![];
+    for (i, (cause, ext, p)) in picks.iter().enumerate() {
+        let run = Refit {
+            whole,
+            d,
+            inputs,
+            causes: &causes,
+            opts,
+            obs,
+        };
+        let choice = chain.get(i + 1).and_then(|e| e.start_choice);
+        let next = run
+            .step(*ext, p, &out[i], &chain[i], choice)
+            .ok_or_else(|| format!("the refit of step {} failed", i + 1))?;
+        out.push(next);
+        if !causes.contains(cause) {
+            causes.push(*cause);
+        }
+    }
+    Ok(out)
+}
+
+/// The model a user saves from one training file diagnosed without a
+/// validation record: the chosen structure refitted on **all** of the
+/// record, its report block included (the report block held the scores
+/// back; once every decision is made and the held-out gain is measured,
+/// the model is fitted on everything the user gave — the usual refit after
+/// model selection). The refit is kept only when its free-run squared
+/// error over the whole record is not larger than the reported model's
+/// (`Σₖ (y_k − ŷ_k)²`, `k` over the record after the init window);
+/// otherwise the reported model is saved. `None` when it does not apply
+/// (a validation record or several training records: the report data are
+/// not training data; a noise model; the policy's
+/// `refit_on_all_samples` off). The scores, the decisions and the
+/// verdict of the report stay those of the model fitted without the
+/// report block.
+pub(crate) fn refit_on_all_samples(
+    d: &DiagnoseData,
+    plan: &Plan,
+    chain: &[Evaluated],
+    picks: &[Pick],
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+) -> Option<(Option<FittedModel>, String)> {
+    let applies = opts.policy.refit_on_all_samples
+        && d.single_record
+        && !d.multi()
+        && !d.report_range.is_empty()
+        && !picks.iter().any(|(c, _, _)| *c == Cause::Noise);
+    if !applies {
+        return None;
+    }
+    let all = d.train.slice(0..d.train.len());
+    let whole = Plan {
+        w: plan.w,
+        integrating: false,
+        fit: all.clone(),
+        fit_y: all.clone(),
+        fits: vec![all.clone()],
+        fits_y: vec![all.clone()],
+        folds: vec![],
+        shift: None,
+    }
+    .integrating(plan.integrating);
+    let n = all.len();
+    let not_kept = |why: &str| {
+        format!(
+            "; the model saved is the one scored here: the chosen structure refitted on all {n} samples of the training record was not kept ({why})"
+        )
+    };
+    let inputs = plan.decision_inputs(d);
+    let out = match refit_over(&whole, (d, &inputs), chain, picks, opts, obs) {
+        Ok(out) => out,
+        Err(why) => return Some((None, not_kept(&why))),
+    };
+    let sse = |m: &FittedModel| -> f64 {
+        residuals_on(m, &all, &(0..n), plan.w)
+            .map_or(f64::INFINITY, |r| r.e.iter().map(|e| e * e).sum())
+    };
+    let last = |c: &[Evaluated]| c[c.len() - 1].model.clone();
+    let (before, after) = (sse(&last(chain)), sse(&last(&out)));
+    let scored = n - plan.w.min(n);
+    if after.is_nan() || after > before {
+        let why = format!(
+            "its free-run RMSE over the record {:.4e} exceeds that of the model scored here, {:.4e}",
+            rms_of(after, scored),
+            rms_of(before, scored)
+        );
+        return Some((None, not_kept(&why)));
+    }
+    let note = format!(
+        "; the model saved: the chosen structure refitted on all {n} samples of the training record, its report block included (free-run RMSE over the record {:.4e} -> {:.4e}); the scores, decisions and verdict here are those of the model fitted without the report block",
+        rms_of(before, scored),
+        rms_of(after, scored)
+    );
+    Some((Some(last(&out)), note))
+}
+
 /// `√(sse / n)`.
 fn rms_of(sse: f64, n: usize) -> f64 {
     (sse / n.max(1) as f64).sqrt()
@@ -134,18 +229,18 @@ fn rms_of(sse: f64, n: usize) -> f64 {
 fn refit_baseline(
     base: &Evaluated,
     whole: &Plan,
-    d: &DiagnoseData,
+    (d, inputs): (&DiagnoseData, &[Vec<f64>]),
     opts: &DiagnoseOptions,
     obs: &dyn Observer,
 ) -> Option<Evaluated> {
     let m = match &base.lineage {
         Lineage::Io(p) => {
-            let inputs = d.select_inputs(whole.w);
-            let ev = Evidence::compute(&base.select.e, &base.select.yhat, &inputs);
+            let ev = Evidence::compute(&base.select.e, &base.select.yhat, inputs);
             let sims = crate::diagnose::simulated_on(&base.model, &whole.fit);
             let run = Refit {
                 whole,
                 d,
+                inputs,
                 causes: &[],
                 opts,
                 obs,
@@ -170,6 +265,9 @@ struct Refit<'a> {
     /// The plan whose fit record is the whole training record.
     whole: &'a Plan,
     d: &'a DiagnoseData,
+    /// The inputs over the decision data (aligned with the search fits'
+    /// held-out residuals, which the extensions' evidence reads).
+    inputs: &'a [Vec<f64>],
     /// Causes named before the step.
     causes: &'a [Cause],
     opts: &'a DiagnoseOptions,
@@ -190,8 +288,7 @@ impl<'a> Refit<'a> {
         judged: &Evaluated,
         choice: Option<usize>,
     ) -> Option<Evaluated> {
-        let inputs = self.d.select_inputs(self.whole.w);
-        let ev = Evidence::compute(&judged.select.e, &judged.select.yhat, &inputs);
+        let ev = Evidence::compute(&judged.select.e, &judged.select.yhat, self.inputs);
         let sims = crate::diagnose::simulated_on(&prev.model, &self.whole.fit);
         let ctx = Context {
             start_choice: choice,

@@ -714,7 +714,7 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
     };
     let mut out = vec![];
     for (t, d) in b.tests.iter().zip(&tests) {
-        let (rmse, nrmse, n) = score(&dg.model, d, t.init)?;
+        let (rmse, nrmse, n) = score(dg.to_save(), d, t.init)?;
         let (lin, _, _) = score(baseline, d, t.init)?;
         out.push(Row {
             bench: b.name,

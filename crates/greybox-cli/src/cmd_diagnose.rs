@@ -167,7 +167,7 @@ pub fn run(a: DiagnoseArgs, quiet: bool) -> Result<()> {
         println!("report written to {}", j.display());
     }
     if let Some(s) = &a.save {
-        d.model.save(s).map_err(|e| e.to_string())?;
+        d.to_save().save(s).map_err(|e| e.to_string())?;
         println!("final model saved to {}", s.display());
     }
     Ok(())
@@ -213,7 +213,8 @@ fn run_outputs(a: &DiagnoseArgs, order: OrderChoice, quiet: bool) -> Result<()> 
         print!("{}", d.report.to_text());
         let report = serde_json::to_value(&d.report).map_err(|e| e.to_string())?;
         sections.push(serde_json::json!({"output": name, "report": report}));
-        parts.push((d.model.dynamics.clone(), d.model.noise.clone()));
+        let kept = d.to_save();
+        parts.push((kept.dynamics.clone(), kept.noise.clone()));
         if a.report.is_some() {
             reported.push((name, d, data));
         }

@@ -94,10 +94,12 @@ impl PyDiagnosis {
         self.diagnosis.report.cause_names()
     }
 
-    /// The final (possibly extended) model.
+    /// The final (possibly extended) model: with one training record and
+    /// no validation data, refitted on all of the record once the report
+    /// block has scored it (when that refit is not worse over the record).
     #[getter]
     fn final_model(&self) -> PyModel {
-        PyModel::new(self.diagnosis.model.clone(), vec![])
+        PyModel::new(self.diagnosis.to_save().clone(), vec![])
     }
 
     /// Split text of the data (fit, select and report blocks).
