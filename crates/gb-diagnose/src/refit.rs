@@ -190,17 +190,24 @@ pub(crate) fn refit_on_all_samples(
             "; the model saved is the one scored here: the chosen structure refitted on all {n} samples of the training record was not kept ({why})"
         )
     };
-    let inputs = plan.decision_inputs(d);
-    let out = match refit_over(&whole, (d, &inputs), chain, picks, opts, obs) {
-        Ok(out) => out,
+    let scored_model = chain[chain.len() - 1].model.clone();
+    let refitted = match physics_warm_refit(&whole, chain, obs) {
+        Some(found) => found,
+        None => {
+            let inputs = plan.decision_inputs(d);
+            refit_over(&whole, (d, &inputs), chain, picks, opts, obs)
+                .map(|out| out[out.len() - 1].model.clone())
+        }
+    };
+    let refitted = match refitted {
+        Ok(m) => m,
         Err(why) => return Some((None, not_kept(&why))),
     };
     let sse = |m: &FittedModel| -> f64 {
         residuals_on(m, &all, &(0..n), plan.w)
             .map_or(f64::INFINITY, |r| r.e.iter().map(|e| e * e).sum())
     };
-    let last = |c: &[Evaluated]| c[c.len() - 1].model.clone();
-    let (before, after) = (sse(&last(chain)), sse(&last(&out)));
+    let (before, after) = (sse(&scored_model), sse(&refitted));
     let scored = n - plan.w.min(n);
     if after.is_nan() || after > before {
         let why = format!(
@@ -215,7 +222,33 @@ pub(crate) fn refit_on_all_samples(
         rms_of(before, scored),
         rms_of(after, scored)
     );
-    Some((Some(last(&out)), note))
+    Some((Some(refitted), note))
+}
+
+/// The final model of a chain that started from the engineer's equations,
+/// refitted on `whole`'s record by one Levenberg–Marquardt path from its
+/// estimates ([`crate::physics::refit_physics_direct`]: the physical
+/// parameters and every added term together, warm); `None` for other
+/// chains (refitted step by step).
+fn physics_warm_refit(
+    whole: &Plan,
+    chain: &[Evaluated],
+    obs: &dyn Observer,
+) -> Option<Result<FittedModel, String>> {
+    if !matches!(chain[0].lineage, Lineage::Other { .. }) {
+        return None;
+    }
+    let phys = crate::physics::physics_of(&chain[chain.len() - 1].model)?;
+    let fitted = phys
+        .with_start_at_values()
+        .map_err(|e| e.to_string())
+        .and_then(|m| {
+            crate::physics::refit_physics_direct(m.spec(), &whole.fit, obs)
+                .map_err(|e| e.to_string())
+        })
+        .and_then(|m| whole.finish(m, None).map_err(|e| e.to_string()))
+        .map_err(|e| format!("the refit of the final model failed: {e}"));
+    Some(fitted)
 }
 
 /// `√(sse / n)`.

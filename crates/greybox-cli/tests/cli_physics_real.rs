@@ -87,7 +87,8 @@ fn tanks_physics_file_and_its_diagnosis_on_the_test_set() {
         "--init-window",
         "50",
     ]));
-    // measured 2026-11-24: 0.686 V plain, 0.532 V diagnosed
+    // measured 2026-11-24: 0.686 V plain, 0.532 V diagnosed; 2026-11-29:
+    // 0.491 V diagnosed (the saved model refitted on all training samples)
     assert!(plain < 0.75, "plain physics test RMSE {plain}");
     assert!(
         diagnosed < 0.9 * plain,
