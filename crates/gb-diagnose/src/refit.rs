@@ -54,21 +54,8 @@ pub(crate) fn refit_chain(
         return None;
     }
     let whole_y = d.train.slice(d.fit.start..d.select.end);
-    let whole = Plan {
-        w: plan.w,
-        integrating: false,
-        fit: whole_y.clone(),
-        fit_y: whole_y.clone(),
-        fits: vec![whole_y.clone()],
-        fits_y: vec![whole_y.clone()],
-        folds: vec![],
-        shift: None,
-    }
-    .integrating(plan.integrating);
-    let sse = |m: &FittedModel| -> f64 {
-        residuals_on(m, &whole_y, &(0..whole_y.len()), plan.w)
-            .map_or(f64::INFINITY, |r| r.e.iter().map(|e| e * e).sum())
-    };
+    let whole = plan_on(&whole_y, plan);
+    let sse = |m: &FittedModel| free_run_sse(m, &whole_y, plan.w);
     let kept = |why: &str| {
         Some((
             None,
@@ -173,17 +160,7 @@ pub(crate) fn refit_on_all_samples(
         return None;
     }
     let all = d.train.slice(0..d.train.len());
-    let whole = Plan {
-        w: plan.w,
-        integrating: false,
-        fit: all.clone(),
-        fit_y: all.clone(),
-        fits: vec![all.clone()],
-        fits_y: vec![all.clone()],
-        folds: vec![],
-        shift: None,
-    }
-    .integrating(plan.integrating);
+    let whole = plan_on(&all, plan);
     let n = all.len();
     let not_kept = |why: &str| {
         format!(
@@ -203,10 +180,7 @@ pub(crate) fn refit_on_all_samples(
         Ok(m) => m,
         Err(why) => return Some((None, not_kept(&why))),
     };
-    let sse = |m: &FittedModel| -> f64 {
-        residuals_on(m, &all, &(0..n), plan.w)
-            .map_or(f64::INFINITY, |r| r.e.iter().map(|e| e * e).sum())
-    };
+    let sse = |m: &FittedModel| free_run_sse(m, &all, plan.w);
     let (before, after) = (sse(&scored_model), sse(&refitted));
     let scored = n - plan.w.min(n);
     if after.is_nan() || after > before {
@@ -249,6 +223,29 @@ fn physics_warm_refit(
         .and_then(|m| whole.finish(m, None).map_err(|e| e.to_string()))
         .map_err(|e| format!("the refit of the final model failed: {e}"));
     Some(fitted)
+}
+
+/// A plan without folds whose fit record is `rec` (`plan`'s init window
+/// and integrator).
+fn plan_on(rec: &gb_core::Record, plan: &Plan) -> Plan {
+    Plan {
+        w: plan.w,
+        integrating: false,
+        fit: rec.clone(),
+        fit_y: rec.clone(),
+        fits: vec![rec.clone()],
+        fits_y: vec![rec.clone()],
+        folds: vec![],
+        shift: None,
+    }
+    .integrating(plan.integrating)
+}
+
+/// `Σₖ (y_k − ŷ_k)²` of `m`'s free run over `rec` from the state of its
+/// first `w` outputs, `k ≥ w` (∞ when it does not simulate).
+fn free_run_sse(m: &FittedModel, rec: &gb_core::Record, w: usize) -> f64 {
+    residuals_on(m, rec, &(0..rec.len()), w)
+        .map_or(f64::INFINITY, |r| r.e.iter().map(|e| e * e).sum())
 }
 
 /// `√(sse / n)`.
