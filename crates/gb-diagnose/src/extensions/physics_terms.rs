@@ -371,7 +371,7 @@ fn state_terms(
 /// (in `var`), normalised on `cur`'s simulation of `fit`; a limit starts
 /// at the quantile `q` of the simulated state or output (the upper one;
 /// `1 − q` for a floor). With `Start::Cold` the model is `cur`'s spec at
-/// the start values it was fitted from instead (see [`cold_start`]).
+/// the start values it was fitted from instead (see [`limit_starts`]).
 fn extended(
     cur: &PhysicsModel,
     fit: &gb_core::Record,
@@ -560,14 +560,16 @@ fn describe(kind: Kind, at: &Place, var: &str, names: &[String]) -> String {
             "{lhs} += {}·(what the limit of {var} cuts off): the overflow of {var} flows on",
             p(0)
         ),
-        Kind::Overflow => format!(
-            "an upper limit {} on {} ({lhs} = min(law, (limit − ·)/step)) whose cut-off inflow runs into {var} by a fraction {}: an overflow into the next state",
-            p(0),
-            match at {
+        Kind::Overflow => {
+            let own = match at {
                 Place::State(s) | Place::Output(s) => s,
-            },
-            p(1)
-        ),
+            };
+            format!(
+                "an upper limit {} on {own} ({lhs} = min(law, (limit − {own})/step)) whose cut-off inflow runs into {var} by a fraction {}: an overflow into the next state",
+                p(0),
+                p(1)
+            )
+        }
         Kind::Offset => format!("{lhs} += {} (a sensor offset)", p(0)),
         Kind::Clip => format!("{lhs} = min(g, {}) (a sensor range)", p(0)),
     }
