@@ -56,12 +56,18 @@ def test_diagnose_matches_the_cli(cli, generated, tmp_path):
 
 def test_diagnose_without_validation_splits_like_the_cli(cli, generated, tmp_path):
     d = generated("linear")
-    cli("diagnose", d / "train.csv", "--json", tmp_path / "d.json", "--max-steps", "1")
+    cli("diagnose", d / "train.csv", "--json", tmp_path / "d.json", "--max-steps", "1",
+        "--save", tmp_path / "cli.gbm")
     want = json.loads((tmp_path / "d.json").read_text())
     tr = read_csv(d / "train.csv")
     got = greybox.diagnose(tr["u"], tr["y"], max_steps=1, sample_time=sample_time(tr["t"]))
     assert got.report == want
     assert got.causes == []
+    # the model kept is the one refitted on all of the training data, as
+    # the CLI saves it (the decisions line says so)
+    assert "the model saved: the chosen structure refitted on all" in want["data"]["decision"]
+    got.final_model.save(tmp_path / "py.gbm")
+    assert (tmp_path / "py.gbm").read_bytes() == (tmp_path / "cli.gbm").read_bytes()
 
 
 def test_html_report(generated, tmp_path):
