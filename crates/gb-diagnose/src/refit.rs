@@ -167,7 +167,7 @@ pub(crate) fn refit_on_all_samples(
             "; the model saved is the one scored here: the chosen structure refitted on all {n} samples of the training record was not kept ({why})"
         )
     };
-    let scored_model = chain[chain.len() - 1].model.clone();
+    let scored_model = &chain[chain.len() - 1].model;
     let refitted = match physics_warm_refit(&whole, chain, obs) {
         Some(found) => found,
         None => {
@@ -181,7 +181,7 @@ pub(crate) fn refit_on_all_samples(
         Err(why) => return Some((None, not_kept(&why))),
     };
     let sse = |m: &FittedModel| free_run_sse(m, &all, plan.w);
-    let (before, after) = (sse(&scored_model), sse(&refitted));
+    let (before, after) = (sse(scored_model), sse(&refitted));
     let scored = n - plan.w.min(n);
     if after.is_nan() || after > before {
         let why = format!(

@@ -785,13 +785,16 @@ fn overflow_csv(
     (var.sqrt(), at_limit)
 }
 
-#[test]
-fn diagnose_model_file_finds_the_overflow_of_a_tank() {
-    let d = tmp("overflow");
+/// One step of the diagnosis of `cascaded_tanks.toml` on tanks that
+/// overflow at level 10 and spill the fraction `spill` (1500 training and
+/// 1000 validation samples, noise sd 0.01, seeds `seed` and `seed + 1`):
+/// the printed report, the noise sd and the clean output's sd.
+fn diagnose_overflow(name: &str, seed: u64, spill: f64) -> (String, f64, f64) {
+    let d = tmp(name);
     let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
     let sd = 0.01;
-    let (sy, at) = overflow_csv(&train, 1500, 31, sd, (10.0, 0.0));
-    overflow_csv(&val, 1000, 32, sd, (10.0, 0.0));
+    let (sy, at) = overflow_csv(&train, 1500, seed, sd, (10.0, spill));
+    overflow_csv(&val, 1000, seed + 1, sd, (10.0, spill));
     println!(
         "output sd {sy:.3}, {:.0} % of the samples at the ceiling",
         100.0 * at
@@ -799,6 +802,12 @@ fn diagnose_model_file_finds_the_overflow_of_a_tank() {
     assert!((0.1..0.6).contains(&at), "the ceiling binds {at}");
     let so = diagnose_ok(&train, &val, "cascaded_tanks.toml", &["--max-steps", "1"]);
     println!("{so}");
+    (so, sd, sy)
+}
+
+#[test]
+fn diagnose_model_file_finds_the_overflow_of_a_tank() {
+    let (so, sd, sy) = diagnose_overflow("overflow", 31, 0.0);
     let accepted: Vec<&str> = so.lines().filter(|l| l.contains(" yes ")).collect();
     assert!(
         accepted
@@ -820,14 +829,7 @@ fn diagnose_model_file_finds_the_overflow_of_a_tank() {
 /// candidate (the limit and its spill into `x2`, one step) brings it back.
 #[test]
 fn diagnose_model_file_finds_an_overflow_into_the_lower_tank() {
-    let d = tmp("overflow-spill");
-    let (train, val) = (d.join("train.csv"), d.join("validate.csv"));
-    let sd = 0.01;
-    let (sy, at) = overflow_csv(&train, 1500, 33, sd, (10.0, 0.5));
-    overflow_csv(&val, 1000, 34, sd, (10.0, 0.5));
-    assert!((0.1..0.6).contains(&at), "the ceiling binds {at}");
-    let so = diagnose_ok(&train, &val, "cascaded_tanks.toml", &["--max-steps", "1"]);
-    println!("{so}");
+    let (so, sd, sy) = diagnose_overflow("overflow-spill", 33, 0.5);
     let accepted = so.lines().find(|l| l.contains(" yes ")).unwrap_or("");
     assert!(
         accepted.contains("an upper limit L_hi_x1 on x1") && accepted.contains("runs into x2"),
