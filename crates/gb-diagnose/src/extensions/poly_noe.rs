@@ -74,19 +74,14 @@ mod tests {
     use super::poly_spec;
     use gb_core::{metrics, Init, ModelSpec, Record, Records};
     use gb_lmn::IoNetworkParams;
+    use rand::Rng;
 
     /// A record whose output needs the last numerator lag of a linear
     /// model with direct feedthrough, u(k−2) at order 2, and a cubic term.
     fn record() -> Record {
         let n = 800;
-        let mut s = 777u64;
-        let mut rnd = || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            ((s >> 11) as f64 / (1u64 << 53) as f64) - 0.5
-        };
-        let u: Vec<f64> = (0..n).map(|_| rnd()).collect();
+        let mut rng = gb_core::rng::seeded(777);
+        let u: Vec<f64> = (0..n).map(|_| rng.random::<f64>() - 0.5).collect();
         let mut y = vec![0.0; n];
         for k in 2..n {
             y[k] = 0.6 * y[k - 1] - 0.2 * y[k - 2] + u[k] + 0.6 * u[k - 2] + 0.1 * y[k - 1].powi(3);
