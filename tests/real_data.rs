@@ -77,9 +77,14 @@ fn bouc_wen_benchmark_is_hysteresis() {
 }
 
 /// Silverbox: the electronic Duffing oscillator must be diagnosed as
-/// `nonlinearity`, answered by the network with decision-tree weights:
-/// on the multisine test record NRMSE 0.0051 (the normalised Gaussian
-/// network the diagnosis chose without that candidate: 0.0056).
+/// `nonlinearity`. Step 1 chooses the network with decision-tree weights;
+/// step 2 replaces it by the polynomial on one more lag, which the
+/// decision data cannot tell from it and which has at most half its
+/// parameters (`poly-simpler`). Measured (20 000 training samples): the
+/// tree network 0.0051 on the multisine test, 1.624 mV on the arrow (full,
+/// init window 50: beyond the training amplitudes); the polynomial 0.0046
+/// and 0.317 mV — its cubic terms hold where the network's outermost local
+/// models go on linearly (issue 15's goal: 0.40 mV).
 #[test]
 fn silverbox_is_nonlinearity() {
     let Some(dir) = data_dir() else { return };
@@ -87,9 +92,25 @@ fn silverbox_is_nonlinearity() {
     let val = load(dir.join("silverbox/test_multisine.csv"));
     let d = check("Silverbox", train, val, "nonlinearity", 2);
     let model = d.model.dynamics.describe();
-    assert!(model.contains("decision-tree"), "{model}");
+    assert!(model.contains("polynomial NOE"), "{model}");
     assert!(
-        d.report.final_model.nrmse < 0.0054,
+        d.report
+            .steps
+            .iter()
+            .any(|s| s.accepted && s.iteration == 2 && s.extension.contains("simpler model")),
+        "no simplification in step 2"
+    );
+    let arrow = load(dir.join("silverbox/test_arrow_full.csv"));
+    let w = 50;
+    let sim = d
+        .model
+        .dynamics
+        .simulate(&arrow.inputs, gb_core::Init::Window(&arrow.output[..w]))
+        .unwrap();
+    let rmse = gb_core::metrics::rmse(&arrow.output[w..], &sim[w..]).unwrap();
+    assert!(rmse < 4e-4, "arrow full RMSE {rmse:.3e} V");
+    assert!(
+        d.report.final_model.nrmse < 0.0049,
         "test NRMSE {}",
         d.report.final_model.nrmse
     );

@@ -77,7 +77,7 @@ pub(crate) fn score(
 ) -> Candidate {
     let (gain, ci, pays) = match (ext.metric(), fitted.screened) {
         (GainMetric::Nrmse, Some(g)) => (g, [g, g], false),
-        (metric, _) => score_gain(metric, &proposal, &fitted, ctx, seed),
+        (metric, _) => score_gain((metric, ext.role()), &proposal, &fitted, ctx, seed),
     };
     let pays = pays && ext.admits(ctx, &fitted);
     Candidate {
@@ -93,7 +93,7 @@ pub(crate) fn score(
 /// The gain of `fitted` over the current model on the decision data, its
 /// 95 % interval and whether it pays (before the extension's own check).
 fn score_gain(
-    metric: GainMetric,
+    (metric, ext_role): (GainMetric, Role),
     proposal: &Proposal,
     fitted: &Evaluated,
     ctx: &Context,
@@ -108,6 +108,13 @@ fn score_gain(
             let na = fitted.select.nll_per_sample(&fitted.model.noise);
             let (g, ci) = nll_gain_ci(&nb, &na, block, pol.bootstrap, seed);
             (g, ci, ci[0] > 0.0 && g >= pol.min_nll_gain)
+        }
+        GainMetric::Nrmse if ext_role == Role::Simplification => {
+            let (g, ci) =
+                relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
+            // not told apart: within `min_gain` of the current model, the
+            // interval reaching 0
+            (g, ci, ci[1] >= 0.0 && g > -pol.min_gain)
         }
         GainMetric::Nrmse => {
             let (g, ci) =
@@ -289,7 +296,13 @@ pub(crate) fn choose(
         .filter(|c| c.cause().is_structural())
         .map(|c| c.gain)
         .fold(f64::NEG_INFINITY, f64::max);
-    let chosen = chosen.or(refine).or_else(|| {
+    // a simpler model of a named cause when nothing else is chosen
+    let simpler = || {
+        cands
+            .iter()
+            .position(|c| c.pays && c.role() == Role::Simplification)
+    };
+    let chosen = chosen.or(refine).or_else(simpler).or_else(|| {
         cands.iter().position(|c| {
             c.pays
                 && c.cause() == Cause::Noise

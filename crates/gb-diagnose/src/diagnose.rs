@@ -353,7 +353,9 @@ pub(crate) fn fit_proposal(
     p: &Proposal,
     ctx: &Context,
 ) -> Result<Evaluated, DiagnoseError> {
+    // (a simplification is not screened: it need not gain in-sample)
     let screened = matches!(p.cause, Cause::Nonlinearity | Cause::Hysteresis)
+        && e.role() != Role::Simplification
         && e.metric() == crate::extension::GainMetric::Nrmse
         && ctx.plan.cv()
         && !ctx.data.multi()

@@ -8,8 +8,8 @@ use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Backlash, Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
     MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
-    PhysicsTerms, PolyNoe, PreisachColumns, ProcessNoise, StateNetwork, StudentTNoise, TreeLmn,
-    Wiener, WienerHammerstein,
+    PhysicsTerms, PolyNoe, PolySimpler, PreisachColumns, ProcessNoise, StateNetwork, StudentTNoise,
+    TreeLmn, Wiener, WienerHammerstein,
 };
 use crate::plan::Chosen;
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
@@ -25,6 +25,11 @@ pub enum Role {
     /// The last resort when a named cause stays unexplained and no new cause
     /// pays: tried at most once, must beat the simple choice too.
     Escalation,
+    /// A model with fewer parameters for a cause already named: it replaces
+    /// the current model when no new cause or refinement is chosen, the
+    /// decision data cannot tell the two apart (gain above `−min_gain`,
+    /// 95 % interval reaching 0) and its extension admits it.
+    Simplification,
 }
 
 /// How a candidate's gain is measured.
@@ -283,6 +288,8 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &PhysicsHysteresis,
     &HiddenState,
     &HiddenStateDetail,
+    // last: its place in the list sets the bootstrap seeds of the others
+    &PolySimpler,
 ];
 
 /// The extension that introduces `cause` as a new cause (for its evidence

@@ -32,7 +32,7 @@ pub use order::LinearOrder;
 pub use physics_delay::PhysicsInputDelay;
 pub use physics_hysteresis::PhysicsHysteresis;
 pub use physics_terms::PhysicsTerms;
-pub use poly_noe::PolyNoe;
+pub use poly_noe::{PolyNoe, PolySimpler};
 pub use preisach::PreisachColumns;
 pub use process_noise::ProcessNoise;
 pub use state_network::StateNetwork;

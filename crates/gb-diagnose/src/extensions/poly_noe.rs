@@ -1,8 +1,8 @@
 //! `nonlinearity`: a polynomial NOE model (gb-lmn `poly`) on the current
 //! input–output model's regressors.
 use super::{fit_spec, slash_list};
-use crate::evaluate::Lineage;
-use crate::extension::{Context, Extension, Proposal};
+use crate::evaluate::{Evaluated, Lineage};
+use crate::extension::{Context, Extension, Proposal, Role};
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
 use gb_lmn::IoNetworkParams;
@@ -69,9 +69,106 @@ impl Extension for PolyNoe {
     }
 }
 
+/// A simpler model of a nonlinearity already named: when the current
+/// model is a local model network (LOLIMOT or tree weights, chosen for
+/// `nonlinearity`), a polynomial NOE of degree ≤ 3 on one more lag of the
+/// output and of each input than the network's regressors
+/// (`n_a + 1`, `n_b + 1`, the same dead times; terms by FROLS, up to
+/// [`MAX_TERMS`]). It replaces the network when the data cannot tell them
+/// apart ([`Role::Simplification`]: the decision data's gain within
+/// `min_gain` of 0 and its 95 % interval reaching 0) and it has at most
+/// half the network's parameters. A network's outermost local models go
+/// on linearly beyond the training amplitudes, where a polynomial's cubic
+/// terms hold (the Silverbox arrow); fewer parameters are the better bet
+/// when held-out data cannot choose.
+pub struct PolySimpler;
+
+/// The regressors `(n_a, dead times, input lags)` of the current network
+/// `lineage`: LOLIMOT (an input–output lineage) or a tree network (`lmn:`
+/// spec with `weights=tree`); `None` for any other model.
+fn network_regressors(
+    lineage: &Lineage,
+    n_inputs: usize,
+) -> Option<(usize, Vec<usize>, Vec<usize>)> {
+    match lineage {
+        Lineage::Io(p) if p.network && !p.hysteresis => {
+            let s = p.network_spec(n_inputs);
+            Some((s.na, s.nk, s.nb))
+        }
+        Lineage::Other { spec, .. } if spec.starts_with("lmn:") => {
+            let spec: gb_core::ModelSpec = spec.parse().ok()?;
+            let list = |key: &str| -> Option<Vec<usize>> {
+                spec.option(key)?
+                    .split('/')
+                    .map(|v| v.parse().ok())
+                    .collect()
+            };
+            let na = spec.option("output_lags")?.parse().ok()?;
+            let (nk, nb) = (list("dead_time")?, list("input_lags")?);
+            (nk.len() == n_inputs && nb.len() == n_inputs).then_some((na, nk, nb))
+        }
+        _ => None,
+    }
+}
+
+impl Extension for PolySimpler {
+    fn fit_cost(&self) -> u8 {
+        0
+    }
+    fn name(&self) -> &'static str {
+        "poly-simpler"
+    }
+    fn cause(&self) -> Cause {
+        Cause::Nonlinearity
+    }
+    fn role(&self) -> Role {
+        Role::Simplification
+    }
+    fn once(&self) -> bool {
+        true
+    }
+    fn propose(&self, ctx: &Context) -> Vec<Proposal> {
+        if !ctx.named(Cause::Nonlinearity) {
+            return vec![];
+        }
+        let Some((na, nk, nb)) = network_regressors(&ctx.current.lineage, ctx.fit.n_inputs())
+        else {
+            return vec![];
+        };
+        let nb: Vec<usize> = nb.iter().map(|b| b + 1).collect();
+        vec![Proposal {
+            cause: Cause::Nonlinearity,
+            lineage: Lineage::Other {
+                spec: format!(
+                    "poly:order={},delay={},input_lags={},degree=3,max_terms={MAX_TERMS}",
+                    na + 1,
+                    slash_list(&nk),
+                    slash_list(&nb)
+                ),
+                order: ctx.current.lineage.order(),
+            },
+            text: "a simpler model of the named nonlinearity: polynomial NOE on one more lag of the output and of each input than the network (degree <= 3, terms by FROLS, their number on a hold-out of the fit block, refined for the simulation error), kept when the data cannot tell it from the network and it has at most half its parameters".into(),
+        }]
+    }
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        fit_spec(&p.lineage, ctx, ctx.policy().nonlinear_fit_samples)
+    }
+    /// At most half the current model's parameters.
+    fn admits(&self, ctx: &Context, candidate: &Evaluated) -> bool {
+        2 * candidate.model.dynamics.n_parameters() <= ctx.current.model.dynamics.n_parameters()
+    }
+    fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
+        ctx.evidence.nonlinearity_text()
+    }
+    fn row_text(&self, p: &Proposal, fitted: &FittedModel) -> String {
+        format!("{} -> {}", p.text, fitted.dynamics.describe())
+    }
+}
+
 #[cfg(test)]
 mod tests {
-    use super::poly_spec;
+    use super::{network_regressors, poly_spec};
+    use crate::evaluate::Lineage;
     use gb_core::{metrics, Init, ModelSpec, Record, Records};
     use gb_lmn::IoNetworkParams;
     use rand::Rng;
@@ -112,5 +209,42 @@ mod tests {
         };
         assert!(nrmse(&poly_spec(&p, 1)) < 1e-3);
         assert!(nrmse("poly:order=2,delay=0,input_lags=2,degree=3") > 0.1);
+    }
+
+    /// The regressors a simpler polynomial starts from: a tree network's
+    /// from its spec, LOLIMOT's from its parameters (n + 1 input lags at
+    /// dead time 0); none for a model that is not a network.
+    #[test]
+    fn a_networks_regressors_are_read_from_its_lineage() {
+        let tree = Lineage::Other {
+            spec:
+                "lmn:order=2,output_lags=2,dead_time=0/3,input_lags=3/2,max_leaves=15,weights=tree"
+                    .into(),
+            order: 2,
+        };
+        assert_eq!(
+            network_regressors(&tree, 2),
+            Some((2, vec![0, 3], vec![3, 2]))
+        );
+        assert_eq!(network_regressors(&tree, 1), None);
+        let lolimot = IoNetworkParams {
+            delay: vec![0],
+            network: true,
+            ..IoNetworkParams::linear(3)
+        };
+        assert_eq!(
+            network_regressors(&Lineage::Io(lolimot.clone()), 1),
+            Some((3, vec![0], vec![4]))
+        );
+        let linear = IoNetworkParams {
+            network: false,
+            ..lolimot
+        };
+        assert_eq!(network_regressors(&Lineage::Io(linear), 1), None);
+        let poly = Lineage::Other {
+            spec: "poly:order=2,delay=1,input_lags=2,degree=3".into(),
+            order: 2,
+        };
+        assert_eq!(network_regressors(&poly, 1), None);
     }
 }
