@@ -95,6 +95,9 @@ fn auto_structure(
         println!("  note: the output integrates; `diagnose` models its increments, `fit` fits the output itself");
     }
     spec.set_default("order", c.order.to_string());
+    if spec.name == "poly" {
+        poly_regressors(&mut spec, c.order, &c.choice);
+    }
     // the tree network of `lmn` (a tree option or several records) names
     // its input delays `dead_time`
     let o = spec.options();
@@ -108,6 +111,71 @@ fn auto_structure(
         println!("  note: model spec '{spec}' has no delay option; the delay is not used");
     }
     Ok(spec)
+}
+
+/// The polynomial's regressors as the diagnosis' `poly-noe` candidate
+/// takes them from the linear model of `order` and `choice`: per input
+/// `order + 1` lags at dead time 0 or behind a feedthrough, else `order`;
+/// up to 30 terms (the recipe's defaults: `order` lags, 15 terms). Options
+/// the spec names stay.
+fn poly_regressors(spec: &mut ModelSpec, order: usize, choice: &gb_diagnose::StructureChoice) {
+    let lags: Vec<String> = choice
+        .delay
+        .iter()
+        .map(|&d| {
+            if d == 0 || choice.feedthrough {
+                order + 1
+            } else {
+                order
+            }
+            .to_string()
+        })
+        .collect();
+    spec.set_default("input_lags", lags.join("/"));
+    spec.set_default("max_terms", "30");
+}
+
+/// The polynomial `spec` on one more lag of the output and of each input
+/// (what the diagnosis' `poly-simpler` fits after a network): `None`
+/// without an order or input lags.
+fn poly_one_more_lag(spec: &ModelSpec) -> Option<ModelSpec> {
+    let order: usize = spec.option("order")?.parse().ok()?;
+    let lags: Option<Vec<String>> = spec
+        .option("input_lags")?
+        .split('/')
+        .map(|v| v.parse::<usize>().ok().map(|n| (n + 1).to_string()))
+        .collect();
+    let mut wider = spec.clone();
+    wider
+        .options
+        .retain(|(k, _)| k != "order" && k != "input_lags");
+    wider.set_default("order", (order + 1).to_string());
+    wider.set_default("input_lags", lags?.join("/"));
+    Some(wider)
+}
+
+/// The polynomial `spec` with each input one sample earlier (`delay − 1`,
+/// one more lag: the lags it had and `u(k − delay + 1)`, a feedthrough
+/// behind the dead time): `None` when an input's delay is already 0.
+fn poly_one_sample_earlier(spec: &ModelSpec) -> Option<ModelSpec> {
+    let list = |key: &str| -> Option<Vec<usize>> {
+        spec.option(key)?
+            .split('/')
+            .map(|v| v.parse().ok())
+            .collect()
+    };
+    let (delay, lags) = (list("delay")?, list("input_lags")?);
+    if delay.contains(&0) || delay.len() != lags.len() {
+        return None;
+    }
+    let text = |v: Vec<usize>| v.iter().map(usize::to_string).collect::<Vec<_>>().join("/");
+    let mut earlier = spec.clone();
+    earlier
+        .options
+        .retain(|(k, _)| k != "delay" && k != "input_lags");
+    earlier.set_default("delay", text(delay.iter().map(|d| d - 1).collect()));
+    earlier.set_default("input_lags", text(lags.iter().map(|n| n + 1).collect()));
+    Some(earlier)
 }
 
 /// Whether the order (and delay) of `spec` is chosen on the training data:
@@ -159,10 +227,18 @@ fn order_by_hold_out(
                 .map(|v| v.split([':', ' ']).next().unwrap_or("").to_string())
         })
     });
-    if chosen
-        .option("order")
-        .is_none_or(|n| Some(n) == default.as_deref())
-        || plain.option("order").is_some()
+    // a polynomial also tries one more lag (its terms are chosen inside
+    // the fit: a wider regressor set costs few parameters)
+    let poly = given.name == "poly" && plain.option("order").is_none();
+    let wider = poly.then(|| poly_one_more_lag(&chosen)).flatten();
+    let earlier = (poly && plain.option("delay").is_none())
+        .then(|| poly_one_sample_earlier(&chosen))
+        .flatten();
+    if wider.is_none()
+        && (chosen
+            .option("order")
+            .is_none_or(|n| Some(n) == default.as_deref())
+            || plain.option("order").is_some())
     {
         return Ok(chosen);
     }
@@ -181,12 +257,39 @@ fn order_by_hold_out(
             .unwrap_or(f64::INFINITY)
     };
     let (e_chosen, e_plain) = (score(&chosen), score(&plain));
+    let e_wider = wider.as_ref().map_or(f64::INFINITY, &score);
+    let e_earlier = earlier.as_ref().map_or(f64::INFINITY, &score);
     bar.finish();
+    let best = e_chosen.min(e_plain).min(e_wider).min(e_earlier);
+    let pick = if e_chosen == best {
+        "the chosen"
+    } else if e_wider == best {
+        "one more lag"
+    } else if e_earlier == best {
+        "one sample earlier"
+    } else {
+        "the defaults"
+    };
+    let mut more = String::new();
+    if wider.is_some() {
+        more.push_str(&format!(
+            ", with one more lag of the output and of each input NRMSE {e_wider:.4}"
+        ));
+    }
+    if earlier.is_some() {
+        more.push_str(&format!(
+            ", every input one sample earlier (one more lag) NRMSE {e_earlier:.4}"
+        ));
+    }
     println!(
-        "  on a hold-out (the last 25 % of the training record, free run): the chosen order and delay NRMSE {e_chosen:.4}, the recipe's defaults NRMSE {e_plain:.4} -> {}",
-        if e_plain < e_chosen { "the defaults" } else { "the chosen" }
+        "  on a hold-out (the last 25 % of the training record, free run): the chosen order and delay NRMSE {e_chosen:.4}{more}, the recipe's defaults NRMSE {e_plain:.4} -> {pick}"
     );
-    Ok(if e_plain < e_chosen { plain } else { chosen })
+    Ok(match pick {
+        "the chosen" => chosen,
+        "one more lag" => wider.unwrap_or(chosen),
+        "one sample earlier" => earlier.unwrap_or(chosen),
+        _ => plain,
+    })
 }
 
 /// A bad option value of `spec` (`weights=cubes`, `max_leaves=0`), found
@@ -312,4 +415,34 @@ pub fn run(a: FitArgs, quiet: bool) -> Result<()> {
     m.save(&a.out).map_err(|e| e.to_string())?;
     println!("saved to {}", a.out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{poly_one_more_lag, poly_one_sample_earlier};
+    use gb_core::ModelSpec;
+
+    fn spec(s: &str) -> ModelSpec {
+        s.parse().unwrap()
+    }
+
+    /// The polynomial's hold-out rivals: one more lag of the output and of
+    /// each input; each input one sample earlier with one more lag (none
+    /// when an input is already at dead time 0).
+    #[test]
+    fn the_polynomials_rivals_on_the_hold_out() {
+        let chosen = spec("poly:order=2,input_lags=2/3,max_terms=30,delay=1/2");
+        let wider = poly_one_more_lag(&chosen).unwrap();
+        assert_eq!(wider.option("order"), Some("3"));
+        assert_eq!(wider.option("input_lags"), Some("3/4"));
+        assert_eq!(wider.option("delay"), Some("1/2"));
+        let earlier = poly_one_sample_earlier(&chosen).unwrap();
+        assert_eq!(earlier.option("order"), Some("2"));
+        assert_eq!(earlier.option("delay"), Some("0/1"));
+        assert_eq!(earlier.option("input_lags"), Some("3/4"));
+        assert_eq!(earlier.option("max_terms"), Some("30"));
+        let at_zero = spec("poly:order=2,input_lags=3/2,delay=0/1");
+        assert!(poly_one_sample_earlier(&at_zero).is_none());
+        assert!(poly_one_more_lag(&spec("poly:order=2")).is_none());
+    }
 }
