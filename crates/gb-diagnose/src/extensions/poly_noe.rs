@@ -84,8 +84,8 @@ impl Extension for PolyNoe {
 pub struct PolySimpler;
 
 /// The regressors `(n_a, dead times, input lags)` of the current network
-/// `lineage`: LOLIMOT (an input–output lineage) or a tree network (`lmn:`
-/// spec with `weights=tree`); `None` for any other model.
+/// `lineage`: LOLIMOT (an input–output lineage) or a network of an `lmn:`
+/// spec (the tree network's); `None` for any other model.
 fn network_regressors(
     lineage: &Lineage,
     n_inputs: usize,
