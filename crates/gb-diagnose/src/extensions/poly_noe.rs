@@ -22,11 +22,16 @@ const MAX_TERMS: usize = 30;
 /// or behind a direct feedthrough, as the linear model has them).
 pub(crate) fn poly_spec(p: &IoNetworkParams, n_inputs: usize) -> String {
     let s = p.network_spec(n_inputs);
+    poly_spec_on(s.na, &s.nk, &s.nb)
+}
+
+/// The polynomial's model spec on `na` output lags and, per input, the
+/// dead time `nk` and `nb` lags.
+fn poly_spec_on(na: usize, nk: &[usize], nb: &[usize]) -> String {
     format!(
-        "poly:order={},delay={},input_lags={},degree=3,max_terms={MAX_TERMS}",
-        s.na,
-        slash_list(&s.nk),
-        slash_list(&s.nb)
+        "poly:order={na},delay={},input_lags={},degree=3,max_terms={MAX_TERMS}",
+        slash_list(nk),
+        slash_list(nb)
     )
 }
 
@@ -97,15 +102,14 @@ fn network_regressors(
         }
         Lineage::Other { spec, .. } if spec.starts_with("lmn:") => {
             let spec: gb_core::ModelSpec = spec.parse().ok()?;
-            let list = |key: &str| -> Option<Vec<usize>> {
-                spec.option(key)?
-                    .split('/')
-                    .map(|v| v.parse().ok())
-                    .collect()
-            };
             let na = spec.option("output_lags")?.parse().ok()?;
-            let (nk, nb) = (list("dead_time")?, list("input_lags")?);
-            (nk.len() == n_inputs && nb.len() == n_inputs).then_some((na, nk, nb))
+            let mut opts = spec.options();
+            // one value per input (the tree network's spec names each)
+            let mut list = |key: &str| -> Option<Vec<usize>> {
+                (spec.option(key)?.split('/').count() == n_inputs).then_some(())?;
+                opts.usize_list(key, n_inputs, 0, 0, usize::MAX).ok()
+            };
+            Some((na, list("dead_time")?, list("input_lags")?))
         }
         _ => None,
     }
@@ -139,12 +143,7 @@ impl Extension for PolySimpler {
         vec![Proposal {
             cause: Cause::Nonlinearity,
             lineage: Lineage::Other {
-                spec: format!(
-                    "poly:order={},delay={},input_lags={},degree=3,max_terms={MAX_TERMS}",
-                    na + 1,
-                    slash_list(&nk),
-                    slash_list(&nb)
-                ),
+                spec: poly_spec_on(na + 1, &nk, &nb),
                 order: ctx.current.lineage.order(),
             },
             text: "a simpler model of the named nonlinearity: polynomial NOE on one more lag of the output and of each input than the network (degree <= 3, terms by FROLS, their number on a hold-out of the fit block, refined for the simulation error), kept when the data cannot tell it from the network and it has at most half its parameters".into(),
