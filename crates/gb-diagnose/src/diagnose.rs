@@ -274,10 +274,12 @@ fn screened_candidates(
             let mut unique = names.clone();
             unique.sort_unstable();
             unique.dedup();
+            let r = Reading::screen(pol);
             note = Some(format!(
-                "; step {it}: the {name} candidate left a quiet residual (every test passed at the {} % level, within {}× the white-noise level): {} costly candidate{} ({}) not fitted",
-                100.0 * pol.screen_level,
-                pol.screen_noise_ratio,
+                "; step {it}: the {name} candidate left a quiet residual (every test passed at the {} % level, {}; within {}× the white-noise level): {} costly candidate{} ({}) not fitted",
+                100.0 * r.level,
+                r.reading_text(),
+                r.noise_ratio,
                 names.len(),
                 if names.len() == 1 { "" } else { "s" },
                 unique.join(", ")
@@ -307,13 +309,7 @@ fn best_quiet(
         .iter()
         .filter(|(_, c)| c.pays)
         .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
-        .filter(|(_, c)| {
-            residual_quiet(
-                &c.fitted,
-                inputs,
-                (pol.screen_level, pol.screen_noise_ratio),
-            )
-        })
+        .filter(|(_, c)| residual_quiet(&c.fitted, inputs, Reading::screen(pol)))
         .map(|(_, c)| c.ext.name())
 }
 
@@ -767,36 +763,80 @@ pub fn diagnose(
 }
 
 /// Whether the residuals of `cur` on the decision data show no hint of
-/// structure: no test of the verdict ([`crate::verdict::verdict`]) rejects
-/// with each run at `level` (uncorrected), the residual is within
-/// `noise_ratio` times the white-noise level, and the Jarque–Bera test
-/// does not reject normality at `level` either (heavy tails are the
-/// `noise` cause's evidence). Before a step (the policy's
-/// `search_stop_level`, `verdict_noise_ratio`): the search for a cause
-/// runs where the residual shows one.
-fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], (level, noise_ratio): (f64, f64)) -> bool {
-    let normal = crate::stats::jarque_bera(&cur.select.e).3 >= level;
-    normal && crate::verdict::quiet(&cur.select.e, &cur.select.yhat, inputs, level, noise_ratio)
+/// structure at the reading `r`: no test of the verdict
+/// ([`crate::verdict::verdict`]) rejects at its level (each test at it, or
+/// Bonferroni over the tests), the residual is within its noise ratio
+/// times the white-noise level, and the Jarque–Bera test does not reject
+/// normality at the level either (heavy tails are the `noise` cause's
+/// evidence). Before a step ([`Reading::search_stop`]): the search for a
+/// cause runs where the residual shows one.
+fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], r: Reading) -> bool {
+    let normal = crate::stats::jarque_bera(&cur.select.e).3 >= r.level;
+    normal
+        && crate::verdict::quiet(
+            &cur.select.e,
+            &cur.select.yhat,
+            inputs,
+            (r.level, r.corrected),
+            r.noise_ratio,
+        )
 }
 
-/// The reading (per-test level, noise ratio) at which the current model's
-/// residual is quiet before step `it`, when it is (policy
-/// `stop_when_adequate`): the search-stop reading before every step, and
-/// after an accepted step also the screen's stricter noise ratio at its
-/// stricter per-test level (`screen_level`, `screen_noise_ratio`), which
-/// already decides that the costly candidates of a step are not needed.
+/// How [`residual_quiet`] reads a residual: the level of the residual
+/// tests, whether it is Bonferroni-corrected over the verdict's tests, and
+/// the largest residual RMS in units of the white-noise level.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Reading {
+    level: f64,
+    corrected: bool,
+    noise_ratio: f64,
+}
+
+impl Reading {
+    /// The search stop's reading (`search_stop_level`, uncorrected,
+    /// `verdict_noise_ratio`).
+    fn search_stop(pol: &DecisionPolicy) -> Self {
+        Self {
+            level: pol.search_stop_level,
+            corrected: false,
+            noise_ratio: pol.verdict_noise_ratio,
+        }
+    }
+    /// The screen's reading (`screen_level`, Bonferroni-corrected when
+    /// `screen_bonferroni`, `screen_noise_ratio`).
+    fn screen(pol: &DecisionPolicy) -> Self {
+        Self {
+            level: pol.screen_level,
+            corrected: pol.screen_bonferroni,
+            noise_ratio: pol.screen_noise_ratio,
+        }
+    }
+    /// How the level applies, in words.
+    fn reading_text(&self) -> &'static str {
+        if self.corrected {
+            "Bonferroni over the tests"
+        } else {
+            "each test, uncorrected"
+        }
+    }
+}
+
+/// The reading at which the current model's residual is quiet before
+/// step `it`, when it is (policy `stop_when_adequate`): the search-stop
+/// reading before every step, and after an accepted step also the
+/// screen's ([`Reading::screen`]: a stricter noise ratio), which already
+/// decides that the costly candidates of a step are not needed.
 fn stop_reading(
     cur: &Evaluated,
     inputs: &[Vec<f64>],
     pol: &DecisionPolicy,
     it: usize,
-) -> Option<(f64, f64)> {
+) -> Option<Reading> {
     if !pol.stop_when_adequate {
         return None;
     }
-    let screen =
-        (it > 1 && pol.screen_costly).then_some((pol.screen_level, pol.screen_noise_ratio));
-    [(pol.search_stop_level, pol.verdict_noise_ratio)]
+    let screen = (it > 1 && pol.screen_costly).then(|| Reading::screen(pol));
+    [Reading::search_stop(pol)]
         .into_iter()
         .chain(screen)
         .find(|&r| residual_quiet(cur, inputs, r))
@@ -851,11 +891,13 @@ pub(crate) fn search(
             &format!("step {it}: fitting candidate extensions"),
         );
         let cur = chain.last().expect("the chain holds the baseline");
-        if let Some((level, ratio)) = stop_reading(cur, &inputs, &opts.policy, it) {
+        if let Some(r) = stop_reading(cur, &inputs, &opts.policy, it) {
             choice.decision.push_str(&format!(
-                "; before step {it} every residual test passed at the {} % level (each test, uncorrected; normality too) and the residual was within {}× the white-noise level: no extension was searched",
-                100.0 * level,
-                ratio
+                "; before step {it} every residual test passed at the {} % level ({}; normality at {} %) and the residual was within {}× the white-noise level: no extension was searched",
+                100.0 * r.level,
+                r.reading_text(),
+                100.0 * r.level,
+                r.noise_ratio
             ));
             break;
         }
