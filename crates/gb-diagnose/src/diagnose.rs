@@ -250,7 +250,6 @@ fn failed_note(failed: &[String], it: usize) -> Option<String> {
 fn screened_candidates(
     ctx: &Context,
     props: Vec<(&'static dyn Extension, Proposal)>,
-    inputs: &[Vec<f64>],
     it: usize,
 ) -> (Vec<Candidate>, Option<String>) {
     let pol = ctx.policy();
@@ -267,7 +266,7 @@ fn screened_candidates(
     let mut note = None;
     while let Some(t) = left.iter().map(|(_, (e, _))| tier(*e)).min() {
         let quiet = (!cands.is_empty())
-            .then(|| best_quiet(&cands, inputs, pol))
+            .then(|| best_quiet(&cands, (ctx.plan, ctx.data), pol))
             .flatten();
         if let Some(name) = quiet {
             let names: Vec<&str> = left.iter().map(|(_, (e, _))| e.name()).collect();
@@ -302,14 +301,14 @@ fn screened_candidates(
 /// residual is quiet at the screen's reading.
 fn best_quiet(
     cands: &[(usize, Candidate)],
-    inputs: &[Vec<f64>],
+    at: (&Plan, &DiagnoseData),
     pol: &DecisionPolicy,
 ) -> Option<&'static str> {
     cands
         .iter()
         .filter(|(_, c)| c.pays)
         .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain))
-        .filter(|(_, c)| residual_quiet(&c.fitted, inputs, Reading::screen(pol)))
+        .filter(|(_, c)| residual_quiet(&c.fitted, at, Reading::screen(pol)))
         .map(|(_, c)| c.ext.name())
 }
 
@@ -556,10 +555,8 @@ fn iterate(
     if props.is_empty() {
         return None;
     }
-    let inputs = plan.decision_inputs(d);
-    let (mut cands, mut screened) = timed_phase("candidates", || {
-        screened_candidates(&ctx, props, &inputs, it)
-    });
+    let (mut cands, mut screened) =
+        timed_phase("candidates", || screened_candidates(&ctx, props, it));
     let (mut chosen, note) = timed_phase("choose", || choose(&mut cands, &ctx, it));
     let new_cause = chosen
         .is_some_and(|i| cands[i].role() == Role::NewCause && !causes.contains(&cands[i].cause()));
@@ -764,22 +761,16 @@ pub fn diagnose(
 
 /// Whether the residuals of `cur` on the decision data show no hint of
 /// structure at the reading `r`: no test of the verdict
-/// ([`crate::verdict::verdict`]) rejects at its level (each test at it, or
+/// ([`crate::verdict::verdict_tested`]) rejects at its level (each test at it, or
 /// Bonferroni over the tests), the residual is within its noise ratio
 /// times the white-noise level, and the Jarque–Bera test does not reject
 /// normality at the level either (heavy tails are the `noise` cause's
 /// evidence). Before a step ([`Reading::search_stop`]): the search for a
 /// cause runs where the residual shows one.
-fn residual_quiet(cur: &Evaluated, inputs: &[Vec<f64>], r: Reading) -> bool {
-    let normal = crate::stats::jarque_bera(&cur.select.e).3 >= r.level;
-    normal
-        && crate::verdict::quiet(
-            &cur.select.e,
-            &cur.select.yhat,
-            inputs,
-            (r.level, r.corrected),
-            r.noise_ratio,
-        )
+fn residual_quiet(cur: &Evaluated, (plan, d): (&Plan, &DiagnoseData), r: Reading) -> bool {
+    let t = plan.tested(cur, d);
+    let normal = crate::stats::jarque_bera(&t.whole.e).3 >= r.level;
+    normal && crate::verdict::quiet(&t, (r.level, r.corrected), r.noise_ratio)
 }
 
 /// How [`residual_quiet`] reads a residual: the level of the residual
@@ -828,7 +819,7 @@ impl Reading {
 /// decides that the costly candidates of a step are not needed.
 fn stop_reading(
     cur: &Evaluated,
-    inputs: &[Vec<f64>],
+    at: (&Plan, &DiagnoseData),
     pol: &DecisionPolicy,
     it: usize,
 ) -> Option<Reading> {
@@ -839,7 +830,7 @@ fn stop_reading(
     [Reading::search_stop(pol)]
         .into_iter()
         .chain(screen)
-        .find(|&r| residual_quiet(cur, inputs, r))
+        .find(|&r| residual_quiet(cur, at, r))
 }
 
 /// The diagnosis loop; with a `deadline`, no step starts after it. With
@@ -876,7 +867,6 @@ pub(crate) fn search(
     // did not pay there (`retry_after_noise_step`)
     let mut skip = Skip::default();
     let mut picks: Vec<crate::refit::Pick> = vec![];
-    let inputs = plan.decision_inputs(d);
     for it in 1..=opts.max_steps {
         if deadline.is_some_and(|t| Instant::now() > t) {
             choice.decision.push_str(&format!(
@@ -891,7 +881,7 @@ pub(crate) fn search(
             &format!("step {it}: fitting candidate extensions"),
         );
         let cur = chain.last().expect("the chain holds the baseline");
-        if let Some(r) = stop_reading(cur, &inputs, &opts.policy, it) {
+        if let Some(r) = stop_reading(cur, (&plan, d), &opts.policy, it) {
             choice.decision.push_str(&format!(
                 "; before step {it} every residual test passed at the {} % level ({}; normality at {} %) and the residual was within {}× the white-noise level: no extension was searched",
                 100.0 * r.level,

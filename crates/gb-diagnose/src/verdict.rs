@@ -239,22 +239,19 @@ fn cross_test_runs(a: &[f64], e: &[f64], rs: &[std::ops::Range<usize>]) -> (f64,
     (q, stats::chi2_sf(q, dof as f64))
 }
 
-/// Whether no test of [`verdict`] rejects at `level` and the residual is
-/// within `ratio` times the white-noise level. Uncorrected, each of the
-/// `m` tests runs at `level` (a lenient reading: any hint of structure
-/// counts); `corrected`, at `level / m` (Bonferroni, as the verdict reads
-/// them: `level` bounds the chance that a residual at the noise floor
-/// fails any test).
-pub(crate) fn quiet(
-    e: &[f64],
-    yhat: &[f64],
-    u: &[Vec<f64>],
-    (level, corrected): (f64, bool),
-    ratio: f64,
-) -> bool {
+/// Whether no test of [`verdict_tested`] rejects at `level` and the
+/// residual is within `ratio` times the white-noise level: the tests read
+/// as the final verdict reads them (under cross-validation each p-value
+/// the smaller of the model's own over the folds' samples and the lower
+/// median of the folds' held-out ones, lag products inside contiguous
+/// runs). Uncorrected, each of the `m` tests runs at `level` (a lenient
+/// reading: any hint of structure counts); `corrected`, at `level / m`
+/// (Bonferroni: `level` bounds the chance that a residual at the noise
+/// floor fails any test).
+pub(crate) fn quiet(t: &crate::plan::Tested, (level, corrected): (f64, bool), ratio: f64) -> bool {
     // at the smallest level no test rejects: the kind then says only
     // whether the residual is small enough; the p-values are read here
-    let v = verdict(e, yhat, u, (f64::MIN_POSITIVE, ratio), &[]);
+    let v = verdict_tested(t, (f64::MIN_POSITIVE, ratio, ratio), &[]);
     let per_test = if corrected {
         level / v.tests.len().max(1) as f64
     } else {
@@ -365,7 +362,9 @@ impl Verdict {
 /// Every residual test of the final model at overall `level`; `ratio`
 /// bounds the residual RMS, in units of the white-noise level of the
 /// measured output `yhat + e`, that "adequate" or "coloured noise" may
-/// leave (see the module docs).
+/// leave (see the module docs). One series, no folds: what
+/// [`verdict_tested`] reads on a select block.
+#[cfg(test)]
 pub fn verdict(
     e: &[f64],
     yhat: &[f64],
@@ -379,6 +378,7 @@ pub fn verdict(
 /// [`verdict`] with its own bound for "coloured noise": only whiteness
 /// rejects and `RMS(e) ≤ coloured · σ̂_w` (`coloured ≤ ratio`, policy
 /// `coloured_noise_ratio`); a coloured residual above it is unexplained.
+#[cfg(test)]
 pub(crate) fn verdict_coloured(
     e: &[f64],
     yhat: &[f64],
@@ -389,7 +389,12 @@ pub(crate) fn verdict_coloured(
     judge(residual_tests(e, yhat, u, &[]), e, yhat, levels, tried)
 }
 
-/// [`verdict_coloured`] on what [`crate::plan::Plan::tested`] gives: under
+/// Every residual test of the final model at overall level `levels.0`;
+/// `levels.1` bounds the residual RMS, in units of the white-noise level
+/// of the measured output `yhat + e`, that "adequate" may leave and
+/// `levels.2` (≤ `levels.1`, policy `coloured_noise_ratio`) the one
+/// "coloured noise" may (only whiteness rejects), on what
+/// [`crate::plan::Plan::tested`] gives: under
 /// cross-validation each test's p-value is the smaller of the final
 /// model's own (over the folds' samples, in-sample) and the lower median
 /// of the folds' (each fold's refit on its held-out samples), so it
@@ -641,15 +646,19 @@ mod tests {
         for seed in 0..draws {
             let u = lowpass(&noise(1000, 1000 + seed), 0.8);
             let yhat = lowpass(&u, 0.5);
-            let e = noise(1000, 2000 + seed);
-            corrected += usize::from(!quiet(
-                &e,
-                &yhat,
-                std::slice::from_ref(&u),
-                (0.01, true),
-                10.0,
-            ));
-            each += usize::from(!quiet(&e, &yhat, &[u], (0.01, false), 10.0));
+            let t = crate::plan::Tested {
+                whole: crate::evaluate::Residuals {
+                    e: noise(1000, 2000 + seed),
+                    yhat,
+                    nll: vec![],
+                },
+                inputs: vec![u],
+                folds: vec![],
+                whole_starts: vec![],
+                fold_starts: vec![],
+            };
+            corrected += usize::from(!quiet(&t, (0.01, true), 10.0));
+            each += usize::from(!quiet(&t, (0.01, false), 10.0));
         }
         assert!(corrected <= draws as usize / 50, "{corrected} of {draws}");
         assert!(
