@@ -768,9 +768,13 @@ pub fn diagnose(
 /// evidence). Before a step ([`Reading::search_stop`]): the search for a
 /// cause runs where the residual shows one.
 fn residual_quiet(cur: &Evaluated, (plan, d): (&Plan, &DiagnoseData), r: Reading) -> bool {
-    let t = plan.tested(cur, d);
+    quiet_at(&plan.tested(cur, d), r)
+}
+
+/// [`residual_quiet`] on what [`Plan::tested`] gave.
+fn quiet_at(t: &crate::plan::Tested, r: Reading) -> bool {
     let normal = crate::stats::jarque_bera(&t.whole.e).3 >= r.level;
-    normal && crate::verdict::quiet(&t, (r.level, r.corrected), r.noise_ratio)
+    normal && crate::verdict::quiet(t, (r.level, r.corrected), r.noise_ratio)
 }
 
 /// How [`residual_quiet`] reads a residual: the level of the residual
@@ -827,10 +831,12 @@ fn stop_reading(
         return None;
     }
     let screen = (it > 1 && pol.screen_costly).then(|| Reading::screen(pol));
+    // one in-sample simulation for both readings
+    let tested = at.0.tested(cur, at.1);
     [Reading::search_stop(pol)]
         .into_iter()
         .chain(screen)
-        .find(|&r| residual_quiet(cur, at, r))
+        .find(|&r| quiet_at(&tested, r))
 }
 
 /// The diagnosis loop; with a `deadline`, no step starts after it. With
