@@ -62,6 +62,8 @@ const KNOT_MARGIN: f64 = 0.1;
 const HISTORY_WINDOW: usize = 400;
 /// Poles are kept inside this radius.
 const MAX_RADIUS: f64 = 0.999;
+/// Most Steiglitz–McBride steps of the linear start.
+const SM_STEPS: usize = 10;
 
 /// The basis of a [`StaticMap`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -185,6 +187,26 @@ impl StaticMap {
         let f = phi[..n].iter().zip(&self.coef).map(|(a, b)| a * b).sum();
         let d = dphi[..n].iter().zip(&self.coef).map(|(a, b)| a * b).sum();
         (f, d)
+    }
+
+    /// The v in `[lo, hi]` whose f(v) is nearest `target` (a grid of 256
+    /// points, then one Newton step of at most a grid spacing).
+    fn preimage(&self, target: f64) -> f64 {
+        const GRID: usize = 256;
+        let at = |i: usize| self.lo + (self.hi - self.lo) * i as f64 / GRID as f64;
+        let best = (0..=GRID)
+            .map(|i| (i, (self.eval(at(i)).0 - target).abs()))
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+            .map_or(0, |b| b.0);
+        let v = at(best);
+        let (f, d) = self.eval(v);
+        if d.abs() > 1e-12 {
+            let step = (target - f) / d;
+            let h = (self.hi - self.lo) / GRID as f64;
+            v + step.clamp(-h, h)
+        } else {
+            v
+        }
     }
 
     fn check(&self) -> bool {
@@ -425,8 +447,11 @@ impl BlockModel {
                 hist = h;
             }
         }
+        // the estimated history of an oversampled model can excite a slow
+        // mode the window does not show: from a flat start if it diverges
         let y = self
             .simulate_norm(&mp, &hist, n)
+            .or_else(|| self.simulate_norm(&mp, &self.level_start(&yw, k0), n))
             .ok_or_else(|| LmnError::Unstable("the simulation diverged on these inputs".into()))?;
         Ok(y.into_iter().map(|v| sc.from_norm(v)).collect())
     }
@@ -447,12 +472,12 @@ impl BlockModel {
     fn fit_history(&self, mp: &Mapped, yw: &[f64]) -> Option<Vec<f64>> {
         let w = yw.len();
         let k0 = self.max_lag().min(w);
-        let mut h = smoothed_start(yw, k0);
-        if h.iter().any(|v| !v.is_finite()) {
-            h = yw[..k0]
-                .iter()
-                .map(|&v| if v.is_finite() { v } else { 0.0 })
-                .collect();
+        let mut h = self.plain_start(yw, k0);
+        let mut x0 = vec![0.0; w];
+        let mut y0 = vec![0.0; w];
+        x0[..k0].copy_from_slice(&h);
+        if k0 > 0 && !self.run(mp, &mut x0, &mut y0, k0) {
+            h = self.level_start(yw, k0);
         }
         if k0 == 0 || w <= k0 + 1 {
             return Some(h);
@@ -506,6 +531,56 @@ impl BlockModel {
             }
         }
         Some(h)
+    }
+
+    /// The start of [`fit_history`](Self::fit_history): the first `k0`
+    /// values of a quadratic fitted to the window ([`smoothed_start`]; the
+    /// measured values where that is not finite), each mapped to the x in
+    /// the training range whose g(x) is nearest when there is an output
+    /// map (the history is of the linear block's output x, the window
+    /// measures g(x); a cubic map evaluated at the measured outputs can lie
+    /// far outside the range).
+    fn plain_start(&self, yw: &[f64], k0: usize) -> Vec<f64> {
+        let mut h = smoothed_start(yw, k0);
+        if h.iter().any(|v| !v.is_finite()) {
+            h = yw[..k0]
+                .iter()
+                .map(|&v| if v.is_finite() { v } else { 0.0 })
+                .collect();
+        }
+        self.to_block_output(&mut h);
+        h
+    }
+
+    /// A flat history at the mean of the window's first max(4·k0, 12)
+    /// finite values (mapped as in [`plain_start`](Self::plain_start)): of
+    /// an oversampled model the curvature of a quadratic through noisy
+    /// samples starts a transient of its slow modes far larger than the
+    /// signal (a Wiener model with poles at 0.997: |x| = 35 after 36
+    /// samples), a level mismatch only one of its size.
+    fn level_start(&self, yw: &[f64], k0: usize) -> Vec<f64> {
+        let head: Vec<f64> = (yw.iter().take((4 * k0).max(12)))
+            .copied()
+            .filter(|v| v.is_finite())
+            .collect();
+        let level = if head.is_empty() {
+            0.0
+        } else {
+            head.iter().sum::<f64>() / head.len() as f64
+        };
+        let mut h = vec![level; k0];
+        self.to_block_output(&mut h);
+        h
+    }
+
+    /// Output values mapped to the linear block's output x in the training
+    /// range whose g(x) is nearest (identity without an output map).
+    fn to_block_output(&self, h: &mut [f64]) {
+        if let Some((g, d0)) = &self.output_map {
+            for v in h {
+                *v = g.preimage(*v - d0);
+            }
+        }
     }
 
     /// The starting history for a simulation of the record `yn` in a fit:
@@ -948,6 +1023,66 @@ impl ValidBlockParams {
         Some(m)
     }
 
+    /// Steiglitz–McBride steps ([`crate::steiglitz`]) from the denominator
+    /// of the linear model `m` (poles kept inside 0.999): the one with the
+    /// smallest simulation error and that error; `None` when no step
+    /// succeeds.
+    fn steiglitz_mcbride(
+        &self,
+        m: &BlockModel,
+        un: &[Vec<f64>],
+        yn: &[f64],
+    ) -> Option<(f64, BlockModel)> {
+        let nb: Vec<usize> = m.b.iter().map(Vec::len).collect();
+        let exps = [(un, yn)];
+        let mut best: Option<(f64, BlockModel)> = None;
+        let mut a = m.a.clone();
+        for _ in 0..SM_STEPS {
+            let Some(parts) = crate::steiglitz::step(&a, &nb, &m.nk, &exps) else {
+                break;
+            };
+            let mut cand = m.clone();
+            let r = spectral_radius(&parts.a);
+            let rho = if r >= MAX_RADIUS { MAX_RADIUS / r } else { 1.0 };
+            cand.a = (parts.a.iter().enumerate())
+                .map(|(i, x)| x * rho.powi(i as i32 + 1))
+                .collect();
+            cand.b = parts.b;
+            cand.c = parts.c;
+            a.clone_from(&cand.a);
+            if let Some(e) = sse(&cand, un, yn).filter(|&e| best.as_ref().is_none_or(|b| e < b.0)) {
+                best = Some((e, cand));
+            }
+        }
+        best
+    }
+
+    /// The linear model: Levenberg–Marquardt from the least-squares start
+    /// ([`linear_start`](Self::linear_start)), and from the
+    /// Steiglitz–McBride start ([`steiglitz_mcbride`](Self::steiglitz_mcbride))
+    /// when that alone simulates with less than `SM_RESCUE` times the
+    /// first fit's rms error (the oversampled record whose least-squares
+    /// start ends far from the output-error optimum: a slow Wiener case,
+    /// NRMSE 0.78 against 0.08); the smaller simulation error wins. As a
+    /// rival start on every record it led the maps of two Hammerstein
+    /// cases astray (1.0 → 5.2 and 1.07 → 2.1 times the noise floor).
+    fn fit_linear(&self, d: &Record, un: &[Vec<f64>], yn: &[f64]) -> Option<BlockModel> {
+        let start = self.linear_start(d, un, yn)?;
+        let fit = self.refine(start.clone(), un, yn);
+        let bar = fit
+            .as_ref()
+            .and_then(|m| sse(m, un, yn))
+            .unwrap_or(f64::INFINITY);
+        let rescue_bar = crate::noe::SM_RESCUE * crate::noe::SM_RESCUE * bar;
+        let rescued = self
+            .steiglitz_mcbride(&start, un, yn)
+            .filter(|(e, _)| *e < rescue_bar)
+            .and_then(|(_, m)| self.refine(m, un, yn))
+            .and_then(|m| sse(&m, un, yn).map(|e| (e, m)))
+            .filter(|(e, _)| *e < bar);
+        rescued.map(|(_, m)| m).or(fit)
+    }
+
     /// Levenberg–Marquardt on the simulation error from `m`.
     fn refine(&self, m: BlockModel, un: &[Vec<f64>], yn: &[f64]) -> Option<BlockModel> {
         let theta0 = m.parameters();
@@ -1097,8 +1232,7 @@ impl ValidBlockParams {
         let ys = Scaling::of(&d.output);
         let yn: Vec<f64> = d.output.iter().map(|&v| ys.to_norm(v)).collect();
         let unstable = || LmnError::Unstable("no stable block-oriented model found".into());
-        let start = self.linear_start(d, &un, &yn).ok_or_else(unstable)?;
-        let lin = self.refine(start, &un, &yn).ok_or_else(unstable)?;
+        let lin = self.fit_linear(d, &un, &yn).ok_or_else(unstable)?;
         if n_maps == 0 {
             return Ok(lin);
         }
@@ -1184,7 +1318,7 @@ impl ValidBlockParams {
                     other_delays: vec![],
                     ..self.0.clone()
                 });
-                let lin = q.refine(q.linear_start(d, un, yn)?, un, yn)?;
+                let lin = q.fit_linear(d, un, yn)?;
                 let (_, m) = q.fit_maps(&lin, mp, &ui, &yn[..cut])?;
                 Some((fit_mse(&m), q, lin))
             })
@@ -1958,5 +2092,60 @@ mod tests {
         let mut bad = m.clone();
         bad.a = vec![1.5, 0.2];
         assert!(BlockModel::decode(&bad.encode().unwrap(), 1).is_err());
+    }
+
+    /// An oversampled Wiener system (a lag of 200 samples, then a resonance
+    /// of 630 samples per period, a smooth input, a mild polynomial
+    /// sensor), the sampling of a slow process: the equation-error start
+    /// ends far from the output-error optimum. Scored on a fresh
+    /// noise-free record from a 50-sample window: the Wiener model 1.7e-4
+    /// and the linear 2.2e-2 against noise of 5.3e-3; without the
+    /// Steiglitz–McBride rescue 0.17 and 0.43.
+    #[test]
+    fn an_oversampled_wiener_system_reaches_the_noise() {
+        let smooth = |n: usize, seed: u64| -> Vec<f64> {
+            let e = noise(n, 1.0, seed);
+            let (mut s1, mut s2) = (0.0, 0.0);
+            e.iter()
+                .map(|v| {
+                    s1 = 0.97 * s1 + v;
+                    s2 = 0.97 * s2 + 0.03 * s1;
+                    s2
+                })
+                .collect()
+        };
+        // (z − 0.995)(z² − 1.996 z + 0.996104): poles 0.995, 0.998 ± 0.01j
+        let (c1, c2) = (1.996, -0.996_104);
+        let a = [c1 + 0.995, c2 - 0.995 * c1, -0.995 * c2];
+        let truth = |u: &[f64]| -> Vec<f64> {
+            let mut x = vec![0.0; u.len()];
+            for k in 3..u.len() {
+                x[k] = a[0] * x[k - 1] + a[1] * x[k - 2] + a[2] * x[k - 3] + 2e-7 * u[k - 1];
+            }
+            x.iter()
+                .map(|w| w + 0.05 * w * w + 0.02 * w * w * w)
+                .collect()
+        };
+        let u = smooth(8400, 21);
+        let y0 = truth(&u);
+        let (d, sd) = noisy_record(u[400..].to_vec(), &y0[400..], 22);
+        let v = smooth(4400, 23);
+        let yv = truth(&v)[400..].to_vec();
+        let v = v[400..].to_vec();
+        let score = |m: &BlockModel| {
+            let sim = m
+                .simulate(std::slice::from_ref(&v), Init::Window(&yv[..50]))
+                .unwrap();
+            rms_err(&sim[50..], &yv[50..])
+        };
+        let lin = BlockParams::linear(3).check().unwrap().fit(&d).unwrap();
+        let wiener = BlockParams::wiener(3).check().unwrap().fit(&d).unwrap();
+        let (e_lin, e) = (score(&lin), score(&wiener));
+        let y_sd = gb_core::metrics::std(&yv);
+        assert!(e_lin < 0.2 * y_sd, "linear {e_lin}, output sd {y_sd}");
+        assert!(
+            e < 3.0 * sd && e < 0.2 * e_lin,
+            "Wiener {e}, linear {e_lin}, noise {sd}"
+        );
     }
 }

@@ -73,6 +73,7 @@ mod scaling;
 mod separable;
 mod spec;
 pub mod ssnet;
+mod steiglitz;
 pub mod tree;
 mod views;
 mod wiener_hammerstein;

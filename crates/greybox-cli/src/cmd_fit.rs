@@ -337,13 +337,16 @@ fn fit_output(
     bar.finish();
     let m = &fitted.model;
     let d = data.first();
-    let h = m.dynamics.history_len();
-    let w = if h > 0 { h } else { 50.min(d.len() / 10) };
-    let init = if h > 0 {
-        Init::History(&d.output[..h.min(d.len())])
-    } else {
-        Init::Window(&d.output[..w])
-    };
+    // the state from a window of measured outputs (least squares beyond
+    // the model's lags; a tenth of the record, at most 400 samples): the
+    // first lags alone start an oversampled model with a transient that is
+    // no part of its fit, and a short window leaves its slow state unknown
+    let w = m
+        .dynamics
+        .history_len()
+        .max(400.min(d.len() / 10))
+        .min(d.len());
+    let init = Init::Window(&d.output[..w]);
     let sim = m.simulate(&d.inputs, init).map_err(|e| e.to_string())?;
     let w = w.min(d.len());
     let nrmse = gb_core::metrics::nrmse(&d.output[w..], &sim[w..]).map_err(|e| e.to_string())?;
