@@ -468,17 +468,13 @@ impl BlockModel {
     /// same estimate starts the simulations of the fit (on the first
     /// [`HISTORY_WINDOW`] samples, as the output-error network's
     /// `estimate_init`) and of a scored simulation (on its init window).
-    /// Non-finite outputs are left out; `None` when the start diverges.
+    /// Non-finite outputs are left out. From the flat start
+    /// ([`level_start`](Self::level_start)) when the smoothed one diverges;
+    /// `None` when that diverges too.
     fn fit_history(&self, mp: &Mapped, yw: &[f64]) -> Option<Vec<f64>> {
         let w = yw.len();
         let k0 = self.max_lag().min(w);
         let mut h = self.plain_start(yw, k0);
-        let mut x0 = vec![0.0; w];
-        let mut y0 = vec![0.0; w];
-        x0[..k0].copy_from_slice(&h);
-        if k0 > 0 && !self.run(mp, &mut x0, &mut y0, k0) {
-            h = self.level_start(yw, k0);
-        }
         if k0 == 0 || w <= k0 + 1 {
             return Some(h);
         }
@@ -502,7 +498,13 @@ impl BlockModel {
                     .sum()
             })
         };
-        let mut c0 = sim(&h, &mut x, &mut y)?;
+        let mut c0 = match sim(&h, &mut x, &mut y) {
+            Some(c) => c,
+            None => {
+                h = self.level_start(yw, k0);
+                sim(&h, &mut x, &mut y)?
+            }
+        };
         let steps = if self.output_map.is_some() { 4 } else { 1 };
         for _ in 0..steps {
             let mut g = nalgebra::DMatrix::<f64>::zeros(k0, k0);
