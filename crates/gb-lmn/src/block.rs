@@ -1029,12 +1029,7 @@ impl ValidBlockParams {
     /// of the linear model `m` (poles kept inside 0.999): the one with the
     /// smallest simulation error and that error; `None` when no step
     /// succeeds.
-    fn steiglitz_mcbride(
-        &self,
-        m: &BlockModel,
-        un: &[Vec<f64>],
-        yn: &[f64],
-    ) -> Option<(f64, BlockModel)> {
+    fn steiglitz_mcbride(m: &BlockModel, un: &[Vec<f64>], yn: &[f64]) -> Option<(f64, BlockModel)> {
         let nb: Vec<usize> = m.b.iter().map(Vec::len).collect();
         let exps = [(un, yn)];
         let mut best: Option<(f64, BlockModel)> = None;
@@ -1076,8 +1071,7 @@ impl ValidBlockParams {
             .and_then(|m| sse(m, un, yn))
             .unwrap_or(f64::INFINITY);
         let rescue_bar = crate::noe::SM_RESCUE * crate::noe::SM_RESCUE * bar;
-        let rescued = self
-            .steiglitz_mcbride(&start, un, yn)
+        let rescued = Self::steiglitz_mcbride(&start, un, yn)
             .filter(|(e, _)| *e < rescue_bar)
             .and_then(|(_, m)| self.refine(m, un, yn))
             .and_then(|m| sse(&m, un, yn).map(|e| (e, m)))
