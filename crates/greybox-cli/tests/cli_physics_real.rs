@@ -176,7 +176,10 @@ fn bouc_wen_physics_file_with_an_input_delay_on_the_test_set() {
 /// A linear mass–spring–damper file on the Bouc–Wen data: the diagnosis
 /// adds the hysteretic state (driven by the displacement) and the input
 /// delay, and the multisine test RMSE falls from the linear model's level
-/// (1.7e-4 m) below 5e-6 m.
+/// (1.7e-4 m) below 5e-6 m. Run with `--max-steps 2`: the two steps are
+/// what this test claims; the third step's search (none of its candidates
+/// pays; 90 of the diagnosis' 250 s in release, measured 2026-11-30) is
+/// left to the documented run of docs/results.md.
 #[test]
 fn bouc_wen_from_a_linear_file_the_diagnosis_finds_hysteresis_and_timing() {
     let Some(dir) = data_dir_of("bouc_wen") else {
@@ -204,6 +207,8 @@ fn bouc_wen_from_a_linear_file_the_diagnosis_finds_hysteresis_and_timing() {
         "--save",
         &s(&diag),
         "--quiet",
+        "--max-steps",
+        "2",
     ]);
     assert!(d.contains("causes: hysteresis, dynamics"), "{d}");
     assert!(d.contains("input delay t_delay"), "{d}");

@@ -489,11 +489,12 @@ pub(super) fn with_coulomb_law(
     )
 }
 
-/// The quantiles of the simulation a limit starts from (each start is
-/// fitted and the lowest training RMSE wins: the least-squares fit of a
-/// limit has local optima where it stops binding). Under cross-validation
-/// only the fit on the whole fit block tries them all; each fold refits
-/// the one that won there.
+/// The quantiles of the simulation a limit starts from (the starts race a
+/// few iterations, the leaders are fitted in full and the lowest training
+/// RMSE wins: the least-squares fit of a limit has local optima where it
+/// stops binding; [`crate::physics::best_of_starts`]). Under
+/// cross-validation only the fit on the whole fit block tries them all;
+/// each fold refits the one that won there.
 const LIMIT_STARTS: [f64; 4] = [0.8, 0.9, 0.95, 0.99];
 
 /// Where an extension's fit starts: at the current model's estimates, or
@@ -513,7 +514,9 @@ enum Start {
 /// into the lower, fitted from the plain model's estimates (upper level
 /// 0.01–0.35), reach NRMSE 0.005–0.19 depending on the limit's start;
 /// from the file's start values (levels of a few units) 0.0016 from every
-/// start. The blind template keeps the warm starts only.
+/// start. The blind template keeps the warm starts only. The starts race
+/// (eight iterations each); the two leaders of the engineer's model, the
+/// leader of the template, are fitted in full.
 fn limit_starts(cur: &PhysicsModel) -> Vec<(f64, Start)> {
     let warm = LIMIT_STARTS.iter().map(|&q| (q, Start::Warm));
     if spec_is_template(&cur.spec().name) {
