@@ -133,6 +133,45 @@ fn costly_candidates_are_fitted_only_where_the_cheap_ones_leave_structure() {
         .any(|s| s.extension.contains("hysteretic state")));
 }
 
+/// `linear` seed 5 searched although its baseline is adequate (the search
+/// stop off): no cheap candidate pays, and the baseline's own residual is
+/// quiet at the screen's reading, so the costly tiers are not fitted and
+/// the decisions line says why; with the screen off they are fitted, pay
+/// nothing either, and the diagnosis ends at the same model.
+#[test]
+fn a_quiet_residual_that_no_cheap_candidate_improves_skips_the_costly_tiers() {
+    let searched = diagnosed_with(
+        "linear",
+        5,
+        DecisionPolicy {
+            stop_when_adequate: false,
+            ..DecisionPolicy::default()
+        },
+    );
+    let all = diagnosed_with(
+        "linear",
+        5,
+        DecisionPolicy {
+            stop_when_adequate: false,
+            screen_costly: false,
+            ..DecisionPolicy::default()
+        },
+    );
+    assert!(
+        searched
+            .structure
+            .decision
+            .contains("no candidate paid and the current model left a quiet residual"),
+        "{}",
+        searched.structure.decision
+    );
+    assert!(!searched.steps.is_empty());
+    assert!(!searched.steps.iter().any(|s| costly_row(&s.extension)));
+    assert!(all.steps.iter().any(|s| costly_row(&s.extension)));
+    assert!(searched.causes.is_empty() && all.causes.is_empty());
+    assert!((searched.final_model.nrmse - all.final_model.nrmse).abs() < 1e-12);
+}
+
 /// `preisach` seed 3: at step 2 the hidden-state model diverges (its
 /// select-block RMS error is millions of times the current model's). With
 /// the policy's rule it is left out of the table and the decisions line
