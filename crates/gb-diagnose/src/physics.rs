@@ -277,8 +277,17 @@ pub(crate) fn template_fit_len(fit: &Record, pol: &crate::DecisionPolicy) -> usi
     n
 }
 
-/// Levenberg–Marquardt iterations of each start in [`raced`].
-const RACE_ITERATIONS: usize = 8;
+/// Levenberg–Marquardt iterations of each start in [`raced`]: 8 for the
+/// engineer's model, 4 for the blind template, whose leader goes on from
+/// its raced estimates ([`best_of_starts`]; on preisach 4 of the 8000 +
+/// 4000 sweep the race of four starts was 15 of a limit's 17 s).
+fn race_iterations(template: bool) -> usize {
+    if template {
+        4
+    } else {
+        8
+    }
+}
 
 /// How many of the raced starts are fitted in full: one for the blind
 /// mechanical template, two for the engineer's model (its limits bind
@@ -293,7 +302,7 @@ fn race_survivors(template: bool) -> usize {
 }
 
 /// The starts of `0..n` whose plain fit on `rec` has the lowest training
-/// RMSE after [`RACE_ITERATIONS`] iterations, best first
+/// RMSE after [`race_iterations`] iterations, best first
 /// ([`race_survivors`] of them), for the template each with its spec at
 /// the raced estimates; only those are then fitted in full. On the sweep the
 /// template's starts of one limit ended within 0.01 % of each other's RMSE
@@ -320,7 +329,12 @@ fn raced(
         .map(|i| {
             let m = spec_of(i)
                 .ok()
-                .and_then(|spec| fit_params(spec, rec).max_iter(RACE_ITERATIONS).check().ok())
+                .and_then(|spec| {
+                    fit_params(spec, rec)
+                        .max_iter(race_iterations(template))
+                        .check()
+                        .ok()
+                })
                 .and_then(|f| f.identify_outputs(&data, obs).ok());
             let rmse = m
                 .as_ref()
@@ -348,8 +362,9 @@ fn raced(
 /// training RMSE and the index of its start; the last error when none fits.
 /// The blind template's survivor of the race ([`raced`]) goes on from its
 /// raced estimates (one Levenberg–Marquardt path: on preisach 4 of the
-/// sweep the leader was at its optimum after the race's eight iterations
-/// and the fit from its start took ten more, 5.5 s of the limit's 20 s);
+/// sweep the leader was at its optimum after eight raced iterations and
+/// the fit from its start took ten more, 5.5 s of the limit's 20 s; it
+/// now races four);
 /// the engineer's survivors are fitted from their starts, as unraced ones.
 pub(crate) fn best_of_starts(
     n: usize,
