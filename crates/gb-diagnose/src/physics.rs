@@ -361,11 +361,10 @@ fn raced(
 /// whole fit block chose), each fitted on `rec`, the fit with the lowest
 /// training RMSE and the index of its start; the last error when none fits.
 /// The blind template's survivor of the race ([`raced`]) goes on from its
-/// raced estimates (one Levenberg–Marquardt path: on preisach 4 of the
-/// sweep the leader was at its optimum after eight raced iterations and
-/// the fit from its start took ten more, 5.5 s of the limit's 20 s; it
-/// now races four);
-/// the engineer's survivors are fitted from their starts, as unraced ones.
+/// raced estimates on one Levenberg–Marquardt path (on preisach 4 of the
+/// sweep the leader was at its optimum after eight raced iterations, and
+/// the refit from its start took ten more, 5.5 s of the limit's 20 s); the
+/// engineer's survivors are fitted from their starts, as unraced ones.
 pub(crate) fn best_of_starts(
     n: usize,
     choice: Option<usize>,
