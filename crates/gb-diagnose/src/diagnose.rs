@@ -4,7 +4,7 @@
 use crate::baseline::{baseline, StructureChoice};
 use crate::decide::{choose, relative_gain_ci, score, Candidate};
 use crate::evaluate::{Evaluated, Lineage};
-use crate::extension::{Context, Extension, Proposal, Role, EXTENSIONS};
+use crate::extension::{Context, Extension, GainMetric, Proposal, Role, EXTENSIONS};
 use crate::plan::{assess_from, core, Plan};
 use crate::report::{DataSummary, ModelSummary, Report, Step, REPORT_VERSION};
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, Evidence};
@@ -108,7 +108,8 @@ impl Diagnosis {
 struct Iteration {
     rows: Vec<Step>,
     chosen: Option<(Evaluated, crate::refit::Pick)>,
-    /// The candidates that did not pay (extension, proposal text).
+    /// The candidates that did not pay (extension, proposal text), and
+    /// those the screen held back because a noise model explained the rest.
     lost: HashSet<Lost>,
     /// The extensions whose every candidate lost decisively (the whole
     /// 95 % interval of its select gain below zero).
@@ -252,7 +253,7 @@ fn screened_candidates(
     ctx: &Context,
     props: Vec<(&'static dyn Extension, Proposal)>,
     it: usize,
-) -> (Vec<Candidate>, Option<String>) {
+) -> Screened {
     let pol = ctx.policy();
     let tier = |e: &dyn Extension| {
         if pol.screen_costly {
@@ -265,6 +266,7 @@ fn screened_candidates(
     let mut cands = vec![];
     let mut failed = vec![];
     let mut note = None;
+    let mut held = HashSet::new();
     // whether the current model reads quiet at the screen's reading (asked
     // once, when a tier paid nothing)
     let mut current_quiet: Option<bool> = None;
@@ -272,17 +274,16 @@ fn screened_candidates(
         let quiet = (!cands.is_empty())
             .then(|| quiet_after_tier(&cands, ctx, &mut current_quiet))
             .flatten();
-        if let Some(who) = quiet {
+        if let Some((who, noise_only)) = quiet {
+            if noise_only {
+                held.extend(left.iter().map(|(_, (e, p))| (e.name(), p.text.clone())));
+            }
             let names: Vec<&str> = left.iter().map(|(_, (e, _))| e.name()).collect();
             let mut unique = names.clone();
             unique.sort_unstable();
             unique.dedup();
-            let r = Reading::screen(pol);
             note = Some(format!(
-                "; step {it}: {who} left a quiet residual (every test passed at the {} % level, {}; within {}× the white-noise level): {} costly candidate{} ({}) not fitted",
-                100.0 * r.level,
-                r.reading_text(),
-                r.noise_ratio,
+                "; step {it}: {who}: {} costly candidate{} ({}) not fitted",
                 names.len(),
                 if names.len() == 1 { "" } else { "s" },
                 unique.join(", ")
@@ -297,8 +298,23 @@ fn screened_candidates(
         failed.extend(f);
     }
     cands.sort_by_key(|(i, _)| *i);
-    let note = appended(note, failed_note(&failed, it));
-    (cands.into_iter().map(|(_, c)| c).collect(), note)
+    Screened {
+        cands: cands.into_iter().map(|(_, c)| c).collect(),
+        note: appended(note, failed_note(&failed, it)),
+        held,
+    }
+}
+
+/// A step's candidates after the screen ([`screened_candidates`]).
+struct Screened {
+    /// The candidates fitted, in proposal order.
+    cands: Vec<Candidate>,
+    /// For the decisions line: what was not fitted, which fits failed.
+    note: Option<String>,
+    /// The proposals left out because only noise models paid and the input
+    /// tests passed: after a step that changed only the noise model they
+    /// stay out, as the candidates that did not pay do.
+    held: HashSet<Lost>,
 }
 
 /// What leaves a quiet residual at the screen's reading after the tiers
@@ -315,19 +331,38 @@ fn quiet_after_tier(
     cands: &[(usize, Candidate)],
     ctx: &Context,
     current: &mut Option<bool>,
-) -> Option<String> {
-    let (at, pol) = ((ctx.plan, ctx.data), ctx.policy());
-    let best = cands
-        .iter()
-        .filter(|(_, c)| c.pays)
-        .max_by(|a, b| a.1.gain.total_cmp(&b.1.gain));
+) -> Option<(String, bool)> {
+    let at = (ctx.plan, ctx.data);
+    let r = Reading::screen(ctx.policy());
+    let paying = || cands.iter().filter(|(_, c)| c.pays);
+    let best = paying().max_by(|a, b| a.1.gain.total_cmp(&b.1.gain));
+    let only_noise = paying().all(|(_, c)| c.ext.metric() == GainMetric::Nll);
     match best {
-        Some((_, c)) => residual_quiet(&c.fitted, at, Reading::screen(pol))
-            .then(|| format!("the {} candidate", c.ext.name())),
+        Some((_, c)) if only_noise => input_quiet(&c.fitted, at, r).then(|| {
+            format!(
+                "only noise models paid and the {} candidate's residual passed every input test (cross-correlation, higher-order, static nonlinearity, memory) at the {} % level, {}: its noise model explains the rest",
+                c.ext.name(),
+                100.0 * r.level,
+                r.reading_text()
+            )
+        })
+        .map(|w| (w, true)),
+        Some((_, c)) => residual_quiet(&c.fitted, at, r)
+            .then(|| (quiet_words(&format!("the {} candidate", c.ext.name()), r), false)),
         None => current
-            .get_or_insert_with(|| residual_quiet(ctx.current, at, Reading::screen(pol)))
-            .then(|| "no candidate paid and the current model".to_string()),
+            .get_or_insert_with(|| residual_quiet(ctx.current, at, r))
+            .then(|| (quiet_words("no candidate paid and the current model", r), false)),
     }
+}
+
+/// `who left a quiet residual (…)`: the screen's reading in words.
+fn quiet_words(who: &str, r: Reading) -> String {
+    format!(
+        "{who} left a quiet residual (every test passed at the {} % level, {}; within {}× the white-noise level)",
+        100.0 * r.level,
+        r.reading_text(),
+        r.noise_ratio
+    )
 }
 
 /// `f()`, and with the environment variable `GREYBOX_TIMING` set, one
@@ -573,8 +608,11 @@ fn iterate(
     if props.is_empty() {
         return None;
     }
-    let (mut cands, mut screened) =
-        timed_phase("candidates", || screened_candidates(&ctx, props, it));
+    let Screened {
+        mut cands,
+        note: mut screened,
+        held,
+    } = timed_phase("candidates", || screened_candidates(&ctx, props, it));
     let (mut chosen, note) = timed_phase("choose", || choose(&mut cands, &ctx, it));
     let new_cause = chosen
         .is_some_and(|i| cands[i].role() == Role::NewCause && !causes.contains(&cands[i].cause()));
@@ -615,6 +653,7 @@ fn iterate(
         .iter()
         .filter(|c| !c.pays)
         .map(|c| (c.ext.name(), c.proposal.text.clone()))
+        .chain(held)
         .collect();
     let beaten = beaten_extensions(&cands);
     let chosen = chosen.map(|i| {
@@ -789,6 +828,15 @@ fn residual_quiet(cur: &Evaluated, (plan, d): (&Plan, &DiagnoseData), r: Reading
     quiet_at(&plan.tested(cur, d), r)
 }
 
+/// Whether the residual of `cur` on the decision data passes every test
+/// that involves the inputs (cross-correlation, higher-order
+/// correlations, static nonlinearity, memory) at reading `r` — whiteness,
+/// normality and the size are not read: a noise model that paid explains
+/// the colour, the tails and the excess over the white-noise level.
+fn input_quiet(cur: &Evaluated, (plan, d): (&Plan, &DiagnoseData), r: Reading) -> bool {
+    crate::verdict::input_quiet(&plan.tested(cur, d), (r.level, r.corrected))
+}
+
 /// [`residual_quiet`] on what [`Plan::tested`] gave.
 fn quiet_at(t: &crate::plan::Tested, r: Reading) -> bool {
     let normal = crate::stats::jarque_bera(&t.whole.e).3 >= r.level;
@@ -934,7 +982,7 @@ pub(crate) fn search(
             Some((model, pick)) => {
                 if pick.0 == Cause::Noise && !opts.policy.retry_after_noise_step {
                     choice.decision.push_str(&format!(
-                        "; step {it} changed only the noise model: its {} candidates that did not pay were not fitted again",
+                        "; step {it} changed only the noise model: its {} candidates that did not pay or were not fitted are not fitted again",
                         step.lost.len()
                     ));
                     skip.lost.extend(step.lost);

@@ -260,6 +260,22 @@ pub(crate) fn quiet(t: &crate::plan::Tested, (level, corrected): (f64, bool), ra
     v.kind == VerdictKind::Adequate && v.tests.iter().all(|t| t.2 >= per_test)
 }
 
+/// Whether every residual test but whiteness passes at `level` (divided
+/// by the number of tests, whiteness included, when `corrected`): the
+/// input-driven behaviour is explained, whatever the colour of the rest.
+pub(crate) fn input_quiet(t: &crate::plan::Tested, (level, corrected): (f64, bool)) -> bool {
+    let v = verdict_tested(t, (f64::MIN_POSITIVE, f64::INFINITY, f64::INFINITY), &[]);
+    let per_test = if corrected {
+        level / v.tests.len().max(1) as f64
+    } else {
+        level
+    };
+    v.tests
+        .iter()
+        .filter(|t| !t.0.starts_with("whiteness"))
+        .all(|t| t.2 >= per_test)
+}
+
 /// p-values of the prewhitened input–residual cross-correlation test
 /// (the verdict's `r_ue`), one per input; `e` and the inputs `u` over the
 /// same samples.

@@ -172,6 +172,42 @@ fn a_quiet_residual_that_no_cheap_candidate_improves_skips_the_costly_tiers() {
     assert!((searched.final_model.nrmse - all.final_model.nrmse).abs() < 1e-12);
 }
 
+/// `student-t` seed 1 (heavy-tailed noise) and `coloured-noise` seed 1
+/// (a process-noise model pays): only a noise model pays at step 1 and its residual
+/// passes every test that involves the input, so the structural costly
+/// tiers are not fitted — at step 1, nor at step 2 after the noise step
+/// (the decisions line says why); with the screen off they are fitted,
+/// pay nothing, and the diagnosis ends with the same cause and model.
+#[test]
+fn a_noise_model_that_explains_the_rest_skips_the_costly_tiers() {
+    for family in ["student-t", "coloured-noise"] {
+        noise_explains_the_rest(family, 1);
+    }
+}
+
+fn noise_explains_the_rest(family: &str, seed: u64) {
+    let screened = diagnosed_screening(family, seed, true);
+    let all = diagnosed_screening(family, seed, false);
+    assert!(
+        screened
+            .structure
+            .decision
+            .contains("only noise models paid and the"),
+        "{}",
+        screened.structure.decision
+    );
+    assert!(!screened.steps.iter().any(|s| costly_row(&s.extension)));
+    assert!(all.steps.iter().any(|s| costly_row(&s.extension)));
+    assert_eq!(screened.cause_names(), vec!["noise"]);
+    assert_eq!(screened.cause_names(), all.cause_names());
+    assert!(
+        (screened.final_model.nrmse - all.final_model.nrmse).abs() < 1e-9,
+        "{} vs {}",
+        screened.final_model.nrmse,
+        all.final_model.nrmse
+    );
+}
+
 /// `preisach` seed 3: at step 2 the hidden-state model diverges (its
 /// select-block RMS error is millions of times the current model's). With
 /// the policy's rule it is left out of the table and the decisions line
