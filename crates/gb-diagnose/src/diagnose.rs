@@ -319,7 +319,9 @@ struct Screened {
 
 /// What leaves a quiet residual at the screen's reading after the tiers
 /// fitted so far, in words: the paying candidate with the largest gain
-/// when one pays (its residual decides), else the current model (no
+/// when one pays (its residual decides; when only noise models pay and
+/// no structural candidate reaches `min_gain`, on the input tests alone,
+/// [`input_quiet`], and the flag is true), else the current model (no
 /// candidate paid: its own residual decides, read once into `current`).
 /// A residual the cheap candidates leave quiet, or that none of them could
 /// improve and that is quiet already, leaves no structure a costly one
@@ -336,11 +338,17 @@ fn quiet_after_tier(
     let r = Reading::screen(ctx.policy());
     let paying = || cands.iter().filter(|(_, c)| c.pays);
     let best = paying().max_by(|a, b| a.1.gain.total_cmp(&b.1.gain));
-    let only_noise = paying().all(|(_, c)| c.ext.metric() == GainMetric::Nll);
+    // a structural candidate at `min_gain` (its point estimate), though it
+    // does not pay, says the deterministic part may hold more
+    let only_noise = paying().all(|(_, c)| c.ext.metric() == GainMetric::Nll)
+        && !cands
+            .iter()
+            .any(|(_, c)| c.ext.metric() == GainMetric::Nrmse && c.gain >= ctx.policy().min_gain);
     match best {
         Some((_, c)) if only_noise => input_quiet(&c.fitted, at, r).then(|| {
             format!(
-                "only noise models paid and the {} candidate's residual passed every input test (cross-correlation, higher-order, static nonlinearity, memory) at the {} % level, {}: its noise model explains the rest",
+                "only noise models paid, no structural candidate gained {} % (point estimate), and the {} candidate's residual passed every input test (cross-correlation, higher-order, static nonlinearity, memory) at the {} % level, {}: its noise model explains the rest",
+                100.0 * ctx.policy().min_gain,
                 c.ext.name(),
                 100.0 * r.level,
                 r.reading_text()

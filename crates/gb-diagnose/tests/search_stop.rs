@@ -192,7 +192,7 @@ fn noise_explains_the_rest(family: &str, seed: u64) {
         screened
             .structure
             .decision
-            .contains("only noise models paid and the"),
+            .contains("only noise models paid, no structural candidate gained"),
         "{}",
         screened.structure.decision
     );
