@@ -334,8 +334,8 @@ fn quiet_after_tier(
     ctx: &Context,
     current: &mut Option<bool>,
 ) -> Option<(String, bool)> {
-    let at = (ctx.plan, ctx.data);
-    let r = Reading::screen(ctx.policy());
+    let (at, pol) = ((ctx.plan, ctx.data), ctx.policy());
+    let r = Reading::screen(pol);
     let paying = || cands.iter().filter(|(_, c)| c.pays);
     let best = paying().max_by(|a, b| a.1.gain.total_cmp(&b.1.gain));
     // a structural candidate at `min_gain` (its point estimate), though it
@@ -343,12 +343,12 @@ fn quiet_after_tier(
     let only_noise = paying().all(|(_, c)| c.ext.metric() == GainMetric::Nll)
         && !cands
             .iter()
-            .any(|(_, c)| c.ext.metric() == GainMetric::Nrmse && c.gain >= ctx.policy().min_gain);
+            .any(|(_, c)| c.ext.metric() == GainMetric::Nrmse && c.gain >= pol.min_gain);
     match best {
         Some((_, c)) if only_noise => input_quiet(&c.fitted, at, r).then(|| {
             format!(
                 "only noise models paid, no structural candidate gained {} % (point estimate), and the {} candidate's residual passed every input test (cross-correlation, higher-order, static nonlinearity, memory) at the {} % level, {}: its noise model explains the rest",
-                100.0 * ctx.policy().min_gain,
+                100.0 * pol.min_gain,
                 c.ext.name(),
                 100.0 * r.level,
                 r.reading_text()
