@@ -42,7 +42,8 @@ fn half_width_of(c: usize) -> Option<f64> {
 /// `r` is chosen by the fit block's free-run error (a scan, then finer
 /// steps around its best; a best at or below the scan's lowest value, where
 /// the play is the input itself, is no backlash and the candidate is
-/// dropped); every other coefficient is fitted output-error for
+/// dropped: a scan whose best is its lowest value takes no fine steps);
+/// every other coefficient is fitted output-error for
 /// each `r`. The grid of [`super::PreisachColumns`]' input plays (steps of
 /// 0.3 σ) can only interpolate a gear play of, say, 0.2 σ; this fits it.
 pub struct Backlash;
@@ -148,6 +149,12 @@ impl Backlash {
         let best =
             |v: Vec<(usize, f64, FittedModel)>| v.into_iter().min_by(|a, b| a.1.total_cmp(&b.1));
         let first = best(fit_all(&coarse))?;
+        // the scan's lowest value is the input itself: no backlash, and the
+        // fine steps around it (half below it, half within a grid step
+        // above it) would look for a play narrower than the scan resolves
+        if first.0 == centre {
+            return None;
+        }
         let base = first.0 - centre;
         let fine: Vec<usize> = (0..per)
             .filter(|&k| k != centre)
