@@ -128,7 +128,8 @@ impl Backlash {
     }
 
     /// Scan [`SCAN`], then the fine steps around its best; the best fit,
-    /// its score and its choice index (see [`half_width_of`]).
+    /// its score and its choice index (see [`half_width_of`]). `None` when
+    /// the best is at or below the scan's lowest value (no backlash).
     fn search(io: &IoNetworkParams, j: usize, ctx: &Context) -> Option<(usize, f64, FittedModel)> {
         let top = gb_lmn::half_range(&ctx.fit.inputs[j]);
         let per = (2 * FINE - 1) as usize;
