@@ -150,9 +150,11 @@ impl Backlash {
         let best =
             |v: Vec<(usize, f64, FittedModel)>| v.into_iter().min_by(|a, b| a.1.total_cmp(&b.1));
         let first = best(fit_all(&coarse))?;
-        // the scan's lowest value is the input itself: no backlash, and the
-        // fine steps around it (half below it, half within a grid step
-        // above it) would look for a play narrower than the scan resolves
+        // the scan's lowest value is the input itself: no backlash (any
+        // gain would be the delay variant's alone), and the fine steps
+        // around it (half below it, half within a grid step above it)
+        // would look for a play narrower than the scan resolves; the fine
+        // steps around any other value all lie above it
         if first.0 == centre {
             return None;
         }
@@ -163,9 +165,7 @@ impl Backlash {
             .collect();
         let mut all = fit_all(&fine);
         all.push(first);
-        // at the scan's lower end the play is the input itself: no
-        // backlash, and any gain would be the delay variant's alone
-        best(all).filter(|(c, _, _)| half_width_of(*c).is_some_and(|r| r > SCAN[0]))
+        best(all)
     }
 }
 
