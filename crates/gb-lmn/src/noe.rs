@@ -14,6 +14,7 @@
 use crate::network::{spectral_radius, EvalScratch, Leaf};
 use crate::separable::{Separable, SeparableProblem};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
+use gb_core::gram::dot;
 use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
 use gb_core::{NoiseModel, Observer, Silent};
 use nalgebra::{DMatrix, DVector};
@@ -299,6 +300,157 @@ impl OutputHysteresis {
     }
 }
 
+/// A linear map `M = ∂θ/∂θ'` from reduced parameters θ' to a network's
+/// parameters θ, by rows: row `s` lists `(j, ∂θ_s/∂θ'_j)`.
+pub(crate) struct Projection<'a> {
+    pub(crate) rows: &'a [Vec<(usize, f64)>],
+    pub(crate) n_reduced: usize,
+}
+
+impl Projection<'_> {
+    /// `out = gᵀ M` (a row of ∂/∂θ mapped to ∂/∂θ').
+    #[inline]
+    fn apply(&self, g: &[f64], out: &mut [f64]) {
+        out.fill(0.0);
+        for (&gs, row) in g.iter().zip(self.rows) {
+            if gs != 0.0 {
+                for &(j, v) in row {
+                    out[j] += gs * v;
+                }
+            }
+        }
+    }
+}
+
+/// The working memory of [`LocalModelNetwork::simulate_sens`]: the
+/// regressor and derivative rows of one sample and the rings of the
+/// sensitivities it feeds back (`np` wide: all parameters, or the reduced
+/// ones of a projection).
+struct SensScratch {
+    np: usize,
+    na: usize,
+    /// ring of the last n_a output sensitivities; slot (k mod n_a)
+    ring: usize,
+    sy: Vec<f64>,
+    /// differentiable output columns (plays, then ramps), their count and
+    /// the plays'; the block width and number of lags of the output columns
+    nop: usize,
+    nplay: usize,
+    block: usize,
+    lags: usize,
+    /// ring of play and ramp sensitivities, slot (k mod lags), nop × np each
+    sp: Vec<f64>,
+    x: Vec<f64>,
+    gt: Vec<f64>,
+    gx: Vec<f64>,
+    snew: Vec<f64>,
+    /// (coefficient, row offset) of the sensitivity rows ∂ŷ(k)/∂x feeds back
+    terms: Vec<(f64, usize)>,
+    s: EvalScratch,
+}
+
+impl SensScratch {
+    fn new(net: &LocalModelNetwork, np: usize, na: usize, oh: &OutputHysteresis) -> Self {
+        let nd = net.spec.n_dynamic();
+        let nplay = oh.play.len();
+        let nop = nplay + oh.ramps.len();
+        let ring = na.max(1);
+        let x = vec![0.0; nd + net.spec.n_hysteresis()];
+        let mut gx = vec![0.0; x.len()];
+        if let Some(th) = net.one_leaf() {
+            // one leaf: ∂ŷ/∂x = [a, b, β] at every sample
+            gx[..nd].copy_from_slice(&th[1..]);
+            gx[nd..].copy_from_slice(&net.beta);
+        }
+        Self {
+            np,
+            na,
+            ring,
+            sy: vec![0.0; ring * np],
+            nop,
+            nplay,
+            block: oh.block,
+            lags: oh.lags,
+            sp: vec![0.0; oh.lags * nop * np],
+            x,
+            gt: vec![0.0; net.n_parameters()],
+            gx,
+            snew: vec![0.0; np],
+            terms: Vec::with_capacity(na + oh.lags * nop),
+            s: net.scratch(),
+        }
+    }
+
+    /// The sensitivities of the differentiable output columns at sample
+    /// `k`: a play's follows ∂ŷ(k−1)/∂θ while it moves and keeps its value
+    /// while it sticks; a ramp's is its slope times ∂ŷ(k−1)/∂θ.
+    #[inline]
+    fn output_columns(&mut self, oh: &OutputHysteresis, k: usize, k0: usize) {
+        let (np, nop, lags) = (self.np, self.nop, self.lags);
+        if nop == 0 {
+            return;
+        }
+        let cur = (k % lags) * nop * np;
+        let prv = ((k - 1) % lags) * nop * np;
+        let sy_prev = ((k - 1) % self.ring) * np;
+        let (sp, sy) = (&mut self.sp, &self.sy);
+        for (r, &mv) in oh.moving.iter().enumerate() {
+            let dst = cur + r * np;
+            if mv {
+                if k > k0 {
+                    sp[dst..dst + np].copy_from_slice(&sy[sy_prev..sy_prev + np]);
+                } else {
+                    sp[dst..dst + np].fill(0.0);
+                }
+            } else if cur != prv {
+                sp.copy_within(prv + r * np..prv + (r + 1) * np, dst);
+            }
+        }
+        for (m, &g) in oh.slopes.iter().enumerate() {
+            let dst = cur + (self.nplay + m) * np;
+            if g != 0.0 && k > k0 {
+                for (d, &v) in sp[dst..dst + np].iter_mut().zip(&sy[sy_prev..sy_prev + np]) {
+                    *d = g * v;
+                }
+            } else {
+                sp[dst..dst + np].fill(0.0);
+            }
+        }
+    }
+
+    /// Complete ∂ŷ(k)/∂θ in `snew`: the source row plus ∂f/∂x times the
+    /// fed-back sensitivities (output lags, output columns at every lag),
+    /// and store it in the ring.
+    #[inline]
+    fn feed_back(&mut self, k: usize, k0: usize, nd: usize) {
+        let (np, nop, ring) = (self.np, self.nop, self.ring);
+        self.terms.clear();
+        for i in 1..=self.na {
+            let g = self.gx[i - 1];
+            if g != 0.0 && k >= i + k0 {
+                self.terms.push((g, ((k - i) % ring) * np));
+            }
+        }
+        axpy_rows(&mut self.snew, &self.sy, &self.terms);
+        self.terms.clear();
+        for l in 0..self.lags {
+            if nop == 0 || k < k0 + l {
+                break;
+            }
+            let base = ((k - l) % self.lags) * nop * np;
+            for r in 0..nop {
+                let g = self.gx[nd + l * self.block + r];
+                if g != 0.0 {
+                    self.terms.push((g, base + r * np));
+                }
+            }
+        }
+        axpy_rows(&mut self.snew, &self.sp, &self.terms);
+        let slot = (k % ring) * np;
+        self.sy[slot..slot + np].copy_from_slice(&self.snew);
+    }
+}
+
 /// A [`LocalModelNetwork`] running one sample at a time: the same
 /// arithmetic as [`LocalModelNetwork::simulate_signals`] (the same
 /// regressor filling and evaluation on a sliding history), so stepping
@@ -523,7 +675,25 @@ fn init_window_solver() -> LevenbergMarquardt {
     .expect("valid Gauss-Newton settings")
 }
 
+/// ŷ = θ₀ + θ₁..ᵀ x_dyn + βᵀ x_hyst of a one-leaf network: the arithmetic of
+/// [`LocalModelNetwork::eval`] with the weight Φ = 1, bit for bit.
+#[inline]
+fn one_leaf_value(theta: &[f64], beta: &[f64], x: &[f64]) -> f64 {
+    let nd = theta.len() - 1;
+    let v = theta[0] + dot(&theta[1..], &x[..nd]);
+    v + dot(beta, &x[nd..])
+}
+
 impl LocalModelNetwork {
+    /// The parameters of the only leaf, `None` with several leaves.
+    #[inline]
+    fn one_leaf(&self) -> Option<&[f64]> {
+        match &self.leaves[..] {
+            [leaf] => Some(&leaf.theta),
+            _ => None,
+        }
+    }
+
     pub(crate) fn prepare(&self, inputs: &[Vec<f64>], y: &[f64]) -> Result<Prepared, LmnError> {
         if inputs.len() != self.input_scaling.len() {
             return Err(LmnError::Dimension(format!(
@@ -636,10 +806,14 @@ impl LocalModelNetwork {
         let mut oh = OutputHysteresis::new(self, y0);
         let mut x = vec![0.0; self.spec.n_dynamic() + self.spec.n_hysteresis()];
         let mut s = self.scratch();
+        let one = self.one_leaf();
         for k in k0..n {
             oh.advance(k, out[k - 1]);
             self.fill_x(k, out, p, &oh.ring, &mut x);
-            let v = self.eval(&x, &mut s, None, None);
+            let v = match one {
+                Some(th) => one_leaf_value(th, &self.beta, &x),
+                None => self.eval(&x, &mut s, None, None),
+            };
             if !v.is_finite() || v.abs() > DIVERGED {
                 return false;
             }
@@ -736,17 +910,23 @@ impl LocalModelNetwork {
 
     /// Simulation with sensitivities: returns the weighted cost Σ w e² over
     /// samples k ≥ max_lag and accumulates JᵀWJ and JᵀWe. `None` if diverged.
+    ///
+    /// With a projection `M = ∂θ/∂θ'` ([`Projection`]) the sensitivities
+    /// are those of reduced parameters θ', S' = S M, and JᵀWJ, JᵀWe are of
+    /// size n' (`jtj`, `jtr` sized so): the recursion is linear in S, so S M
+    /// obeys it with the source row (∂f/∂θ) M, and nothing of size n is
+    /// formed.
     fn simulate_sens(
         &self,
         p: &Prepared,
         weights: Option<&[f64]>,
+        proj: Option<&Projection>,
         jtj: &mut DMatrix<f64>,
         jtr: &mut DVector<f64>,
     ) -> Option<f64> {
         let n = p.yn.len();
-        let np = self.n_parameters();
+        let np = proj.map_or_else(|| self.n_parameters(), |m| m.n_reduced);
         let na = self.spec.na;
-        let nd = self.spec.n_dynamic();
         let k0 = self.spec.max_lag().min(n);
         jtj.fill(0.0);
         jtr.fill(0.0);
@@ -756,23 +936,7 @@ impl LocalModelNetwork {
         }
         let y0 = if k0 > 0 { out[k0 - 1] } else { 0.0 };
         let mut oh = OutputHysteresis::new(self, y0);
-        // the differentiable output columns: plays, then the output map's ramps
-        let nplay = oh.play.len();
-        let nop = nplay + oh.ramps.len();
-        let b = oh.block;
-        let lags = oh.lags;
-        // ring buffer of the last n_a output sensitivities; slot (k mod na)
-        let ring = na.max(1);
-        let mut sy = vec![0.0; ring * np];
-        // ring of play and ramp sensitivities, slot (k mod lags), nop × np each
-        let mut sp = vec![0.0; lags * nop * np];
-        let mut x = vec![0.0; nd + self.spec.n_hysteresis()];
-        let mut gt = vec![0.0; np];
-        let mut gx = vec![0.0; x.len()];
-        let mut snew = vec![0.0; np];
-        // (coefficient, row offset) of the sensitivity rows ∂ŷ(k)/∂x feeds back
-        let mut terms: Vec<(f64, usize)> = Vec::with_capacity(na + lags * nop);
-        let mut s: EvalScratch = self.scratch();
+        let mut sc = SensScratch::new(self, np, na, &oh);
         let mut cost = 0.0;
         // Sensitivity rows are gathered in blocks and JᵀWJ is updated with one
         // matrix product per block (SIMD GEMM instead of rank-1 updates).
@@ -781,74 +945,20 @@ impl LocalModelNetwork {
         let mut nblk = 0;
         for k in k0..n {
             oh.advance(k, out[k - 1]);
-            if nop > 0 {
-                // play sensitivities follow ŷ(k−1) while moving, else keep their value
-                let cur = (k % lags) * nop * np;
-                let prv = ((k - 1) % lags) * nop * np;
-                let sy_prev = ((k - 1) % ring) * np;
-                for (r, &mv) in oh.moving.iter().enumerate() {
-                    let dst = cur + r * np;
-                    if mv {
-                        if k > k0 {
-                            sp[dst..dst + np].copy_from_slice(&sy[sy_prev..sy_prev + np]);
-                        } else {
-                            sp[dst..dst + np].fill(0.0);
-                        }
-                    } else if cur != prv {
-                        sp.copy_within(prv + r * np..prv + (r + 1) * np, dst);
-                    }
-                }
-                // a ramp's sensitivity is its slope times ∂ŷ(k−1)/∂θ
-                for (m, &g) in oh.slopes.iter().enumerate() {
-                    let dst = cur + (nplay + m) * np;
-                    if g != 0.0 && k > k0 {
-                        for (d, &v) in sp[dst..dst + np].iter_mut().zip(&sy[sy_prev..sy_prev + np])
-                        {
-                            *d = g * v;
-                        }
-                    } else {
-                        sp[dst..dst + np].fill(0.0);
-                    }
-                }
-            }
-            self.fill_x(k, &out, p, &oh.ring, &mut x);
-            let v = self.eval(&x, &mut s, Some(&mut gt), Some(&mut gx));
+            sc.output_columns(&oh, k, k0);
+            let v = self.source_row(k, &out, p, &oh, proj, &mut sc);
             if !v.is_finite() || v.abs() > DIVERGED {
                 return None;
             }
             out[k] = v;
-            snew.copy_from_slice(&gt);
-            terms.clear();
-            for i in 1..=na {
-                let g = gx[i - 1];
-                if g != 0.0 && k >= i + k0 {
-                    terms.push((g, ((k - i) % ring) * np));
-                }
-            }
-            axpy_rows(&mut snew, &sy, &terms);
-            terms.clear();
-            for l in 0..lags {
-                if nop == 0 || k < k0 + l {
-                    break;
-                }
-                let base = ((k - l) % lags) * nop * np;
-                for r in 0..nop {
-                    let g = gx[nd + l * b + r];
-                    if g != 0.0 {
-                        terms.push((g, base + r * np));
-                    }
-                }
-            }
-            axpy_rows(&mut snew, &sp, &terms);
-            let slot = (k % ring) * np;
-            sy[slot..slot + np].copy_from_slice(&snew);
+            sc.feed_back(k, k0, self.spec.n_dynamic());
             let e = p.yn[k] - v;
             let w = weights.map_or(1.0, |w| w[k]);
             cost += w * e * e;
             let sw = w.sqrt();
             let row = &mut sblk[nblk * np..(nblk + 1) * np];
             let (we, jr) = (w * e, jtr.as_mut_slice());
-            for ((r, j), v) in row.iter_mut().zip(jr.iter_mut()).zip(&snew) {
+            for ((r, j), v) in row.iter_mut().zip(jr.iter_mut()).zip(&sc.snew) {
                 *j += we * v;
                 *r = sw * v;
             }
@@ -863,6 +973,45 @@ impl LocalModelNetwork {
         }
         mirror_upper(jtj);
         Some(cost)
+    }
+
+    /// ŷ(k) and the source row of the sensitivity recursion, ∂f/∂θ (times
+    /// the projection), into `sc.snew`; ∂f/∂x into `sc.gx` (set once for
+    /// one leaf).
+    #[inline]
+    fn source_row(
+        &self,
+        k: usize,
+        out: &[f64],
+        p: &Prepared,
+        oh: &OutputHysteresis,
+        proj: Option<&Projection>,
+        sc: &mut SensScratch,
+    ) -> f64 {
+        match (self.one_leaf(), proj) {
+            // one leaf: ∂ŷ/∂θ = [1, x], no validity functions
+            (Some(th), None) => {
+                sc.snew[0] = 1.0;
+                self.fill_x(k, out, p, &oh.ring, &mut sc.snew[1..]);
+                one_leaf_value(th, &self.beta, &sc.snew[1..])
+            }
+            (Some(th), Some(m)) => {
+                sc.gt[0] = 1.0;
+                self.fill_x(k, out, p, &oh.ring, &mut sc.gt[1..]);
+                let v = one_leaf_value(th, &self.beta, &sc.gt[1..]);
+                m.apply(&sc.gt, &mut sc.snew);
+                v
+            }
+            (None, _) => {
+                self.fill_x(k, out, p, &oh.ring, &mut sc.x);
+                let v = self.eval(&sc.x, &mut sc.s, Some(&mut sc.gt), Some(&mut sc.gx));
+                match proj {
+                    Some(m) => m.apply(&sc.gt, &mut sc.snew),
+                    None => sc.snew.copy_from_slice(&sc.gt),
+                }
+                v
+            }
+        }
     }
 
     fn weighted_cost(
@@ -1157,6 +1306,65 @@ impl<'a> OutputErrorProblem<'a> {
     }
 }
 
+impl OutputErrorProblem<'_> {
+    /// Cost, JᵀWJ and JᵀWe at θ, of the parameters θ or, with a
+    /// projection, of the reduced ones ([`LocalModelNetwork::simulate_sens`]).
+    fn linearize_with(
+        &mut self,
+        theta: &[f64],
+        proj: Option<&Projection>,
+        gram: &mut [f64],
+        grad: &mut [f64],
+    ) -> Option<f64> {
+        self.net.set_parameters(theta);
+        let np = grad.len();
+        if self.jtr.len() != np {
+            self.jtj = DMatrix::zeros(np, np);
+            self.jtr = DVector::zeros(np);
+            if let Some(m) = self.more.as_mut() {
+                *m = (DMatrix::zeros(np, np), DVector::zeros(np));
+            }
+        }
+        let mut c = 0.0;
+        for (i, p) in self.ps.iter_mut().enumerate() {
+            self.net.estimate_init(p);
+            let w = weights_of(self.weights, i);
+            match (i, self.more.as_mut()) {
+                (0, _) | (_, None) => {
+                    c += self
+                        .net
+                        .simulate_sens(p, w, proj, &mut self.jtj, &mut self.jtr)?;
+                }
+                (_, Some((jtj, jtr))) => {
+                    c += self.net.simulate_sens(p, w, proj, jtj, jtr)?;
+                    self.jtj += &*jtj;
+                    self.jtr += &*jtr;
+                }
+            }
+        }
+        // JᵀWJ is exactly symmetric (mirrored), so column-major = row-major
+        gram.copy_from_slice(self.jtj.as_slice());
+        grad.copy_from_slice(self.jtr.as_slice());
+        Some(c)
+    }
+}
+
+impl crate::separable::Projected for OutputErrorProblem<'_> {
+    fn linearize_projected(
+        &mut self,
+        theta: &[f64],
+        rows: &[Vec<(usize, f64)>],
+        gram: &mut [f64],
+        grad: &mut [f64],
+    ) -> Option<f64> {
+        let proj = Projection {
+            rows,
+            n_reduced: grad.len(),
+        };
+        self.linearize_with(theta, Some(&proj), gram, grad)
+    }
+}
+
 /// Weights of experiment `i` (`None`: unweighted).
 fn weights_of(w: Option<&[Vec<f64>]>, i: usize) -> Option<&[f64]> {
     w.and_then(|w| w.get(i)).map(Vec::as_slice)
@@ -1189,26 +1397,7 @@ impl LeastSquaresProblem for OutputErrorProblem<'_> {
         total_cost(&self.net, self.ps, self.weights, &mut self.buf)
     }
     fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
-        self.net.set_parameters(theta);
-        let mut c = 0.0;
-        for (i, p) in self.ps.iter_mut().enumerate() {
-            self.net.estimate_init(p);
-            let w = weights_of(self.weights, i);
-            match (i, self.more.as_mut()) {
-                (0, _) | (_, None) => {
-                    c += self.net.simulate_sens(p, w, &mut self.jtj, &mut self.jtr)?;
-                }
-                (_, Some((jtj, jtr))) => {
-                    c += self.net.simulate_sens(p, w, jtj, jtr)?;
-                    self.jtj += &*jtj;
-                    self.jtr += &*jtr;
-                }
-            }
-        }
-        // JᵀWJ is exactly symmetric (mirrored), so column-major = row-major
-        gram.copy_from_slice(self.jtj.as_slice());
-        grad.copy_from_slice(self.jtr.as_slice());
-        Some(c)
+        self.linearize_with(theta, None, gram, grad)
     }
     fn admissible(&mut self, theta: &[f64]) -> bool {
         self.net.set_parameters(theta);
@@ -2339,6 +2528,84 @@ mod tests {
 
     #[test]
     fn sensitivities_match_finite_differences() {
+        let (net, p) = play_network(true);
+        let np = net.n_parameters();
+        let mut jtj = DMatrix::zeros(np, np);
+        let mut jtr = DVector::zeros(np);
+        net.simulate_sens(&p, None, None, &mut jtj, &mut jtr)
+            .unwrap();
+        // gradient of cost V = Σ e² is −2 Jᵀe
+        let mut buf = Vec::new();
+        let theta = net.parameters();
+        for q in 0..np {
+            let h = 1e-6;
+            let mut a = net.clone();
+            let mut t = theta.clone();
+            t[q] += h;
+            a.set_parameters(&t);
+            let cp = a.weighted_cost(&p, None, &mut buf).unwrap();
+            t[q] -= 2.0 * h;
+            a.set_parameters(&t);
+            let cm = a.weighted_cost(&p, None, &mut buf).unwrap();
+            let fd = (cp - cm) / (2.0 * h);
+            let an = -2.0 * jtr[q];
+            assert!(
+                (fd - an).abs() <= 1e-4 * (1.0 + an.abs()),
+                "param {q}: fd {fd} analytic {an}"
+            );
+        }
+    }
+
+    /// Sensitivities of separable parameters computed in the reduced space
+    /// (the recursion run on S M) against the full Gram matrix and
+    /// gradient multiplied by M afterwards, for one leaf and for two.
+    #[test]
+    fn projected_sensitivities_equal_the_projected_full_gram() {
+        for two_leaves in [false, true] {
+            let (mut net, p) = play_network(two_leaves);
+            let sep = crate::separable::Separable::new(&net).expect("two lags");
+            let mut r = sep.reduce(&net.parameters());
+            let nr = r.len();
+            r[nr - 1] = 0.7; // c_1, so that both entries of M's rows count
+            net.set_parameters(&sep.full(&r));
+            let rows = sep.rows(&r);
+            let np = net.n_parameters();
+            let (mut jtj, mut jtr) = (DMatrix::zeros(np, np), DVector::zeros(np));
+            let c_full = net
+                .simulate_sens(&p, None, None, &mut jtj, &mut jtr)
+                .unwrap();
+            let (mut g_want, mut r_want) = (vec![0.0; nr * nr], vec![0.0; nr]);
+            crate::separable::project_gram(
+                jtj.as_slice(),
+                jtr.as_slice(),
+                &rows,
+                &mut g_want,
+                &mut r_want,
+            );
+            let proj = Projection {
+                rows: &rows,
+                n_reduced: nr,
+            };
+            let (mut g, mut gr) = (DMatrix::zeros(nr, nr), DVector::zeros(nr));
+            let c = net
+                .simulate_sens(&p, None, Some(&proj), &mut g, &mut gr)
+                .unwrap();
+            assert_eq!(c, c_full);
+            let scale = g_want.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+            for (a, b) in g.as_slice().iter().zip(&g_want) {
+                assert!((a - b).abs() <= 1e-10 * scale, "{two_leaves}: {a} vs {b}");
+            }
+            let scale = r_want.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
+            for (a, b) in gr.iter().zip(&r_want) {
+                assert!((a - b).abs() <= 1e-10 * scale, "{two_leaves}: {a} vs {b}");
+            }
+        }
+    }
+
+    /// An order-2 network with two output plays and an input play at two
+    /// lags on 300 samples of a known plant, with one leaf or with two
+    /// (a partition over y(k−1), which exercises the validity derivatives).
+    fn play_network(two_leaves: bool) -> (LocalModelNetwork, Prepared) {
         let mut r = rand::rngs::SmallRng::seed_from_u64(5);
         let u: Vec<f64> = (0..300).map(|_| StandardNormal.sample(&mut r)).collect();
         let y = simulate_true(&u, 0.1, 3);
@@ -2364,32 +2631,13 @@ mod tests {
                 theta: vec![-0.05, 1.1, -0.45, 0.5, 0.1],
             },
         ];
+        if !two_leaves {
+            net.leaves.truncate(1);
+            net.leaves[0].upper = vec![1.0];
+        }
         net.beta = vec![0.05, -0.03, 0.02, -0.01, 0.04, 0.01];
         let p = net.prepare(std::slice::from_ref(&u), &y).unwrap();
-        let np = net.n_parameters();
-        let mut jtj = DMatrix::zeros(np, np);
-        let mut jtr = DVector::zeros(np);
-        net.simulate_sens(&p, None, &mut jtj, &mut jtr).unwrap();
-        // gradient of cost V = Σ e² is −2 Jᵀe
-        let mut buf = Vec::new();
-        let theta = net.parameters();
-        for q in 0..np {
-            let h = 1e-6;
-            let mut a = net.clone();
-            let mut t = theta.clone();
-            t[q] += h;
-            a.set_parameters(&t);
-            let cp = a.weighted_cost(&p, None, &mut buf).unwrap();
-            t[q] -= 2.0 * h;
-            a.set_parameters(&t);
-            let cm = a.weighted_cost(&p, None, &mut buf).unwrap();
-            let fd = (cp - cm) / (2.0 * h);
-            let an = -2.0 * jtr[q];
-            assert!(
-                (fd - an).abs() <= 1e-4 * (1.0 + an.abs()),
-                "param {q}: fd {fd} analytic {an}"
-            );
-        }
+        (net, p)
     }
 
     #[test]

@@ -7,7 +7,10 @@
 //! through c(q) = q⁻¹ + c_1 q⁻² + … (W + L − 1 parameters instead of W·L).
 //! Levenberg–Marquardt runs on the reduced parameters θ' = [θ_lin, w, c_1..]
 //! with the Gauss–Newton Gram G' = Mᵀ G M and gradient g' = Mᵀ g of the full
-//! problem, M = ∂θ/∂θ' (every row has at most two entries).
+//! problem, M = ∂θ/∂θ' (every row has at most two entries). The output-error
+//! problem forms them without G: its sensitivity recursion runs on S M
+//! directly ([`Projected`]), so a linearisation costs O(n'²) per sample
+//! instead of O(n²) (n' = W + L − 1 + n_lin against n = W·L + n_lin).
 use crate::{LocalModelNetwork, NetworkSpec};
 use gb_core::solver::LeastSquaresProblem;
 
@@ -126,7 +129,7 @@ impl Separable {
 
     /// Rows of M = ∂θ/∂θ': (reduced index, value) pairs of every full
     /// parameter.
-    fn rows(&self, r: &[f64]) -> Vec<Vec<(usize, f64)>> {
+    pub(crate) fn rows(&self, r: &[f64]) -> Vec<Vec<(usize, f64)>> {
         let mut m: Vec<Vec<(usize, f64)>> = (0..self.n_lin).map(|j| vec![(j, 1.0)]).collect();
         for &(l, i) in &self.map {
             let mut row = vec![(self.n_lin + i, self.c(r, l))];
@@ -139,63 +142,84 @@ impl Separable {
     }
 }
 
-/// A least-squares problem in full parameters seen through [`Separable`].
-pub(crate) struct SeparableProblem<'a, P: LeastSquaresProblem> {
-    pub(crate) inner: &'a mut P,
-    pub(crate) sep: &'a Separable,
-    gram: Vec<f64>,
-    grad: Vec<f64>,
+/// A least-squares problem that can linearise in reduced parameters θ'
+/// with θ = θ(θ'): the Gram matrix G' = Mᵀ G M and gradient g' = Mᵀ g,
+/// M = ∂θ/∂θ' given by its rows (`(j, ∂θ_s/∂θ'_j)` for every s). The
+/// default forms G and g and multiplies (O(n²) memory and work in the
+/// full size n); a problem may form G' directly.
+pub(crate) trait Projected: LeastSquaresProblem {
+    fn linearize_projected(
+        &mut self,
+        theta: &[f64],
+        rows: &[Vec<(usize, f64)>],
+        gram: &mut [f64],
+        grad: &mut [f64],
+    ) -> Option<f64> {
+        let nf = rows.len();
+        let (mut g, mut gr) = (vec![0.0; nf * nf], vec![0.0; nf]);
+        let c = self.linearize(theta, &mut g, &mut gr)?;
+        project_gram(&g, &gr, rows, gram, grad);
+        Some(c)
+    }
 }
 
-impl<'a, P: LeastSquaresProblem> SeparableProblem<'a, P> {
-    pub(crate) fn new(inner: &'a mut P, sep: &'a Separable) -> Self {
-        let n = inner.n_params();
-        Self {
-            inner,
-            sep,
-            gram: vec![0.0; n * n],
-            grad: vec![0.0; n],
+/// G' = Mᵀ G M and g' = Mᵀ g for the rows of M (T = G M first: each row
+/// of M has at most two entries); G' is n'×n' with n' = `grad.len()`.
+pub(crate) fn project_gram(
+    full_gram: &[f64],
+    full_grad: &[f64],
+    m: &[Vec<(usize, f64)>],
+    gram: &mut [f64],
+    grad: &mut [f64],
+) {
+    let (nf, nr) = (m.len(), grad.len());
+    let mut t = vec![0.0; nf * nr];
+    for r in 0..nf {
+        let g = &full_gram[r * nf..(r + 1) * nf];
+        let tr = &mut t[r * nr..(r + 1) * nr];
+        for (s, row) in m.iter().enumerate() {
+            for &(j, v) in row {
+                tr[j] += g[s] * v;
+            }
+        }
+    }
+    gram.iter_mut().for_each(|v| *v = 0.0);
+    grad.iter_mut().for_each(|v| *v = 0.0);
+    for (r, row) in m.iter().enumerate() {
+        for &(a, v) in row {
+            grad[a] += v * full_grad[r];
+            let tr = &t[r * nr..(r + 1) * nr];
+            for b in 0..nr {
+                gram[a * nr + b] += v * tr[b];
+            }
         }
     }
 }
 
-impl<P: LeastSquaresProblem> LeastSquaresProblem for SeparableProblem<'_, P> {
+/// A least-squares problem in full parameters seen through [`Separable`].
+pub(crate) struct SeparableProblem<'a, P: Projected> {
+    pub(crate) inner: &'a mut P,
+    pub(crate) sep: &'a Separable,
+}
+
+impl<'a, P: Projected> SeparableProblem<'a, P> {
+    pub(crate) fn new(inner: &'a mut P, sep: &'a Separable) -> Self {
+        Self { inner, sep }
+    }
+}
+
+impl<P: Projected> LeastSquaresProblem for SeparableProblem<'_, P> {
     fn n_params(&self) -> usize {
         self.sep.n_reduced()
     }
     fn cost(&mut self, theta: &[f64]) -> Option<f64> {
         self.inner.cost(&self.sep.full(theta))
     }
-    /// G' = Mᵀ G M and g' = Mᵀ g (T = G M first: each row of M has at most
-    /// two entries).
+    /// G' = Mᵀ G M and g' = Mᵀ g ([`Projected`]).
     fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
-        let c = self
-            .inner
-            .linearize(&self.sep.full(theta), &mut self.gram, &mut self.grad)?;
         let m = self.sep.rows(theta);
-        let (nf, nr) = (m.len(), self.sep.n_reduced());
-        let mut t = vec![0.0; nf * nr];
-        for r in 0..nf {
-            let g = &self.gram[r * nf..(r + 1) * nf];
-            let tr = &mut t[r * nr..(r + 1) * nr];
-            for (s, row) in m.iter().enumerate() {
-                for &(j, v) in row {
-                    tr[j] += g[s] * v;
-                }
-            }
-        }
-        gram.iter_mut().for_each(|v| *v = 0.0);
-        grad.iter_mut().for_each(|v| *v = 0.0);
-        for (r, row) in m.iter().enumerate() {
-            for &(a, v) in row {
-                grad[a] += v * self.grad[r];
-                let tr = &t[r * nr..(r + 1) * nr];
-                for b in 0..nr {
-                    gram[a * nr + b] += v * tr[b];
-                }
-            }
-        }
-        Some(c)
+        self.inner
+            .linearize_projected(&self.sep.full(theta), &m, gram, grad)
     }
     fn admissible(&mut self, theta: &[f64]) -> bool {
         self.inner.admissible(&self.sep.full(theta))
@@ -270,6 +294,7 @@ mod tests {
                 self.cost(th)
             }
         }
+        impl Projected for Quad {}
         let target: Vec<f64> = (0..th.len()).map(|j| (j as f64 * 0.3).sin()).collect();
         let mut q = Quad(target);
         let mut p = SeparableProblem::new(&mut q, &s);
