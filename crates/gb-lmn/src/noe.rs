@@ -2180,10 +2180,8 @@ fn steiglitz_mcbride_start(
 /// Levenberg–Marquardt started from `warm` embedded into `spec` (see
 /// [`embed_linear`]), and for a structure without hysteresis columns also
 /// the cold least-squares start of [`fit_linear_oe`] (without its staged
-/// lower orders: the warm start is the nested smaller model; one more than
-/// one order below `spec` is also raised one order at a time,
-/// [`staged_from_warm`]); the fit with the smaller simulation error on the
-/// data wins. Output-error costs have
+/// lower orders: the warm start is the nested smaller model); the fit with
+/// the smaller simulation error on the data wins. Output-error costs have
 /// local minima, and a warm start from a smaller nested model can never do
 /// worse than it. With hysteresis columns the warm fit alone is kept
 /// unless [`FitOptions::cold_with_hysteresis`] asks for both: on the 54
@@ -2226,8 +2224,6 @@ pub fn fit_linear_oe_warm_records(
         return fit_linear_oe_records(spec, exps, opts, observer);
     };
     let warm_fit = refine_output_error_records(&start, exps, opts, observer).map(|(m, _)| m);
-    let staged = warm.and_then(|w| staged_from_warm(w, spec, exps, opts, observer));
-    let warm_fit = better_of(warm_fit, staged, exps);
     if spec.n_hysteresis() > 0 && !opts.cold_with_hysteresis && warm_fit.is_ok() {
         return warm_fit;
     }
@@ -2242,41 +2238,6 @@ pub fn fit_linear_oe_warm_records(
         (Err(_), Ok(w)) => Ok(w),
         (Err(e), Err(_)) => Err(e),
     }
-}
-
-/// A warm start more than one order below a linear `spec` (no hysteresis
-/// columns) raised one order at a time, each order embedded and trained
-/// (as [`fit_linear_oe`]'s staged start does from below); `None` when it
-/// does not apply or a stage fails. Embedded two orders up at once, the
-/// order-2 model of a two-mass record (a second resonance at 12 samples
-/// per period, damping 0.02) trained to 1.08× the noise floor at order 4;
-/// through order 3, to 1.00×.
-fn staged_from_warm(
-    warm: &LocalModelNetwork,
-    spec: &NetworkSpec,
-    exps: &[Experiment],
-    opts: &FitOptions,
-    observer: &dyn Observer,
-) -> Option<LocalModelNetwork> {
-    if spec.n_hysteresis() > 0 || warm.spec.n_hysteresis() > 0 || warm.spec.na + 1 >= spec.na {
-        return None;
-    }
-    let mut cur = warm.clone();
-    for na in warm.spec.na + 1..spec.na {
-        let mut step = spec.clone();
-        step.na = na;
-        for (b, (&full, &from)) in step.nb.iter_mut().zip(spec.nb.iter().zip(&warm.spec.nb)) {
-            *b = full.saturating_sub(spec.na - na).max(from).max(1);
-        }
-        let start = embed_linear(&cur, &step)?;
-        cur = refine_output_error_records(&start, exps, opts, observer)
-            .ok()?
-            .0;
-    }
-    let start = embed_linear(&cur, spec)?;
-    refine_output_error_records(&start, exps, opts, observer)
-        .ok()
-        .map(|(m, _)| m)
 }
 
 /// One experiment of a multi-record fit: its inputs and measured output.
