@@ -44,7 +44,6 @@ fn refit(m: &FittedModel, plan: &Plan, opts: &DiagnoseOptions) -> Option<FittedM
     let fit = &plan.fit;
     let o = gb_lmn::FitOptions {
         max_iter: opts.policy.refit_iterations,
-        max_iter_linear: opts.policy.refit_iterations,
         ..opts.fit.clone()
     };
     let (net, _) = gb_lmn::refine_output_error(net, &fit.inputs, &fit.output, &o).ok()?;

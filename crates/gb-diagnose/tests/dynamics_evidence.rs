@@ -99,29 +99,3 @@ fn a_missing_pole_read_as_a_loop_stays_dynamics() {
         "{causes:?}, final/floor {ratio:.3}"
     );
 }
-
-/// The order-4 output-error fit of `two-mass` seed 2 at 8000 + 4000
-/// samples (a second resonance at 12 samples per period, damping 0.02,
-/// 20.8 dB SNR) crawls along its cost's valley before it finds the second
-/// mode: stopped after 40 Levenberg–Marquardt iterations it stood at 1.07×
-/// the noise floor on the validation record (the order-2 model: 1.09×),
-/// and the diagnosis named a foreign `nonlinearity`. A linear structure now
-/// gets `max_iter_linear` (100) iterations.
-#[test]
-fn a_lightly_damped_second_mode_is_found_by_the_linear_fit() {
-    let knobs = gb_diagnose::generator::Knobs {
-        n_train: Some(8000),
-        n_validate: Some(4000),
-        ..Default::default()
-    };
-    let c = gb_diagnose::generator::draw_with("two-mass", 2, &knobs).unwrap();
-    let spec = gb_lmn::NetworkSpec::order(4, 1);
-    let opts = gb_lmn::FitOptions::default();
-    let net = gb_lmn::fit_linear_oe(&spec, &c.train.inputs, &c.train.output, &opts).unwrap();
-    let sim = net
-        .simulate_with_init_window(&c.validate.inputs, &c.validate.output[..50])
-        .unwrap();
-    let ratio = gb_core::metrics::nrmse(&c.validate.output[50..], &sim[50..]).unwrap()
-        / c.noise_floor_nrmse;
-    assert!(ratio <= 1.03, "order 4: {ratio:.3}× the noise floor");
-}

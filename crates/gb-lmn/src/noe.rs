@@ -30,14 +30,6 @@ const MAX_RADIUS: f64 = 0.9995;
 pub struct FitOptions {
     /// Maximum Levenberg–Marquardt iterations.
     pub max_iter: usize,
-    /// Maximum iterations instead of `max_iter` for a linear structure (one
-    /// local model, no hysteresis columns; its iterations are cheap). A
-    /// lightly damped mode is found only after a slow crawl along the
-    /// cost's valley: on a two-mass record of the diagnosis sweep (a second
-    /// resonance at 12 samples per period, damping 0.02) the order-4 fit
-    /// stands at training NRMSE 0.0969 after 40 iterations and reaches the
-    /// noise floor, 0.0908, within 100.
-    pub max_iter_linear: usize,
     /// Relative cost decrease below which LM stops.
     pub tol: f64,
     /// Ridge regularisation of least-squares initialisations (relative).
@@ -63,7 +55,6 @@ impl Default for FitOptions {
     fn default() -> Self {
         Self {
             max_iter: 40,
-            max_iter_linear: 100,
             tol: 1e-7,
             ridge: 1e-8,
             robust: false,
@@ -1557,18 +1548,13 @@ pub fn refine_output_error_records(
     // robust: rounds of IRLS around the solver, the Student-t weights
     // re-estimated from the current residuals before each round
     let rounds = if opts.robust { 4 } else { 1 };
-    let max_iter = if cur.leaves.len() == 1 && cur.spec.n_hysteresis() == 0 {
-        opts.max_iter_linear
-    } else {
-        opts.max_iter
-    };
     let mut total_iter = 0;
     for round in 0..rounds {
         let weights = opts.robust.then(|| robust_weights(&cur, &ps, &mut buf));
         let iters = if opts.robust && round + 1 < rounds {
-            max_iter / 2
+            opts.max_iter / 2
         } else {
-            max_iter
+            opts.max_iter
         };
         let lm = oe_solver(iters, opts.tol)?;
         let mut problem = OutputErrorProblem::new(&cur, &mut ps, weights.as_deref());
