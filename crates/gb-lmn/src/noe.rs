@@ -1291,15 +1291,16 @@ impl<'a> OutputErrorProblem<'a> {
         ps: &'a mut [Prepared],
         weights: Option<&'a [Vec<f64>]>,
     ) -> Self {
-        let np = net.n_parameters();
         let n = ps.iter().map(|p| p.yn.len()).max().unwrap_or(0);
-        let more = (ps.len() > 1).then(|| (DMatrix::zeros(np, np), DVector::zeros(np)));
+        // sized at the first linearisation: all parameters, or the reduced
+        // ones of a projection
+        let more = (ps.len() > 1).then(|| (DMatrix::zeros(0, 0), DVector::zeros(0)));
         Self {
             net: net.clone(),
             ps,
             weights,
-            jtj: DMatrix::zeros(np, np),
-            jtr: DVector::zeros(np),
+            jtj: DMatrix::zeros(0, 0),
+            jtr: DVector::zeros(0),
             more,
             buf: Vec::with_capacity(n),
         }
