@@ -137,6 +137,10 @@ pub enum Termination {
     /// The last `stall_window` iterations together lowered the cost by
     /// less than `stall_tol` (relative): a crawl along a flat valley.
     Stalled,
+    /// After `futile_after` iterations the cost was still above
+    /// `futile_ratio` times the start cost: a screen gave up on a fit that
+    /// could not reach the gain it needs.
+    Futile,
 }
 
 /// Settings of [`LevenbergMarquardt`]; validate with [`check`](Self::check).
@@ -159,6 +163,8 @@ pub enum Termination {
 /// | `jitter_abs` | 0 | ε₀: added to the diagonal (absolute) |
 /// | `stall_window` | 0 | W: iterations over which progress is judged (0: never) |
 /// | `stall_tol` | 0 | stop when `(S_{k−W} − S_k)/S_k < stall_tol` after iteration k |
+/// | `futile_after` | 0 | K: the iteration of the futility check (0: never) |
+/// | `futile_ratio` | 0 | stop after iteration K when `S_K > futile_ratio · S_0` |
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LmParams {
     /// Most iterations.
@@ -194,6 +200,12 @@ pub struct LmParams {
     /// Relative cost decrease over `stall_window` iterations below which the
     /// run stops ([`Termination::Stalled`]).
     pub stall_tol: f64,
+    /// The iteration after which [`futile_ratio`](Self::futile_ratio) is
+    /// checked once (0: never).
+    pub futile_after: usize,
+    /// The largest cost ratio `S_K/S_0` at iteration `futile_after` that
+    /// lets the run go on ([`Termination::Futile`]).
+    pub futile_ratio: f64,
 }
 
 impl Default for LmParams {
@@ -215,6 +227,8 @@ impl Default for LmParams {
             jitter_abs: 0.0,
             stall_window: 0,
             stall_tol: 0.0,
+            futile_after: 0,
+            futile_ratio: 0.0,
         }
     }
 }
@@ -241,6 +255,18 @@ impl LmParams {
     pub fn stall(mut self, window: usize, tol: f64) -> Self {
         self.stall_window = window;
         self.stall_tol = tol;
+        self
+    }
+
+    /// Give up after iteration `after` when the cost is still above
+    /// `ratio` times the start cost, `S_K > ratio·S_0`
+    /// ([`Termination::Futile`]): a screen for fits that only count when
+    /// they gain a stated fraction (an extension that must lower the RMSE by
+    /// `g` needs `S ≤ (1 − g)²·S_0`). The run is otherwise unchanged, so a
+    /// fit that passes the check ends where it would without it.
+    pub fn futile(mut self, after: usize, ratio: f64) -> Self {
+        self.futile_after = after;
+        self.futile_ratio = ratio;
         self
     }
 
@@ -281,10 +307,11 @@ impl LmParams {
             self.jitter,
             self.jitter_abs,
             self.stall_tol,
+            self.futile_ratio,
         ];
         if nonneg.iter().any(|v| !(*v >= 0.0 && v.is_finite())) {
             return Err(CoreError::InvalidArgument(
-                "Levenberg-Marquardt: tol, diag_floor(_abs), diag_add, jitter(_abs) and stall_tol must be >= 0"
+                "Levenberg-Marquardt: tol, diag_floor(_abs), diag_add, jitter(_abs), stall_tol and futile_ratio must be >= 0"
                     .into(),
             ));
         }
@@ -535,6 +562,13 @@ impl LevenbergMarquardt {
                     state.termination = Some(Termination::Stalled);
                 }
             }
+            if state.termination.is_none()
+                && self.p.futile_after > 0
+                && state.iterations == self.p.futile_after
+                && state.cost > self.p.futile_ratio * state.initial_cost
+            {
+                state.termination = Some(Termination::Futile);
+            }
             observer.iteration(&IterationInfo {
                 solver: "levenberg-marquardt",
                 iteration: state.iterations,
@@ -638,6 +672,50 @@ mod tests {
             r.termination
         );
         assert!(LmParams::default().stall(5, -1.0).check().is_err());
+    }
+
+    #[test]
+    fn a_futile_run_stops_at_its_check_and_a_progressing_one_is_unchanged() {
+        // the crawl lowers its cost by far less than half in 3 iterations
+        let lm = LmParams::default().max_iter(100).futile(3, 0.5);
+        let s = lm
+            .check()
+            .unwrap()
+            .minimize(&mut Crawl, &[0.0], &crate::Silent)
+            .unwrap();
+        assert_eq!(s.termination, Some(Termination::Futile));
+        assert_eq!(s.iterations, 3);
+        assert!(s.cost > 0.5 * s.initial_cost && s.cost < s.initial_cost);
+        // Rosenbrock falls to 5 % of its start cost in 4 iterations: a rule
+        // at 10 % passes it and the path is the plain one
+        let rosenbrock = || Rosenbrock {
+            admissible_calls: 0,
+            bound: f64::INFINITY,
+        };
+        let plain = LmParams::default().tol(1e-14);
+        let a = plain
+            .check()
+            .unwrap()
+            .minimize(&mut rosenbrock(), &[-1.2, 1.0], &crate::Silent)
+            .unwrap();
+        let b = plain
+            .futile(4, 0.1)
+            .check()
+            .unwrap()
+            .minimize(&mut rosenbrock(), &[-1.2, 1.0], &crate::Silent)
+            .unwrap();
+        assert_eq!(a, b);
+        assert!((b.theta[0] - 1.0).abs() < 1e-6, "{:?}", b.theta);
+        // a rule at 1 % stops the same run at its check
+        let c = plain
+            .futile(4, 0.01)
+            .check()
+            .unwrap()
+            .minimize(&mut rosenbrock(), &[-1.2, 1.0], &crate::Silent)
+            .unwrap();
+        assert_eq!(c.termination, Some(Termination::Futile));
+        assert_eq!(c.iterations, 4);
+        assert!(LmParams::default().futile(4, -0.1).check().is_err());
     }
 
     #[test]

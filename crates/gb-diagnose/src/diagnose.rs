@@ -606,6 +606,7 @@ fn iterate(
         start_choice: None,
         whole_fit: None,
         templates: Some(&templates),
+        futile_gain: (opts.policy.futile_gain > 0.0).then_some(opts.policy.futile_gain),
     };
     let props: Vec<_> = proposals(&ctx, tried)
         .into_iter()

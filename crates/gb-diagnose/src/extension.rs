@@ -112,6 +112,11 @@ pub struct Context<'a> {
     /// The linear mechanical templates fitted so far in this step, shared
     /// by its mechanical candidates (`None`: not shared).
     pub(crate) templates: Option<&'a crate::extensions::TemplateCache>,
+    /// In a step's fit on the whole fit block: the RMSE gain a costly fit
+    /// (the mechanical template's extensions) must show after a few
+    /// iterations to be fitted on (the policy's `futile_gain`); `None` in
+    /// a fold's fit and in a refit, which are fitted in full.
+    pub(crate) futile_gain: Option<f64>,
 }
 
 impl<'a> Context<'a> {
@@ -152,6 +157,7 @@ impl<'a> Context<'a> {
         Context {
             start_choice,
             whole_fit,
+            futile_gain: None,
             fit: self.plan.fit_of(Some(k)),
             fits: self.plan.fits_of(Some(k)),
             current: &self.current.folds[k],

@@ -53,6 +53,33 @@ pub(crate) fn fit_physics_warm(
     refit_physics_direct(spec, rec, obs)
 }
 
+/// [`fit_physics_warm`] of an extension of the blind template that must
+/// lower the training RMSE by `gain` to count: the fit stops after
+/// [`FUTILE_AFTER`] iterations when it has not come within
+/// `(1 − gain)²` of its start cost (its new terms start at 0, so the start
+/// is the current model); otherwise it ends where the plain fit would.
+/// The engineer's model and `None` fit in full.
+pub(crate) fn fit_physics_screened(
+    spec: &PhysicsSpec,
+    rec: &Record,
+    obs: &dyn Observer,
+    gain: Option<f64>,
+) -> Result<FittedModel, DiagnoseError> {
+    let Some(g) = gain.filter(|_| spec_is_template(&spec.name)) else {
+        return fit_physics_warm(spec, rec, obs);
+    };
+    let m = fit_params(spec.clone(), rec)
+        .futile(FUTILE_AFTER, (1.0 - g) * (1.0 - g))
+        .check()
+        .map_err(CoreError::from)?
+        .identify_outputs(&[Records::single(rec.clone())], obs)
+        .map_err(CoreError::from)?;
+    Ok(m.to_fitted().map_err(CoreError::from)?)
+}
+
+/// The iteration of the futility check of [`fit_physics_screened`].
+pub(crate) const FUTILE_AFTER: usize = 4;
+
 /// One Levenberg–Marquardt path on all of `rec` from `spec`'s start values
 /// (no growing prefixes): the refit of a fitted model of the engineer's
 /// equations on more data, started at its estimates. The growing prefixes
@@ -301,10 +328,19 @@ fn race_survivors(template: bool) -> usize {
     }
 }
 
+/// A start that survived the race of [`raced`]: its index, its training
+/// RMSE after the race and, for the blind template, the raced fit (its
+/// survivor goes on from there).
+struct Survivor {
+    start: usize,
+    rmse: f64,
+    fit: Option<PhysicsModel>,
+}
+
 /// The starts of `0..n` whose plain fit on `rec` has the lowest training
 /// RMSE after [`race_iterations`] iterations, best first
-/// ([`race_survivors`] of them), for the template each with its spec at
-/// the raced estimates; only those are then fitted in full. On the sweep the
+/// ([`race_survivors`] of them), for the template each with its raced fit;
+/// only those are then fitted in full. On the sweep the
 /// template's starts of one limit ended within 0.01 % of each other's RMSE
 /// (the limit does not bind), and the four full fits were the slowest
 /// candidates of a step; in the engineer's model the eight full fits of
@@ -316,7 +352,7 @@ fn raced(
     spec_of: &(impl Fn(usize) -> Result<PhysicsSpec, DiagnoseError> + Sync),
     rec: &Record,
     obs: &dyn Observer,
-) -> Option<Vec<(usize, Option<PhysicsSpec>)>> {
+) -> Option<Vec<Survivor>> {
     let template = spec_of(0).ok().is_some_and(|s| spec_is_template(&s.name));
     let keep = race_survivors(template);
     if n <= keep {
@@ -324,7 +360,7 @@ fn raced(
     }
     use rayon::prelude::*;
     let data = [Records::single(rec.clone())];
-    let raced: Vec<(f64, Option<PhysicsSpec>)> = (0..n)
+    let mut raced: Vec<Survivor> = (0..n)
         .into_par_iter()
         .map(|i| {
             let m = spec_of(i)
@@ -341,19 +377,18 @@ fn raced(
                 .and_then(|m| m.fit_report().map(|r| r.rmse))
                 .unwrap_or(f64::INFINITY);
             // the template's survivor goes on from here (`best_of_starts`)
-            let at = m
-                .filter(|_| template)
-                .and_then(|m| m.with_start_at_values().ok())
-                .map(|m| m.spec().clone());
-            (rmse, at)
+            let fit = m.filter(|_| template);
+            Survivor {
+                start: i,
+                rmse,
+                fit,
+            }
         })
         .collect();
-    let mut order: Vec<usize> = (0..n).filter(|&i| raced[i].0.is_finite()).collect();
-    order.sort_by(|&a, &b| raced[a].0.total_cmp(&raced[b].0).then(a.cmp(&b)));
-    order.truncate(keep);
-    let mut raced: Vec<Option<PhysicsSpec>> = raced.into_iter().map(|(_, s)| s).collect();
-    let out: Vec<_> = order.into_iter().map(|i| (i, raced[i].take())).collect();
-    (!out.is_empty()).then_some(out)
+    raced.retain(|r| r.rmse.is_finite());
+    raced.sort_by(|a, b| a.rmse.total_cmp(&b.rmse).then(a.start.cmp(&b.start)));
+    raced.truncate(keep);
+    (!raced.is_empty()).then_some(raced)
 }
 
 /// Of the starts `0..n` of one model (`spec_of(i)`; only `choice` when it
@@ -365,16 +400,33 @@ fn raced(
 /// sweep the leader was at its optimum after eight raced iterations, and
 /// the refit from its start took ten more, 5.5 s of the limit's 20 s); the
 /// engineer's survivors are fitted from their starts, as unraced ones.
+/// With `futile = Some((rmse, g))` (the current model's training RMSE on
+/// `rec` and the gain the candidate needs), a template survivor whose
+/// raced RMSE is not `g` below `rmse` is kept as raced, not fitted on: it
+/// could not pay.
 pub(crate) fn best_of_starts(
     n: usize,
     choice: Option<usize>,
     spec_of: impl Fn(usize) -> Result<PhysicsSpec, DiagnoseError> + Sync,
     rec: &Record,
     obs: &dyn Observer,
+    futile: Option<(f64, f64)>,
 ) -> Result<(FittedModel, Option<usize>), DiagnoseError> {
-    let chosen: Vec<(usize, Option<PhysicsSpec>)> = match choice {
+    let chosen: Vec<(usize, Option<PhysicsModel>)> = match choice {
         Some(i) if i < n => vec![(i, None)],
-        _ => raced(n, &spec_of, rec, obs).unwrap_or_else(|| (0..n).map(|i| (i, None)).collect()),
+        _ => match raced(n, &spec_of, rec, obs) {
+            Some(mut survivors) => {
+                if let (Some((base, g)), Some(lead)) = (futile, survivors.first_mut()) {
+                    if lead.rmse > (1.0 - g) * base {
+                        if let Some(m) = lead.fit.take() {
+                            return Ok((m.to_fitted().map_err(CoreError::from)?, Some(lead.start)));
+                        }
+                    }
+                }
+                survivors.into_iter().map(|s| (s.start, s.fit)).collect()
+            }
+            None => (0..n).map(|i| (i, None)).collect(),
+        },
     };
     // the starts are independent: fitted side by side, chosen in order
     let fits: Vec<Result<FittedModel, DiagnoseError>> = {
@@ -382,7 +434,10 @@ pub(crate) fn best_of_starts(
         chosen
             .par_iter()
             .map(|(i, at)| match at {
-                Some(spec) => refit_physics_direct(spec, rec, obs),
+                Some(m) => m
+                    .with_start_at_values()
+                    .map_err(|e| DiagnoseError::from(CoreError::from(e)))
+                    .and_then(|m| refit_physics_direct(m.spec(), rec, obs)),
                 _ => spec_of(*i).and_then(|s| fit_physics_warm(&s, rec, obs)),
             })
             .collect()
@@ -407,6 +462,15 @@ pub(crate) fn best_of_starts(
         (None, Some(e)) => Err(e),
         (None, None) => Err(DiagnoseError::InvalidArgument("no start to fit".into())),
     }
+}
+
+/// The training RMSE of `m`'s free-run simulation on `rec` (from its
+/// stored initial state), `None` when it fails.
+pub(crate) fn rmse_on(m: &PhysicsModel, rec: &Record) -> Option<f64> {
+    use gb_core::DynamicModel;
+    let y = m.simulate(&rec.inputs, gb_core::Init::Stored).ok()?;
+    let e: Vec<f64> = y.iter().zip(&rec.output).map(|(a, b)| a - b).collect();
+    Some(gb_core::metrics::rms(&e)).filter(|r| r.is_finite() && *r > 0.0)
 }
 
 /// The current model of `ctx` when it is a physics model, with its lineage

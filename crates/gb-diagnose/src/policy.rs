@@ -60,6 +60,7 @@ use crate::DiagnoseError;
 /// | `refit_on_all_samples` | true | with one training file and no validation record, the report block is the last quarter of that file: the scores are measured there, and then the model a user saves is the chosen chain refitted on all of the file (fit, select and report blocks), kept only when its free-run squared error over the file is not larger than the scored model's. The report states both RMSEs; its scores, decisions and verdict stay those of the model fitted without the report block |
 /// | `retry_after_refinement` | false | after a step that only added capacity to a named cause (more local models, more Preisach cells: a refinement), an extension whose every candidate lost decisively at that step (the whole 95 % interval of its select gain below zero) is not proposed again: the refinement gave it no structure it lacked (Silverbox: five Preisach-column variants on the local model network lost −0.12 to −1.5 at step 2 and took 90 of the 180 CPU seconds of step 3) |
 /// | `linear_before_nonlinear` | true | a new `nonlinearity` or `hysteresis` cause is chosen over a paying higher linear order (`dynamics`) only when it also pays against that order's residuals on the decision data; else the order increase, the smaller change, is chosen (a third pole that the engineer's order-2 model absorbed as a dead time read as a Wiener–Hammerstein network at the same select gain, +0.397 against +0.392) |
+/// | `futile_gain` | 0.025 | a fit of the mechanical template's extensions on the whole fit block (not a fold's, not a refit) stops after 4 Levenberg–Marquardt iterations when its training RMSE has not fallen by this fraction (half of `min_gain`): such a candidate would be dropped by the in-sample screen anyway; a fit that passes goes on unchanged (0: never stop early) |
 /// | `cv_in_sample_screen` | true | under cross-validation a `nonlinearity` or `hysteresis` candidate is first fitted on the whole training range; when its free-run residual over the folds' samples is not `min_gain` below the current model's (fitted the same way), its four fold fits are skipped and it does not pay (a held-out gain rarely exceeds the in-sample one; the row says so) |
 /// | `screen_costly`, `screen_level`, `screen_bonferroni`, `screen_noise_ratio` | true, 0.01, true, 1.1 | the candidates of a step are fitted in tiers ([`crate::Extension::screen_tier`]: the cheap ones; the static laws of the mechanical template; the hysteretic template, the Wiener–Hammerstein network and the hidden-state model), a tier only when the paying candidate with the largest gain so far — or, when none paid, the current model — does not leave a quiet residual on the decision data: the verdict's tests pass at 1 % Bonferroni-corrected over the tests, as the final verdict reads them (uncorrected, at 5 % one of six or nine tests rejects by chance in a third of the cases at the floor, and at 1 % a Duffing case whose spring law reached the floor, input cross-correlation p = 0.0019, still fitted the hysteretic template and a second step: 32 → 10 s), the Jarque–Bera test at 1 %, and the residual is within 1.1× the white-noise level; under cross-validation the tests read as the final verdict reads them (each p-value the smaller of the model's own over the folds' samples and the lower median of the folds', [`crate::verdict`]) and the Jarque–Bera test reads the model's own residual (the pooled held-out residuals of four fold refits mix four error levels and failed it at p ≈ 0 for a model at the floor). A structure that the cheap candidates already explain to the noise level, or a residual none of them improves that is quiet already, leaves nothing a costly one could gain significantly (a wiener case: 4.3 → 1.7 s; a Duffing case whose spring law reaches the floor: 82 → 43 s without the hysteretic template; a clean linear record of 8000 samples whose residual failed one test at the search stop's 5 %: the whole diagnosis 4.5 → 3.0 s). When only noise models pay (gain in nll) and no structural candidate reaches `min_gain` at its point estimate (a short friction record: a process-noise model absorbed the friction, a network gained 22 % without paying, and the template's dry friction in the next tier reached the floor), the best one's residual is read on the input tests alone (cross-correlation, higher-order, static nonlinearity, memory): its noise model explains the colour, tails and size, and the structural tiers have nothing to gain; the proposals so held back stay out of the next step after a noise-only step (a process-noise case 6.9 → 4.0 s, a Student-t case 6.1 → 1.6 s, the same models) |
 /// | `diverged_ratio`, `diverged_nrmse` | 10, 1 | a candidate whose RMS error on the decision data exceeds 10× the current model's and the spread of the measured output there (NRMSE above 1: worse than its mean) diverged; it is left out of the report's table and the decisions line names it (on the sweep such fits reached select NRMSE up to 1e50: a hidden-state model, play operators on the simulated output) |
@@ -222,6 +223,9 @@ pub struct DecisionPolicy {
     pub linear_before_nonlinear: bool,
     /// See the table: the in-sample screen of cross-validated candidates.
     pub cv_in_sample_screen: bool,
+    /// See the table: the RMSE gain the template's extension fits must show
+    /// after a few iterations (0: never stop early).
+    pub futile_gain: f64,
     /// Fit the costly candidates only when no cheap one that pays leaves
     /// a quiet residual.
     pub screen_costly: bool,
@@ -316,6 +320,7 @@ impl Default for DecisionPolicy {
             retry_after_refinement: false,
             linear_before_nonlinear: true,
             cv_in_sample_screen: true,
+            futile_gain: 0.025,
             screen_costly: true,
             screen_level: 0.01,
             screen_bonferroni: true,
@@ -338,9 +343,12 @@ impl DecisionPolicy {
         };
         if !(0.0..1.0).contains(&self.min_gain)
             || !(0.0..1.0).contains(&self.evidenced_dynamics_gain)
+            || !(0.0..1.0).contains(&self.futile_gain)
             || self.bootstrap < 50
         {
-            return bad("min_gain and evidenced_dynamics_gain in [0,1), bootstrap >= 50");
+            return bad(
+                "min_gain, evidenced_dynamics_gain and futile_gain in [0,1), bootstrap >= 50",
+            );
         }
         if !(self.min_nll_gain >= 0.0 && self.min_nll_gain.is_finite()) {
             return bad("min_nll_gain >= 0");

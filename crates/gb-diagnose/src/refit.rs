@@ -355,6 +355,7 @@ impl<'a> Refit<'a> {
             start_choice: None,
             whole_fit: None,
             templates: None,
+            futile_gain: None,
         }
     }
 }

@@ -551,6 +551,7 @@ fn optimise_oblique(
         jitter_abs: 1e-12,
         stall_window: 0,
         stall_tol: 0.0,
+        ..LmParams::default()
     }
     .check()
     .ok()?;

@@ -754,6 +754,7 @@ fn lm_fd(
         jitter_abs: 0.0,
         stall_window: 0,
         stall_tol: 0.0,
+        ..LmParams::default()
     }
     .check()
     .ok()?;

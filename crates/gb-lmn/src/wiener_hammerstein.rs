@@ -1273,6 +1273,7 @@ fn wh_solver(iters: usize, tol: f64) -> LevenbergMarquardt {
         jitter_abs: 0.0,
         stall_window: 0,
         stall_tol: 0.0,
+        ..LmParams::default()
     }
     .check()
     .expect("valid Wiener-Hammerstein solver settings")

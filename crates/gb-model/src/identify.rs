@@ -905,6 +905,7 @@ impl OutputError {
             jitter_abs: 0.0,
             stall_window: 0,
             stall_tol: 0.0,
+            ..LmParams::default()
         }
     }
 

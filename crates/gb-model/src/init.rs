@@ -151,6 +151,7 @@ impl SparseStateSpace {
             jitter_abs: 0.0,
             stall_window: 0,
             stall_tol: 0.0,
+            ..LmParams::default()
         }
         .check()?;
         x = solver.minimize(&mut problem, &x, &Silent)?.theta;

@@ -151,6 +151,7 @@ pub(super) fn fit_state(
         |i| extended(cur, rec, (eq, var), B_STARTS[i]),
         rec,
         ctx.observer,
+        None,
     )
 }
 

@@ -5,7 +5,7 @@ use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::physics_row_text;
 use crate::physics::{
-    best_of_starts, current_physics, fit_physics_warm, physics_fit_record, physics_of,
+    best_of_starts, current_physics, fit_physics_screened, physics_fit_record, physics_of, rmse_on,
     spec_is_template,
 };
 use crate::{Cause, DiagnoseError};
@@ -653,15 +653,21 @@ impl Extension for PhysicsTerms {
             Kind::Ceiling | Kind::Floor | Kind::Clip | Kind::Overflow
         ) {
             let s = extended(cur, &rec, (kind, &at, &var), (1.0, Start::Warm))?;
-            return Ok((fit_physics_warm(&s, &rec, ctx.observer)?, None));
+            let m = fit_physics_screened(&s, &rec, ctx.observer, ctx.futile_gain)?;
+            return Ok((m, None));
         }
         let starts = limit_starts(cur);
+        let futile = ctx
+            .futile_gain
+            .filter(|_| spec_is_template(&cur.spec().name))
+            .and_then(|g| rmse_on(cur, &rec).map(|b| (b, g)));
         best_of_starts(
             starts.len(),
             ctx.start_choice,
             |i| extended(cur, &rec, (kind, &at, &var), starts[i]),
             &rec,
             ctx.observer,
+            futile,
         )
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {

@@ -57,6 +57,14 @@ impl PhysicsFitParams {
         self.lm = self.lm.stall(window, tol);
         self
     }
+    /// Give up after iteration `after` when the cost is still above `ratio`
+    /// times the start cost ([`LmParams::futile`]: a screen for an
+    /// extension that must gain a stated fraction; a fit that passes the
+    /// check ends where it would without it).
+    pub fn futile(mut self, after: usize, ratio: f64) -> Self {
+        self.lm = self.lm.futile(after, ratio);
+        self
+    }
     /// The model file's text, stored with the fitted model.
     pub fn source(mut self, text: String) -> Self {
         self.source = Some(text);
@@ -579,6 +587,7 @@ fn termination_text(t: Option<Termination>) -> String {
         Some(Termination::DampingOverflow) => "converged (damping limit)".into(),
         Some(Termination::Infeasible) => "stopped: infeasible point".into(),
         Some(Termination::Stalled) => "stopped: progress below the stall threshold".into(),
+        Some(Termination::Futile) => "stopped: too little progress for the gain it needs".into(),
         _ => "stopped".into(),
     }
 }
