@@ -484,3 +484,123 @@ pub(crate) fn current_physics<'a>(
         _ => None,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gb_core::DynamicModel;
+    use gb_model::physics::{Parameter, State, TermTarget};
+    use rand_distr::{Distribution, Normal};
+
+    /// `ẋ = g·u − c·x (+ a2·x³)`, `y = x`, as the blind template (the
+    /// futility check applies to it only).
+    fn first_order(c: f64, a2: Option<f64>) -> PhysicsSpec {
+        let mut s = PhysicsSpec::new(TEMPLATE_NAME)
+            .input("u")
+            .parameter(Parameter::new("c", c))
+            .parameter(Parameter::new("g", 1.0))
+            .state(State::new("x", 0.0), "g*u-c*x")
+            .output("y", "x")
+            .substeps(2)
+            .sample_time(0.1);
+        if let Some(a) = a2 {
+            s = s.parameter(Parameter::new("a2", a));
+            s.add_term(TermTarget::State(0), "a2*x^3").unwrap();
+        }
+        s
+    }
+
+    /// 2000 samples of `truth` driven by a random-phase multisine, with
+    /// white noise of 2 % of the output's spread.
+    fn record(truth: &PhysicsSpec) -> Record {
+        let mut rng = gb_core::rng::seeded(7);
+        let n = 2000;
+        let phases: Vec<f64> = (0..8)
+            .map(|_| rand::Rng::random::<f64>(&mut rng) * std::f64::consts::TAU)
+            .collect();
+        let u: Vec<f64> = (0..n)
+            .map(|k| {
+                phases
+                    .iter()
+                    .enumerate()
+                    .map(|(j, p)| (0.01 * (j + 1) as f64 * k as f64 + p).sin())
+                    .sum::<f64>()
+                    / 3.0
+            })
+            .collect();
+        let m = PhysicsModel::new(truth.clone()).unwrap();
+        let y = m
+            .simulate(std::slice::from_ref(&u), gb_core::Init::Stored)
+            .unwrap();
+        let sd = gb_core::metrics::rms(&y) * 0.02;
+        let noise = Normal::new(0.0, sd).unwrap();
+        let y = y.iter().map(|v| v + noise.sample(&mut rng)).collect();
+        let mut r = Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        r.sample_time = Some(0.1);
+        r
+    }
+
+    fn fit_of(m: &FittedModel) -> &gb_model::physics::FitReport {
+        physics_of(m).and_then(PhysicsModel::fit_report).unwrap()
+    }
+
+    #[test]
+    fn a_term_the_data_do_not_need_stops_at_the_check_and_one_they_need_is_fitted_in_full() {
+        let obs = gb_core::Silent;
+        // the data have no dry-friction law: the term `−f·tanh(x/ε)`
+        // started at f = 0 on the fitted plain model, its width free,
+        // cannot lower the RMSE by 2.5 %; its full fit crawls along ε
+        let rec = record(&first_order(0.5, None));
+        let plain = fit_physics_warm(&first_order(0.4, None), &rec, &obs).unwrap();
+        let base = rmse_on(physics_of(&plain).unwrap(), &rec).unwrap();
+        let start = physics_of(&plain).unwrap().with_start_at_values().unwrap();
+        let mut extended = start.spec().clone();
+        extended.parameters.push(Parameter::new("f", 0.0));
+        extended
+            .parameters
+            .push(Parameter::new("eps", 0.01).bounds(1e-6, f64::INFINITY));
+        extended
+            .add_term(TermTarget::State(0), "-f*tanh(x/eps)")
+            .unwrap();
+        let screened = fit_physics_screened(&extended, &rec, &obs, Some(0.025)).unwrap();
+        let full = fit_physics_warm(&extended, &rec, &obs).unwrap();
+        let (s, f) = (fit_of(&screened), fit_of(&full));
+        assert_eq!(s.iterations, FUTILE_AFTER);
+        assert!(
+            s.termination.contains("too little progress"),
+            "{}",
+            s.termination
+        );
+        assert!(
+            s.rmse > 0.975 * base && f.rmse > 0.975 * base,
+            "{base} {} {}",
+            s.rmse,
+            f.rmse
+        );
+        assert!(
+            f.iterations > s.iterations,
+            "{} {}",
+            f.iterations,
+            s.iterations
+        );
+        // the data have one: the screened fit passes the check and ends
+        // where the plain fit ends
+        let rec = record(&first_order(0.5, Some(-0.8)));
+        let plain = fit_physics_warm(&first_order(0.4, None), &rec, &obs).unwrap();
+        let start = physics_of(&plain).unwrap().with_start_at_values().unwrap();
+        let mut extended = start.spec().clone();
+        extended.parameters.push(Parameter::new("a2", 0.0));
+        extended.add_term(TermTarget::State(0), "a2*x^3").unwrap();
+        let base = rmse_on(physics_of(&plain).unwrap(), &rec).unwrap();
+        let screened = fit_physics_screened(&extended, &rec, &obs, Some(0.025)).unwrap();
+        let full = fit_physics_warm(&extended, &rec, &obs).unwrap();
+        let (s, f) = (fit_of(&screened), fit_of(&full));
+        assert!(s.rmse < 0.9 * base, "{base} {}", s.rmse);
+        assert_eq!(s.rmse.to_bits(), f.rmse.to_bits());
+        assert_eq!(s.iterations, f.iterations);
+        assert_eq!(
+            physics_of(&screened).unwrap().parameters(),
+            physics_of(&full).unwrap().parameters()
+        );
+    }
+}

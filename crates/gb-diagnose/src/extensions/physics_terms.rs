@@ -638,7 +638,10 @@ impl Extension for PhysicsTerms {
     /// Started from the current model's estimates (of this fold under
     /// cross-validation) with the new coefficients at 0 and new limits at
     /// each quantile of [`LIMIT_STARTS`] of the simulation (in a fold only
-    /// at the one the whole fit block chose).
+    /// at the one the whole fit block chose). On the whole fit block of the
+    /// blind template a fit that has not lowered the training RMSE by the
+    /// policy's `futile_gain` after four iterations (a law) or its race (a
+    /// limit) stops there: it could not pass the in-sample screen.
     fn fit_choosing(
         &self,
         p: &Proposal,
