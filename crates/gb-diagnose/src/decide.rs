@@ -416,7 +416,9 @@ fn best_overlapping_where(
 
 /// Hysteresis and nonlinearity both pay and their intervals overlap: fit
 /// the input–output model with both and keep the cause with the larger
-/// unique contribution (the gain of adding it to the other one).
+/// unique contribution (the gain of adding it to the other one); when
+/// neither is positive (the model with both is no better than either),
+/// the candidate with fewer parameters.
 fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
     let other = match cands[ci].cause() {
         Cause::Nonlinearity => Cause::Hysteresis,
@@ -466,6 +468,23 @@ fn tie_break(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
         pol.tie_bootstrap,
         pol.tie_seed,
     );
+    if g_h.max(g_n) <= 0.0 || !(g_h.is_finite() && g_n.is_finite()) {
+        // the model with both is no better than either alone: the unique
+        // contributions cannot tell (as for the engineer's model)
+        let np =
+            |i: usize| gb_core::DynamicModel::n_parameters(cands[i].fitted.model.dynamics.as_ref());
+        let pick = if np(hi) < np(ni) { hi } else { ni };
+        return Some((
+            pick,
+            format!(
+                "; tie with {other} that the model with both cannot resolve (hysteresis adds {:+.1}% to a network, a network adds {:+.1}% to hysteresis): the one with fewer parameters ({} against {})",
+                100.0 * g_h,
+                100.0 * g_n,
+                np(pick),
+                np(if pick == hi { ni } else { hi })
+            ),
+        ));
+    }
     let pick = if g_h > g_n { hi } else { ni };
     Some((
         pick,
