@@ -68,13 +68,8 @@ pub(crate) fn fit_physics_screened(
     let Some(g) = gain.filter(|_| spec_is_template(&spec.name)) else {
         return fit_physics_warm(spec, rec, obs);
     };
-    let m = fit_params(spec.clone(), rec)
-        .futile(FUTILE_AFTER, (1.0 - g) * (1.0 - g))
-        .check()
-        .map_err(CoreError::from)?
-        .identify_outputs(&[Records::single(rec.clone())], obs)
-        .map_err(CoreError::from)?;
-    Ok(m.to_fitted().map_err(CoreError::from)?)
+    let params = fit_params(spec.clone(), rec).futile(FUTILE_AFTER, (1.0 - g) * (1.0 - g));
+    direct_fit(params, rec, obs)
 }
 
 /// The iteration of the futility check of [`fit_physics_screened`].
@@ -92,7 +87,16 @@ pub(crate) fn refit_physics_direct(
     rec: &Record,
     obs: &dyn Observer,
 ) -> Result<FittedModel, DiagnoseError> {
-    let m = fit_params(spec.clone(), rec)
+    direct_fit(fit_params(spec.clone(), rec), rec, obs)
+}
+
+/// One Levenberg–Marquardt path of `params` on all of `rec`.
+fn direct_fit(
+    params: PhysicsFitParams,
+    rec: &Record,
+    obs: &dyn Observer,
+) -> Result<FittedModel, DiagnoseError> {
+    let m = params
         .check()
         .map_err(CoreError::from)?
         .identify_outputs(&[Records::single(rec.clone())], obs)
@@ -469,8 +473,9 @@ pub(crate) fn best_of_starts(
 pub(crate) fn rmse_on(m: &PhysicsModel, rec: &Record) -> Option<f64> {
     use gb_core::DynamicModel;
     let y = m.simulate(&rec.inputs, gb_core::Init::Stored).ok()?;
-    let e: Vec<f64> = y.iter().zip(&rec.output).map(|(a, b)| a - b).collect();
-    Some(gb_core::metrics::rms(&e)).filter(|r| r.is_finite() && *r > 0.0)
+    gb_core::metrics::rmse(&rec.output, &y)
+        .ok()
+        .filter(|r| r.is_finite() && *r > 0.0)
 }
 
 /// The current model of `ctx` when it is a physics model, with its lineage
@@ -540,6 +545,27 @@ mod tests {
         r
     }
 
+    /// The plain first-order model fitted on `rec`, its training RMSE,
+    /// and its spec at the estimates with the parameters `new` (start, lower
+    /// bound) and the term `term` added to its equation.
+    fn plain_and_extended(
+        rec: &Record,
+        new: &[(&str, f64, f64)],
+        term: &str,
+    ) -> (f64, PhysicsSpec) {
+        let plain = fit_physics_warm(&first_order(0.4, None), rec, &gb_core::Silent).unwrap();
+        let base = rmse_on(physics_of(&plain).unwrap(), rec).unwrap();
+        let start = physics_of(&plain).unwrap().with_start_at_values().unwrap();
+        let mut extended = start.spec().clone();
+        for &(name, value, lower) in new {
+            extended
+                .parameters
+                .push(Parameter::new(name, value).bounds(lower, f64::INFINITY));
+        }
+        extended.add_term(TermTarget::State(0), term).unwrap();
+        (base, extended)
+    }
+
     fn fit_of(m: &FittedModel) -> &gb_model::physics::FitReport {
         physics_of(m).and_then(PhysicsModel::fit_report).unwrap()
     }
@@ -551,17 +577,8 @@ mod tests {
         // started at f = 0 on the fitted plain model, its width free,
         // cannot lower the RMSE by 2.5 %; its full fit crawls along ε
         let rec = record(&first_order(0.5, None));
-        let plain = fit_physics_warm(&first_order(0.4, None), &rec, &obs).unwrap();
-        let base = rmse_on(physics_of(&plain).unwrap(), &rec).unwrap();
-        let start = physics_of(&plain).unwrap().with_start_at_values().unwrap();
-        let mut extended = start.spec().clone();
-        extended.parameters.push(Parameter::new("f", 0.0));
-        extended
-            .parameters
-            .push(Parameter::new("eps", 0.01).bounds(1e-6, f64::INFINITY));
-        extended
-            .add_term(TermTarget::State(0), "-f*tanh(x/eps)")
-            .unwrap();
+        let new = [("f", 0.0, f64::NEG_INFINITY), ("eps", 0.01, 1e-6)];
+        let (base, extended) = plain_and_extended(&rec, &new, "-f*tanh(x/eps)");
         let screened = fit_physics_screened(&extended, &rec, &obs, Some(0.025)).unwrap();
         let full = fit_physics_warm(&extended, &rec, &obs).unwrap();
         let (s, f) = (fit_of(&screened), fit_of(&full));
@@ -586,12 +603,8 @@ mod tests {
         // the data have one: the screened fit passes the check and ends
         // where the plain fit ends
         let rec = record(&first_order(0.5, Some(-0.8)));
-        let plain = fit_physics_warm(&first_order(0.4, None), &rec, &obs).unwrap();
-        let start = physics_of(&plain).unwrap().with_start_at_values().unwrap();
-        let mut extended = start.spec().clone();
-        extended.parameters.push(Parameter::new("a2", 0.0));
-        extended.add_term(TermTarget::State(0), "a2*x^3").unwrap();
-        let base = rmse_on(physics_of(&plain).unwrap(), &rec).unwrap();
+        let new = [("a2", 0.0, f64::NEG_INFINITY)];
+        let (base, extended) = plain_and_extended(&rec, &new, "a2*x^3");
         let screened = fit_physics_screened(&extended, &rec, &obs, Some(0.025)).unwrap();
         let full = fit_physics_warm(&extended, &rec, &obs).unwrap();
         let (s, f) = (fit_of(&screened), fit_of(&full));
