@@ -926,12 +926,20 @@ pub(crate) fn search(
 ) -> Result<Diagnosis, DiagnoseError> {
     let total = 1 + opts.max_steps;
     obs.progress(0, total, "fitting the baseline");
-    let plan0 = Plan::new(d, &opts.policy);
-    // the engineer's equations: laws are judged beyond their folds' range too
-    let plan0 = if opts.physics.is_some() {
-        plan0.whole_folds()
-    } else {
-        plan0
+    // the engineer's equations: laws are judged beyond their folds' range
+    // too, and the report block stays out of the folds (there every
+    // held-out sample is scored, and a record's tail that leaves the
+    // training range would judge extrapolation only)
+    let plan0 = match &opts.physics {
+        Some(_) => Plan::new(
+            d,
+            &crate::DecisionPolicy {
+                cv_whole_short_record: false,
+                ..opts.policy.clone()
+            },
+        )
+        .whole_folds(),
+        None => Plan::new(d, &opts.policy),
     };
     let base = match &opts.physics {
         Some(spec) => crate::physics::physics_baseline(d, &plan0, spec, obs)?,
@@ -1031,6 +1039,13 @@ pub(crate) fn search(
         Some(r) => (r, Some(chain)),
         None => (chain, None),
     };
+    if plan.spans_report {
+        let (b, f) = (&reported[0], &reported[reported.len() - 1]);
+        choice.decision.push_str(&format!(
+            "; cross-validated NRMSE (each fold's held-out samples, scored by its refit): baseline {:.4}, final {:.4}",
+            b.scores.nrmse_select, f.scores.nrmse_select
+        ));
+    }
     let saved = refit
         .then(|| {
             timed_phase("refit on all samples", || {
@@ -1098,11 +1113,15 @@ pub(crate) fn assemble(
     }
     let scored = d.report_scored(plan.w);
     let report_inputs: Vec<&[f64]> = d.report.inputs.iter().map(|u| &u[scored.clone()]).collect();
-    if let Some(note) = crate::verdict::report_carry_over(
-        (&last.select.e, &final_model.report.e),
-        (&plan.fit_y, &report_inputs),
-        pol.report_carry_ratio,
-    ) {
+    // a report block inside the cross-validation is not held out
+    let carry = (!plan.spans_report).then(|| {
+        crate::verdict::report_carry_over(
+            (&last.select.e, &final_model.report.e),
+            (&plan.fit_y, &report_inputs),
+            pol.report_carry_ratio,
+        )
+    });
+    if let Some(note) = carry.flatten() {
         verdict.not_carried_over(&note);
     }
     let report = Report {

@@ -104,6 +104,11 @@ pub(crate) struct Plan {
     /// long enough for the bootstrap (it is not representative of the
     /// training record).
     pub shift: Option<String>,
+    /// The cross-validation spans the report block too (one training
+    /// record too short for the bootstrap, the policy's
+    /// `cv_whole_short_record`): the models are fitted on the whole
+    /// record and their figures on the report block are in-sample.
+    pub spans_report: bool,
 }
 
 /// A fit for the plan's record (`None`) or for fold `k` (`Some(k)`).
@@ -139,9 +144,16 @@ impl Plan {
                 fit_y,
                 folds: vec![],
                 shift: None,
+                spans_report: false,
             };
         }
-        let train = d.fit.start..d.select.end;
+        let spans_report = spans_report(d, pol);
+        let end = if spans_report {
+            d.report_range.end
+        } else {
+            d.select.end
+        };
+        let train = d.fit.start..end;
         let (n, k) = (train.len(), pol.cv_folds);
         let bound = |i: usize| train.start + i * n / k;
         let folds: Vec<Fold> = (0..k)
@@ -191,6 +203,7 @@ impl Plan {
             fit_y,
             folds,
             shift: shift.filter(|_| d.select.len() >= pol.bootstrap_min_samples),
+            spans_report,
         }
     }
 
@@ -224,6 +237,7 @@ impl Plan {
             fit_y,
             folds: vec![],
             shift: None,
+            spans_report: false,
         }
     }
 
@@ -279,6 +293,7 @@ impl Plan {
             fit_y,
             folds,
             shift: None,
+            spans_report: false,
         }
     }
 
@@ -307,6 +322,7 @@ impl Plan {
                 })
                 .collect(),
             shift: self.shift.clone(),
+            spans_report: self.spans_report,
         }
     }
 
@@ -461,8 +477,17 @@ impl Plan {
                     self.fit_y.len()
                 );
             }
+            let spans = if self.spans_report {
+                format!(
+                    ", the report block included: the {}-sample select block is too short for the bootstrap, and a quarter of a short record held out of every decision costs more than a held-out figure is worth (the models are fitted on all {} samples; their figures on the report block are in-sample, the held-out figure is the cross-validated NRMSE)",
+                    d.select.len(),
+                    self.fit_y.len()
+                )
+            } else {
+                String::new()
+            };
             format!(
-                "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest), init window {}{outside}{why}",
+                "blocked cross-validation: {} contiguous folds over the {} training samples (each scored by the structure refitted on the longer contiguous rest){spans}, init window {}{outside}{why}",
                 self.folds.len(),
                 self.fit_y.len(),
                 self.w
@@ -515,6 +540,22 @@ impl Plan {
             noise,
         )?)
     }
+}
+
+/// Whether the cross-validation of `d` spans its report block: one
+/// training record without a validation record (its report block the
+/// record's tail, right after the select block), whose select block is
+/// too short for the bootstrap, under the policy's `cv_whole_short_record`.
+/// A quarter held out of every decision costs a short record more than a
+/// held-out figure for the report is worth: the user's own test data
+/// give that.
+fn spans_report(d: &DiagnoseData, pol: &DecisionPolicy) -> bool {
+    pol.cv_whole_short_record
+        && d.single_record
+        && !d.multi()
+        && d.select.len() < pol.bootstrap_min_samples
+        && d.report_range.start == d.select.end
+        && !d.report_range.is_empty()
 }
 
 /// How the select block differs from the fit block, when it differs enough
@@ -897,6 +938,36 @@ mod tests {
         let held: usize = plan.folds.iter().map(|f| f.test.len() - plan.w).sum();
         let scored: usize = plan.folds.iter().map(|f| f.scored().count()).sum();
         assert!(scored < held, "scored {scored} of {held}");
+    }
+
+    /// A single record too short for the bootstrap cross-validates over all
+    /// of it, its report block included; with the policy's
+    /// `cv_whole_short_record` off the folds end at the select block, and a
+    /// record long enough for the bootstrap keeps its select block.
+    #[test]
+    fn a_short_single_record_cross_validates_over_its_report_block_too() {
+        let mut rng = gb_core::rng::seeded(11);
+        let mut u =
+            |n: usize| -> Vec<f64> { (0..n).map(|_| rng.random_range(-1.0..1.0)).collect() };
+        let short = data(u(1000));
+        let pol = DecisionPolicy::default();
+        let plan = Plan::new(&short, &pol);
+        assert!(plan.spans_report && plan.cv());
+        assert_eq!(plan.fit_y.len(), 1000);
+        assert_eq!(plan.folds.first().map(|f| f.test.start), Some(0));
+        assert_eq!(plan.folds.last().map(|f| f.test.end), Some(1000));
+        assert!(plan.describe(&short).contains("the report block included"));
+        let off = DecisionPolicy {
+            cv_whole_short_record: false,
+            ..DecisionPolicy::default()
+        };
+        let plan = Plan::new(&short, &off);
+        assert!(!plan.spans_report && plan.cv());
+        assert_eq!(plan.folds.last().map(|f| f.test.end), Some(750));
+        assert_eq!(plan.fit_y.len(), 750);
+        let long = data(u(4000));
+        let plan = Plan::new(&long, &pol);
+        assert!(!plan.spans_report && !plan.cv());
     }
 
     /// Under cross-validation every fold's fit is given the fit on the

@@ -140,7 +140,8 @@ fn refit_over(
 /// otherwise the reported model is saved. `None` when it does not apply
 /// (a validation record or several training records: the report data are
 /// not training data; a noise model; the policy's
-/// `refit_on_all_samples` off). The scores, the decisions and the
+/// `refit_on_all_samples` off; a cross-validation spanning the whole
+/// record, whose models are fitted on all of it already). The scores, the decisions and the
 /// verdict of the report stay those of the model fitted without the
 /// report block.
 pub(crate) fn refit_on_all_samples(
@@ -155,6 +156,7 @@ pub(crate) fn refit_on_all_samples(
         && d.single_record
         && !d.multi()
         && !d.report_range.is_empty()
+        && !plan.spans_report
         && !picks.iter().any(|(c, _, _)| *c == Cause::Noise);
     if !applies {
         return None;
@@ -237,6 +239,7 @@ fn plan_on(rec: &gb_core::Record, plan: &Plan) -> Plan {
         fits_y: vec![rec.clone()],
         folds: vec![],
         shift: None,
+        spans_report: false,
     }
     .integrating(plan.integrating)
 }
