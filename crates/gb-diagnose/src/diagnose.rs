@@ -1136,6 +1136,7 @@ pub(crate) fn assemble(
             init_window: plan.w,
             decision: structure.decision.clone(),
             records: d.record_summaries(),
+            report_in_sample: plan.spans_report,
         },
         baseline: ModelSummary::of(base_model),
         structure,

@@ -504,7 +504,18 @@ fn compare_section(body: &mut String, dg: &Diagnosis, s: &Signals) -> Result<(),
     let r = &dg.report;
     let (base, fin) = (&dg.chain[0].report, &dg.chain[dg.chain.len() - 1].report);
     let yname = &r.data.output;
-    body.push_str("<h2>Measured vs simulated (validation data, free run)</h2>\n");
+    let (title, whole) = if r.data.report_in_sample {
+        (
+            "<h2>Measured vs simulated (the report block, free run; in-sample: the short record is cross-validated whole, the held-out figure is the decisions line's cross-validated NRMSE)</h2>\n",
+            "Whole report block (thinned for display).",
+        )
+    } else {
+        (
+            "<h2>Measured vs simulated (validation data, free run)</h2>\n",
+            "Whole validation record (thinned for display).",
+        )
+    };
+    body.push_str(title);
     let t = &s.t;
     let svg = chart(
         "Measured and simulated output",
@@ -528,12 +539,7 @@ fn compare_section(body: &mut String, dg: &Diagnosis, s: &Signals) -> Result<(),
         &[],
         false,
     )?;
-    figure(
-        body,
-        "plot-compare",
-        "Whole validation record (thinned for display).",
-        &svg,
-    );
+    figure(body, "plot-compare", whole, &svg);
     let zn = 400.min(t.len());
     let z0 = (t.len() - zn) / 2;
     let zw = z0..z0 + zn;

@@ -165,6 +165,11 @@ pub struct DataSummary {
     /// report record); empty with one training record.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub records: Vec<RecordSummary>,
+    /// The report block was part of the cross-validation (a short record
+    /// without a validation record, the policy's `cv_whole_short_record`):
+    /// the figures on it are in-sample.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub report_in_sample: bool,
 }
 
 /// One record of a multi-record diagnosis and how its samples are used.
@@ -247,12 +252,17 @@ impl Report {
         let r = self;
         let _ = writeln!(
             s,
-            "data: inputs {} -> output {}; fit {} / select {} / report {} samples",
+            "data: inputs {} -> output {}; fit {} / select {} / report {} samples{}",
             r.data.inputs.join(","),
             r.data.output,
             r.data.samples_fit,
             r.data.samples_select,
-            r.data.samples_validate
+            r.data.samples_validate,
+            if r.data.report_in_sample {
+                " (the report block in-sample: the short record is cross-validated whole)"
+            } else {
+                ""
+            }
         );
         if !r.data.records.is_empty() {
             let recs: Vec<String> = r.data.records.iter().map(|x| x.text()).collect();

@@ -120,6 +120,8 @@ fn tanks_blind_diagnosis_cross_validates_over_the_whole_short_record() {
             && d.contains("the report block included"),
         "{d}"
     );
+    // the figures on the report block are labelled in-sample
+    assert!(d.contains("(the report block in-sample"), "{d}");
     assert!(d.contains("causes: nonlinearity"), "{d}");
     assert!(d.contains("final: state-space LMN"), "{d}");
     let cv = |key: &str| -> f64 {
