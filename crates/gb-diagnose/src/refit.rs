@@ -141,9 +141,9 @@ fn refit_over(
 /// (a validation record or several training records: the report data are
 /// not training data; a noise model; the policy's
 /// `refit_on_all_samples` off; a cross-validation spanning the whole
-/// record, whose models are fitted on all of it already). The scores, the decisions and the
-/// verdict of the report stay those of the model fitted without the
-/// report block.
+/// record, whose models are fitted on all of it already). The scores, the
+/// decisions and the verdict of the report stay those of the model fitted
+/// without the report block.
 pub(crate) fn refit_on_all_samples(
     d: &DiagnoseData,
     plan: &Plan,
