@@ -42,6 +42,21 @@ fn rmse(out: &str) -> f64 {
         .unwrap_or_else(|| panic!("no RMSE in\n{out}"))
 }
 
+/// The test RMSE of `model` simulated by `greybox simulate` on `test`
+/// (init window 50), the simulation written to `sim`.
+fn tanks_test_rmse(model: &Path, test: &Path, sim: &Path) -> f64 {
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    rmse(&greybox(&[
+        "simulate",
+        &s(model),
+        &s(test),
+        "-o",
+        &s(sim),
+        "--init-window",
+        "50",
+    ]))
+}
+
 #[test]
 fn tanks_physics_file_and_its_diagnosis_on_the_test_set() {
     let Some(dir) = data_dir() else { return };
@@ -60,15 +75,7 @@ fn tanks_physics_file_and_its_diagnosis_on_the_test_set() {
     let fo = greybox(&["fit", &s(&train), "--model-file", &s(&file), "-o", &s(&fit)]);
     // the scaling symmetry of the unmeasured upper level is reported
     assert!(fo.contains("not identifiable"), "{fo}");
-    let plain = rmse(&greybox(&[
-        "simulate",
-        &s(&fit),
-        &s(&test),
-        "-o",
-        &s(&sim),
-        "--init-window",
-        "50",
-    ]));
+    let plain = tanks_test_rmse(&fit, &test, &sim);
     let d = greybox(&[
         "diagnose",
         &s(&train),
@@ -79,15 +86,7 @@ fn tanks_physics_file_and_its_diagnosis_on_the_test_set() {
         "--quiet",
     ]);
     assert!(d.contains("causes: nonlinearity"), "{d}");
-    let diagnosed = rmse(&greybox(&[
-        "simulate",
-        &s(&diag),
-        &s(&test),
-        "-o",
-        &s(&sim),
-        "--init-window",
-        "50",
-    ]));
+    let diagnosed = tanks_test_rmse(&diag, &test, &sim);
     // measured 2026-11-24: 0.686 V plain, 0.532 V diagnosed; 2026-11-29:
     // 0.491 V diagnosed (the saved model refitted on all training samples)
     assert!(plain < 0.75, "plain physics test RMSE {plain}");
@@ -134,15 +133,7 @@ fn tanks_blind_diagnosis_cross_validates_over_the_whole_short_record() {
     };
     // measured 2026-11-30: 0.336 -> 0.103
     assert!(cv("final") < 0.5 * cv("baseline"), "{d}");
-    let diagnosed = rmse(&greybox(&[
-        "simulate",
-        &s(&diag),
-        &s(&test),
-        "-o",
-        &s(&sim),
-        "--init-window",
-        "50",
-    ]));
+    let diagnosed = tanks_test_rmse(&diag, &test, &sim);
     // measured 2026-11-30: 0.206 V (the linear baseline 0.604 V, the
     // published LTI 0.588 V, the best published 0.191 V)
     assert!(diagnosed < 0.3, "blind diagnosis test RMSE {diagnosed} V");
