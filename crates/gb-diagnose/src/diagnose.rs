@@ -914,6 +914,35 @@ fn stop_reading(
         .find(|&r| quiet_at(&tested, r))
 }
 
+/// The plan of the search: [`Plan::new`]; for the engineer's equations
+/// with every held-out sample scored ([`Plan::whole_folds`]: their laws
+/// are judged beyond their folds' range too) and the report block kept out
+/// of the folds (a record's tail that leaves the training range would
+/// judge extrapolation only).
+fn decision_plan(d: &DiagnoseData, opts: &DiagnoseOptions) -> Plan {
+    match &opts.physics {
+        Some(_) => Plan::new(
+            d,
+            &DecisionPolicy {
+                cv_whole_short_record: false,
+                ..opts.policy.clone()
+            },
+        )
+        .whole_folds(),
+        None => Plan::new(d, &opts.policy),
+    }
+}
+
+/// The held-out figure of a record cross-validated whole: the pooled fold
+/// NRMSE of the baseline and of the final model of `chain`.
+fn cross_validated_text(chain: &[Evaluated]) -> String {
+    let (b, f) = (&chain[0], &chain[chain.len() - 1]);
+    format!(
+        "; cross-validated NRMSE (each fold's held-out samples, scored by its refit): baseline {:.4}, final {:.4}",
+        b.scores.nrmse_select, f.scores.nrmse_select
+    )
+}
+
 /// The diagnosis loop; with a `deadline`, no step starts after it. With
 /// `refit`, the chosen chain is refitted on the whole training record
 /// ([`crate::refit`]).
@@ -926,21 +955,7 @@ pub(crate) fn search(
 ) -> Result<Diagnosis, DiagnoseError> {
     let total = 1 + opts.max_steps;
     obs.progress(0, total, "fitting the baseline");
-    // the engineer's equations: laws are judged beyond their folds' range
-    // too, and the report block stays out of the folds (there every
-    // held-out sample is scored, and a record's tail that leaves the
-    // training range would judge extrapolation only)
-    let plan0 = match &opts.physics {
-        Some(_) => Plan::new(
-            d,
-            &crate::DecisionPolicy {
-                cv_whole_short_record: false,
-                ..opts.policy.clone()
-            },
-        )
-        .whole_folds(),
-        None => Plan::new(d, &opts.policy),
-    };
+    let plan0 = decision_plan(d, opts);
     let base = match &opts.physics {
         Some(spec) => crate::physics::physics_baseline(d, &plan0, spec, obs)?,
         None => timed_phase("baseline", || baseline(d, &plan0, opts))?,
@@ -1040,11 +1055,7 @@ pub(crate) fn search(
         None => (chain, None),
     };
     if plan.spans_report {
-        let (b, f) = (&reported[0], &reported[reported.len() - 1]);
-        choice.decision.push_str(&format!(
-            "; cross-validated NRMSE (each fold's held-out samples, scored by its refit): baseline {:.4}, final {:.4}",
-            b.scores.nrmse_select, f.scores.nrmse_select
-        ));
+        choice.decision.push_str(&cross_validated_text(&reported));
     }
     let saved = refit
         .then(|| {
