@@ -10,12 +10,43 @@ pub fn bin() -> Command {
 }
 
 /// An empty folder `<temp>/<prefix>-<pid>-<name>` (removed first if it
-/// exists).
+/// exists). The first call of a test process also removes the folders
+/// `<prefix>-<pid>-*` that earlier test processes left behind, where the
+/// system shows which processes are alive (`/proc`), so that repeated
+/// test runs do not pile scratch folders up in the temp folder.
 pub fn scratch(prefix: &str, name: &str) -> PathBuf {
+    static SWEPT: std::sync::Once = std::sync::Once::new();
+    SWEPT.call_once(|| remove_stale(prefix));
     let d = std::env::temp_dir().join(format!("{prefix}-{}-{name}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).expect("create the scratch folder");
     d
+}
+
+/// Removes `<temp>/<prefix>-<pid>-*` of processes that are no longer
+/// running (none where `/proc` is absent: nothing is removed there).
+fn remove_stale(prefix: &str) {
+    let proc = std::path::Path::new("/proc");
+    if !proc.join("self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(std::env::temp_dir()) else {
+        return;
+    };
+    let head = format!("{prefix}-");
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().to_string();
+        let Some(pid) = name
+            .strip_prefix(&head)
+            .and_then(|rest| rest.split('-').next())
+            .and_then(|p| p.parse::<u32>().ok())
+        else {
+            continue;
+        };
+        if pid != std::process::id() && !proc.join(pid.to_string()).exists() {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
 }
 
 /// `greybox ARGS…`, its output captured.
