@@ -17,11 +17,7 @@ fn options(order: usize, max_steps: usize) -> DiagnoseOptions {
 /// sampling, no feedthrough, so y(k) first responds to u(k − 3).
 #[test]
 fn a_dead_time_of_three_samples_is_found() {
-    let knobs = Knobs {
-        n_train: Some(2000),
-        n_validate: Some(1000),
-        ..Knobs::default()
-    };
+    let knobs = Knobs::lengths(2000, 1000);
     let c = draw_with("linear", 48, &knobs).unwrap();
     assert_eq!(
         (c.input_delay, c.feedthrough),
@@ -109,11 +105,7 @@ fn an_integrating_system_gets_the_integrating_baseline_and_it_predicts_better() 
 /// the training record, and the diagnosis runs to a verdict.
 #[test]
 fn a_500_sample_record_is_diagnosed_by_cross_validation() {
-    let knobs = Knobs {
-        n_train: Some(400),
-        n_validate: Some(100),
-        ..Knobs::default()
-    };
+    let knobs = Knobs::lengths(400, 100);
     let c = draw_with("hammerstein-odd", 3, &knobs).unwrap();
     assert_eq!((c.train.len(), c.validate.len()), (400, 100));
     let d = DiagnoseData::with_validation(c.train, c.validate).unwrap();

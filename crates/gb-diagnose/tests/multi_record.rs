@@ -10,11 +10,7 @@ use rand::Rng;
 /// `linear` seed 1 with 3000 training and 1000 validation samples (the
 /// one-record diagnosis gets it right: no cause, report NRMSE at the floor).
 fn case() -> Case {
-    let knobs = Knobs {
-        n_train: Some(3000),
-        n_validate: Some(1000),
-        ..Knobs::default()
-    };
+    let knobs = Knobs::lengths(3000, 1000);
     draw_with("linear", 1, &knobs).unwrap()
 }
 

@@ -94,11 +94,7 @@ fn a_polynomial_law_extrapolates_beyond_the_training_range() {
 #[test]
 fn a_tie_the_model_with_both_cannot_resolve_goes_to_fewer_parameters() {
     use gb_diagnose::generator::{draw_with, Knobs};
-    let knobs = Knobs {
-        n_train: Some(8000),
-        n_validate: Some(4000),
-        ..Knobs::default()
-    };
+    let knobs = Knobs::lengths(8000, 4000);
     let c = draw_with("duffing", 3, &knobs).unwrap();
     let out = run_diagnosis(&c, OrderMode::Case).unwrap();
     let ratio = out.final_nrmse / c.noise_floor_nrmse;

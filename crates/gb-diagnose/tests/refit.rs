@@ -84,11 +84,7 @@ fn cross_validated_decisions_are_not_refitted() {
 /// 2026-11-29). The report's numbers stay those of the model it scored.
 #[test]
 fn the_saved_model_is_refitted_on_all_of_a_single_training_file() {
-    let knobs = Knobs {
-        n_train: Some(400),
-        n_validate: Some(1500),
-        ..Knobs::default()
-    };
+    let knobs = Knobs::lengths(400, 1500);
     for seed in [1, 3] {
         let c = draw_with("saturation", seed, &knobs).unwrap();
         let d = DiagnoseData::from_single(c.train.clone());

@@ -168,6 +168,16 @@ pub struct Knobs {
 }
 
 impl Knobs {
+    /// Knobs that fix only the record lengths: `n_train` training and
+    /// `n_validate` validation samples, everything else drawn.
+    pub fn lengths(n_train: usize, n_validate: usize) -> Self {
+        Self {
+            n_train: Some(n_train),
+            n_validate: Some(n_validate),
+            ..Self::default()
+        }
+    }
+
     fn check(&self) -> Result<(), CoreError> {
         let bad = |m: &str| Err(CoreError::InvalidArgument(format!("generator knobs: {m}")));
         if self
