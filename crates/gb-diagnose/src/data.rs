@@ -54,6 +54,11 @@ pub struct DiagnoseData {
     /// Whether the report lists the records ([`from_records`](Self::from_records)
     /// with several training records, the last possibly the report data).
     pub listed: bool,
+    /// Whether the report record is one of the user's training records
+    /// (several training records and no validation record: the last is
+    /// held out whole for the report), so that the model saved may be
+    /// refitted on it once the report is scored.
+    pub report_is_training: bool,
 }
 
 impl DiagnoseData {
@@ -73,6 +78,7 @@ impl DiagnoseData {
             more: vec![],
             names: vec![],
             listed: false,
+            report_is_training: false,
         })
     }
 
@@ -117,6 +123,7 @@ impl DiagnoseData {
             }
             return Ok(d);
         }
+        let report_is_training = validate.is_none();
         let report = match validate {
             Some(v) => v,
             None => records.pop().expect("two records"),
@@ -145,6 +152,7 @@ impl DiagnoseData {
             more,
             names,
             listed: true,
+            report_is_training,
         })
     }
 
@@ -219,6 +227,7 @@ impl DiagnoseData {
             more: vec![],
             names: vec![],
             listed: false,
+            report_is_training: false,
         }
     }
 

@@ -90,14 +90,16 @@ pub struct Diagnosis {
     /// baseline, the last entry is the final model).
     pub chain: Vec<Evaluated>,
     /// The final structure refitted on all of a single training file, its
-    /// report block included (the policy's `refit_on_all_samples`); `None`
-    /// when that does not apply or was not kept. See [`Diagnosis::to_save`].
+    /// report block included, or on every training record whole, a
+    /// held-out last record included (the policy's
+    /// `refit_on_all_samples`); `None` when that does not apply or was not
+    /// kept. See [`Diagnosis::to_save`].
     pub saved: Option<FittedModel>,
 }
 
 impl Diagnosis {
     /// The model a user keeps: the final structure refitted on all of the
-    /// training file when that was done and kept, else the final model
+    /// training data when that was done and kept, else the final model
     /// (the one the report scores).
     pub fn to_save(&self) -> &FittedModel {
         self.saved.as_ref().unwrap_or(&self.model)

@@ -32,6 +32,7 @@ pub(crate) fn subsample(d: &DiagnoseData, n: usize) -> DiagnoseData {
         more: vec![],
         names: vec![],
         listed: false,
+        report_is_training: false,
     }
 }
 

@@ -152,6 +152,9 @@ pub(crate) fn refit_on_all_samples(
     opts: &DiagnoseOptions,
     obs: &dyn Observer,
 ) -> Option<(Option<FittedModel>, String)> {
+    if opts.policy.refit_on_all_samples && (d.multi() || d.report_is_training) {
+        return refit_on_all_records(d, plan, chain, picks, opts, obs);
+    }
     let applies = opts.policy.refit_on_all_samples
         && d.single_record
         && !d.multi()
@@ -201,6 +204,81 @@ pub(crate) fn refit_on_all_samples(
     Some((Some(refitted), note))
 }
 
+/// [`refit_on_all_samples`] with several training records: the model a
+/// user saves is the chosen chain refitted on every training record whole
+/// (fit and select parts; without a validation record also the last
+/// record, which was held out whole for the report), each record a separate
+/// experiment (input–output models on all records, the other classes on
+/// the longest). Kept only when its free-run squared error summed over
+/// those records, each simulated from its own start, is not larger than
+/// the reported model's:
+///
+/// ```text
+/// Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))² (refit) ≤ Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))² (reported),   k ≥ w in every record i.
+/// ```
+///
+/// `None` when the chain holds a noise model (its criterion is not the
+/// squared simulation error) or does not start from the linear baseline
+/// (the engineer's equations fit one record).
+fn refit_on_all_records(
+    d: &DiagnoseData,
+    plan: &Plan,
+    chain: &[Evaluated],
+    picks: &[Pick],
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+) -> Option<(Option<FittedModel>, String)> {
+    if picks.iter().any(|(c, _, _)| *c == Cause::Noise)
+        || !matches!(chain[0].lineage, Lineage::Io(_))
+    {
+        return None;
+    }
+    let mut recs: Vec<gb_core::Record> = d
+        .parts()
+        .iter()
+        .map(|p| p.record.slice(0..p.select.end))
+        .collect();
+    if d.report_is_training {
+        recs.push(d.report.clone());
+    }
+    let whole = plan_on_records(&recs, plan);
+    let n: usize = recs.iter().map(gb_core::Record::len).sum();
+    let what = format!(
+        "{} training records whole ({n} samples{})",
+        recs.len(),
+        if d.report_is_training {
+            ", the held-out last record included"
+        } else {
+            ""
+        }
+    );
+    let not_kept = |why: &str| {
+        format!("; the model saved is the one scored here: the chosen structure refitted on all {what} was not kept ({why})")
+    };
+    let inputs = plan.decision_inputs(d);
+    let refitted = match refit_over(&whole, (d, &inputs), chain, picks, opts, obs) {
+        Ok(out) => out[out.len() - 1].model.clone(),
+        Err(why) => return Some((None, not_kept(&why))),
+    };
+    let sse = |m: &FittedModel| -> f64 { recs.iter().map(|r| free_run_sse(m, r, plan.w)).sum() };
+    let (before, after) = (sse(&chain[chain.len() - 1].model), sse(&refitted));
+    let scored: usize = recs.iter().map(|r| r.len() - plan.w.min(r.len())).sum();
+    if after.is_nan() || after > before {
+        let why = format!(
+            "its free-run RMSE over the records {:.4e} exceeds that of the model scored here, {:.4e}",
+            rms_of(after, scored),
+            rms_of(before, scored)
+        );
+        return Some((None, not_kept(&why)));
+    }
+    let note = format!(
+        "; the model saved: the chosen structure refitted on all {what}, each simulated from its own start (free-run RMSE over the records {:.4e} -> {:.4e}); the scores, decisions and verdict here are those of the model fitted on the fit parts",
+        rms_of(before, scored),
+        rms_of(after, scored)
+    );
+    Some((Some(refitted), note))
+}
+
 /// The final model of a chain that started from the engineer's equations,
 /// refitted on `whole`'s record by one Levenberg–Marquardt path from its
 /// estimates ([`crate::physics::refit_physics_direct`]: the physical
@@ -240,6 +318,21 @@ fn plan_on(rec: &gb_core::Record, plan: &Plan) -> Plan {
         folds: vec![],
         shift: None,
         spans_report: false,
+    }
+    .integrating(plan.integrating)
+}
+
+/// A plan without folds whose input–output models are fitted on the
+/// records `recs` (separate experiments) and the other classes on the
+/// longest of them (`plan`'s init window and integrator).
+fn plan_on_records(recs: &[gb_core::Record], plan: &Plan) -> Plan {
+    let longest = recs
+        .iter()
+        .fold(&recs[0], |a, r| if r.len() > a.len() { r } else { a });
+    Plan {
+        fits: recs.to_vec(),
+        fits_y: recs.to_vec(),
+        ..plan_on(longest, plan)
     }
     .integrating(plan.integrating)
 }

@@ -121,6 +121,13 @@ fn two_training_records_are_listed_in_the_report() {
         })
         .collect();
     assert_eq!(got, vec![(900, 300, 0), (0, 0, 800)]);
+    // the model saved: the chain refitted on both records whole, the
+    // held-out one included
+    let decision = r["data"]["decision"].as_str().unwrap_or_default();
+    assert!(
+        decision.contains("refitted on all 2 training records whole (2000 samples, the held-out last record included)"),
+        "{decision}"
+    );
 }
 
 #[test]
