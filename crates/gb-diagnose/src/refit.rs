@@ -137,9 +137,10 @@ fn refit_over(
 /// model selection). The refit is kept only when its free-run squared
 /// error over the whole record is not larger than the reported model's
 /// (`Σₖ (y_k − ŷ_k)²`, `k` over the record after the init window);
-/// otherwise the reported model is saved. `None` when it does not apply
-/// (a validation record or several training records: the report data are
-/// not training data; a noise model; the policy's
+/// otherwise the reported model is saved. Several training records (or
+/// a held-out last one): [`refit_on_all_records`]. `None` when it does
+/// not apply (one training record with a validation record, whose report
+/// data are not training data; a noise model; the policy's
 /// `refit_on_all_samples` off; a cross-validation spanning the whole
 /// record, whose models are fitted on all of it already). The scores, the
 /// decisions and the verdict of the report stay those of the model fitted
@@ -181,27 +182,17 @@ pub(crate) fn refit_on_all_samples(
                 .map(|out| out[out.len() - 1].model.clone())
         }
     };
-    let refitted = match refitted {
-        Ok(m) => m,
-        Err(why) => return Some((None, not_kept(&why))),
+    let kept = |before: f64, after: f64| {
+        format!(
+            "; the model saved: the chosen structure refitted on all {n} samples of the training record, its report block included (free-run RMSE over the record {before:.4e} -> {after:.4e}); the scores, decisions and verdict here are those of the model fitted without the report block"
+        )
     };
-    let sse = |m: &FittedModel| free_run_sse(m, &all, plan.w);
-    let (before, after) = (sse(scored_model), sse(&refitted));
-    let scored = n - plan.w.min(n);
-    if after.is_nan() || after > before {
-        let why = format!(
-            "its free-run RMSE over the record {:.4e} exceeds that of the model scored here, {:.4e}",
-            rms_of(after, scored),
-            rms_of(before, scored)
-        );
-        return Some((None, not_kept(&why)));
-    }
-    let note = format!(
-        "; the model saved: the chosen structure refitted on all {n} samples of the training record, its report block included (free-run RMSE over the record {:.4e} -> {:.4e}); the scores, decisions and verdict here are those of the model fitted without the report block",
-        rms_of(before, scored),
-        rms_of(after, scored)
-    );
-    Some((Some(refitted), note))
+    Some(saved_if_no_worse(
+        refitted,
+        (scored_model, &[all], plan.w, "record"),
+        &not_kept,
+        &kept,
+    ))
 }
 
 /// [`refit_on_all_samples`] with several training records: the model a
@@ -256,27 +247,20 @@ fn refit_on_all_records(
         format!("; the model saved is the one scored here: the chosen structure refitted on all {what} was not kept ({why})")
     };
     let inputs = plan.decision_inputs(d);
-    let refitted = match refit_over(&whole, (d, &inputs), chain, picks, opts, obs) {
-        Ok(out) => out[out.len() - 1].model.clone(),
-        Err(why) => return Some((None, not_kept(&why))),
+    let refitted = refit_over(&whole, (d, &inputs), chain, picks, opts, obs)
+        .map(|out| out[out.len() - 1].model.clone());
+    let kept = |before: f64, after: f64| {
+        format!(
+            "; the model saved: the chosen structure refitted on all {what}, each simulated from its own start (free-run RMSE over the records {before:.4e} -> {after:.4e}); the scores, decisions and verdict here are those of the model fitted on the fit parts"
+        )
     };
-    let sse = |m: &FittedModel| -> f64 { recs.iter().map(|r| free_run_sse(m, r, plan.w)).sum() };
-    let (before, after) = (sse(&chain[chain.len() - 1].model), sse(&refitted));
-    let scored: usize = recs.iter().map(|r| r.len() - plan.w.min(r.len())).sum();
-    if after.is_nan() || after > before {
-        let why = format!(
-            "its free-run RMSE over the records {:.4e} exceeds that of the model scored here, {:.4e}",
-            rms_of(after, scored),
-            rms_of(before, scored)
-        );
-        return Some((None, not_kept(&why)));
-    }
-    let note = format!(
-        "; the model saved: the chosen structure refitted on all {what}, each simulated from its own start (free-run RMSE over the records {:.4e} -> {:.4e}); the scores, decisions and verdict here are those of the model fitted on the fit parts",
-        rms_of(before, scored),
-        rms_of(after, scored)
-    );
-    Some((Some(refitted), note))
+    let scored_model = &chain[chain.len() - 1].model;
+    Some(saved_if_no_worse(
+        refitted,
+        (scored_model, &recs, plan.w, "records"),
+        &not_kept,
+        &kept,
+    ))
 }
 
 /// The final model of a chain that started from the engineer's equations,
@@ -335,6 +319,34 @@ fn plan_on_records(recs: &[gb_core::Record], plan: &Plan) -> Plan {
         ..plan_on(longest, plan)
     }
     .integrating(plan.integrating)
+}
+
+/// The refitted model to save and the decisions line's sentence: kept
+/// when its free-run squared error summed over the records `recs` (each
+/// from the state of its first `w` outputs) is not larger than that of
+/// the `scored` model (`kept(rms before, rms after)`), else `None` with
+/// `not_kept(why)` (also when the refit failed). `over` names the records.
+fn saved_if_no_worse(
+    refitted: Result<FittedModel, String>,
+    (scored, recs, w, over): (&FittedModel, &[gb_core::Record], usize, &str),
+    not_kept: &dyn Fn(&str) -> String,
+    kept: &dyn Fn(f64, f64) -> String,
+) -> (Option<FittedModel>, String) {
+    let refitted = match refitted {
+        Ok(m) => m,
+        Err(why) => return (None, not_kept(&why)),
+    };
+    let sse = |m: &FittedModel| -> f64 { recs.iter().map(|r| free_run_sse(m, r, w)).sum() };
+    let (before, after) = (sse(scored), sse(&refitted));
+    let n: usize = recs.iter().map(|r| r.len() - w.min(r.len())).sum();
+    let (b, a) = (rms_of(before, n), rms_of(after, n));
+    if after.is_nan() || after > before {
+        let why = format!(
+            "its free-run RMSE over the {over} {a:.4e} exceeds that of the model scored here, {b:.4e}"
+        );
+        return (None, not_kept(&why));
+    }
+    (Some(refitted), kept(b, a))
 }
 
 /// `Σₖ (y_k − ŷ_k)²` of `m`'s free run over `rec` from the state of its
