@@ -255,7 +255,10 @@ fn with_option(spec: &str, key: &str, value: &str) -> String {
 /// all of them as separate experiments ([`Context::fits`]).
 pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
     let mut p = p.clone();
+    // an equation-error (ARX) estimate stays one for a plain linear model
+    let arx = p.fit.equation_error && plain_linear(&p);
     p.fit = ctx.options.fit.clone();
+    p.fit.equation_error = arx;
     // under cross-validation (short or unrepresentative records) a
     // hysteresis structure is also fitted from the cold start: a fold's
     // warm fit can stay in a poorer basin
@@ -280,6 +283,12 @@ pub(crate) fn fit_io(p: &IoNetworkParams, ctx: &Context) -> Result<FittedModel, 
         p.check()?.fit_records(ctx.fits, warm, &gb_core::Silent)?
     };
     io_model(net, ctx.fit)
+}
+
+/// A linear model without a network, hysteresis columns, an output map
+/// or a robust fit.
+pub(crate) fn plain_linear(p: &IoNetworkParams) -> bool {
+    !p.network && !p.hysteresis && p.output_map == 0 && !p.robust && p.input_play_at.is_none()
 }
 
 #[cfg(test)]

