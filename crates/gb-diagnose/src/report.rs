@@ -112,8 +112,19 @@ pub struct ModelSummary {
 
 impl ModelSummary {
     pub(crate) fn of(e: &Evaluated) -> Self {
+        // an equation-error estimate is simulated like an output-error
+        // model but not trained as one
+        let arx = e.lineage.io().is_some_and(|p| p.fit.equation_error);
+        let model = match e.model.describe() {
+            d if arx => d.replacen(
+                "linear output-error",
+                "linear model estimated by least squares on the measured output lags (ARX, equation error)",
+                1,
+            ),
+            d => d,
+        };
         Self {
-            model: e.model.describe(),
+            model,
             class: e.model.dynamics.class().to_string(),
             spec: e.lineage.spec(),
             order: e.lineage.order(),

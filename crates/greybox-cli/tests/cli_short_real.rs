@@ -53,6 +53,8 @@ fn a_short_robot_arm_record_is_modelled_as_well_as_by_a_least_squares_arx_model(
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
     assert!(out.contains("causes: dynamics"), "{out}");
+    let fin = out.lines().find(|l| l.starts_with("final:")).unwrap_or("");
+    assert!(fin.contains("(ARX, equation error)"), "{fin}");
     let o = run(&[
         "simulate",
         &s(&model),
