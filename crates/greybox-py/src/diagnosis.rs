@@ -30,9 +30,12 @@ fn parse_order(s: &str, max: usize) -> PyResult<OrderChoice> {
 type Signals<'py> = (Vec<PyReadonlyArray1<'py, f64>>, PyReadonlyArray1<'py, f64>);
 
 /// Diagnose the training record (with a validation record, or split into
-/// blocks as the CLI does without `--validate`).
+/// blocks as the CLI does without `--validate`); `more`: further training
+/// records, each a separate experiment (`greybox diagnose --train a.csv
+/// --train b.csv`: without a validation record the last is the report
+/// data, held out whole, and the model kept is refitted on every record).
 #[pyfunction]
-#[pyo3(signature = (train, validate, input_names, output_name, sample_time, order, max_steps))]
+#[pyo3(signature = (train, validate, input_names, output_name, sample_time, order, max_steps, more=vec![]))]
 #[allow(clippy::too_many_arguments)]
 fn diagnose_records(
     py: Python<'_>,
@@ -43,6 +46,7 @@ fn diagnose_records(
     sample_time: Option<f64>,
     order: &str,
     max_steps: usize,
+    more: Vec<Signals<'_>>,
 ) -> PyResult<PyDiagnosis> {
     let defaults = DiagnoseOptions::default();
     let order = parse_order(order, defaults.policy.max_order)?;
@@ -58,12 +62,23 @@ fn diagnose_records(
         output_name.clone(),
         sample_time,
     )?;
-    let data = match validate {
-        Some((u, y)) => {
-            let va = record(&u, &y, input_names, output_name, sample_time)?;
-            DiagnoseData::with_validation(tr, va).map_err(|e| value_err(e.to_string()))?
+    let rec =
+        |(u, y): &Signals<'_>| record(u, y, input_names.clone(), output_name.clone(), sample_time);
+    let data = match (validate, more.is_empty()) {
+        (Some(v), true) => {
+            DiagnoseData::with_validation(tr, rec(&v)?).map_err(|e| value_err(e.to_string()))?
         }
-        None => DiagnoseData::from_single(tr),
+        (None, true) => DiagnoseData::from_single(tr),
+        (v, false) => {
+            let mut recs = vec![("record 1".to_string(), tr)];
+            for (i, m) in more.iter().enumerate() {
+                recs.push((format!("record {}", i + 2), rec(m)?));
+            }
+            let v = v
+                .map(|v| rec(&v).map(|r| ("validation".to_string(), r)))
+                .transpose()?;
+            DiagnoseData::from_records(recs, v).map_err(|e| value_err(e.to_string()))?
+        }
     };
     let opts = DiagnoseOptions {
         order,
@@ -96,7 +111,8 @@ impl PyDiagnosis {
 
     /// The final (possibly extended) model: with one training record and
     /// no validation data, refitted on all of the record once the report
-    /// block has scored it (when that refit is not worse over the record).
+    /// block has scored it; with several training records, refitted on
+    /// every record whole (when that refit is not worse over the data).
     #[getter]
     fn final_model(&self) -> PyModel {
         PyModel::new(self.diagnosis.to_save().clone(), vec![])

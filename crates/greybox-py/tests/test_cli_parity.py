@@ -70,6 +70,32 @@ def test_diagnose_without_validation_splits_like_the_cli(cli, generated, tmp_pat
     assert (tmp_path / "py.gbm").read_bytes() == (tmp_path / "cli.gbm").read_bytes()
 
 
+def test_diagnose_of_several_experiments_matches_the_cli(cli, generated, tmp_path):
+    d = generated("saturation")
+    tr = read_csv(d / "train.csv")
+    header = (d / "train.csv").read_text().splitlines()
+    (tmp_path / "a.csv").write_text("\n".join(header[:1] + header[1:1501]) + "\n")
+    (tmp_path / "b.csv").write_text("\n".join(header[:1] + header[1501:]) + "\n")
+    cli("diagnose", "--train", tmp_path / "a.csv", "--train", tmp_path / "b.csv",
+        "--json", tmp_path / "d.json", "--save", tmp_path / "cli.gbm")
+    want = json.loads((tmp_path / "d.json").read_text())
+    ts = sample_time(tr["t"])
+    got = greybox.diagnose(tr["u"][:1500], tr["y"][:1500], sample_time=ts,
+                           experiments=[(tr["u"][1500:], tr["y"][1500:])])
+    assert got.causes == want["causes"]
+    assert got.final_nrmse == want["final"]["nrmse"]
+    assert got.steps == want["steps"]
+    assert got.report["data"]["decision"] == want["data"]["decision"]
+    # the second record held out whole for the report, then the model kept
+    # refitted on both records
+    assert [r["report"] for r in got.report["data"]["records"]] == [0, 1500]
+    assert "refitted on all 2 training records whole" in want["data"]["decision"]
+    got.final_model.save(tmp_path / "py.gbm")
+    assert (tmp_path / "py.gbm").read_bytes() == (tmp_path / "cli.gbm").read_bytes()
+    with pytest.raises(ValueError, match="experiment 2 has 2 inputs"):
+        greybox.diagnose(tr["u"], tr["y"], experiments=[(np.c_[tr["u"], tr["u"]], tr["y"])])
+
+
 def test_html_report(generated, tmp_path):
     d = generated("saturation")
     tr, va = read_csv(d / "train.csv"), read_csv(d / "validate.csv")

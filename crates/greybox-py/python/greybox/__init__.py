@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import json
 import os
-from typing import Any, Dict, List, Optional, Sequence, Union
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -188,7 +188,9 @@ class Diagnosis:
 
     @property
     def final_model(self) -> Model:
-        """The final (possibly extended) model."""
+        """The final (possibly extended) model, as ``greybox diagnose
+        --save`` writes it (refitted on all training data when that was
+        done and kept)."""
         return Model(self._core.final_model)
 
     def to_json(self) -> str:
@@ -221,6 +223,7 @@ def diagnose(
     input_names: Optional[Sequence[str]] = None,
     output_name: str = "y",
     sample_time: Optional[float] = None,
+    experiments: Optional[Sequence[Tuple[Any, Any]]] = None,
 ) -> Diagnosis:
     """Simulate the engineer's linear model of ``order`` (or ``"auto"``),
     name the cause of its misfit, extend it and measure the gain on
@@ -230,9 +233,20 @@ def diagnose(
     ``u_val``/``y_val`` the training data is split 75/25 into fit and
     select blocks and the validation record is the report data; without,
     one record is split into fit/select/report blocks (50/25/25 %).
+
+    ``experiments``: further training records ``[(u2, y2), ...]``, each a
+    separate experiment (no regressor and no simulated state spans two
+    records): ``greybox diagnose --train a.csv --train b.csv``. Every
+    training record is split 75/25 into fit and select parts; without a
+    validation record the last one is the report data, held out whole, and
+    :attr:`Diagnosis.final_model` is then refitted on every record.
     """
     cols, out = signals(u, y)
     names = input_names_for(u, len(cols), input_names)
+    more = [signals(ue, ye) for ue, ye in (experiments or [])]
+    for i, (c, _) in enumerate(more):
+        if len(c) != len(cols):
+            raise ValueError(f"experiment {i + 2} has {len(c)} inputs, the first record {len(cols)}")
     val = None
     if (u_val is None) != (y_val is None):
         raise ValueError("give both u_val and y_val, or neither")
@@ -240,7 +254,9 @@ def diagnose(
         val = signals(u_val, y_val)
         if len(val[0]) != len(cols):
             raise ValueError(f"the validation data has {len(val[0])} inputs, the training data {len(cols)}")
-    core = _greybox.diagnose_records((cols, out), val, names, output_name, sample_time, str(order), int(max_steps))
+    core = _greybox.diagnose_records(
+        (cols, out), val, names, output_name, sample_time, str(order), int(max_steps), more
+    )
     return Diagnosis(core)
 
 
