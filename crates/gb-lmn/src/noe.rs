@@ -2089,17 +2089,7 @@ pub fn fit_linear_arx_records(
     exps: &[Experiment],
     opts: &FitOptions,
 ) -> Result<LocalModelNetwork, LmnError> {
-    let first = exps
-        .first()
-        .ok_or_else(|| LmnError::InvalidArgument("no experiment given".into()))?;
-    spec.check(first.inputs.len())?;
-    opts.check()?;
-    let mut net = linear_network_on(spec, exps);
-    let n: usize = exps.iter().map(|e| e.output.len()).sum();
-    let needed = exps.len() * spec.max_lag() + 3 * net.n_parameters() + 10;
-    if n < needed {
-        return Err(LmnError::TooShort { needed, got: n });
-    }
+    let mut net = unfitted_linear(spec, exps, opts)?;
     let ps = prepare_all(&net, exps, opts.estimate_start)?;
     let rows: Vec<(&Prepared, &[f64])> = ps.iter().map(|p| (p, &p.yn[..])).collect();
     global_ls_records(&mut net, &rows, opts.ridge)?;
@@ -2116,6 +2106,29 @@ pub fn fit_linear_arx_records(
     Ok(net)
 }
 
+/// The one-leaf network of `spec` with zero parameters and the scalings of
+/// `exps` ([`linear_network_on`]) once the structure and the options are
+/// valid and the experiments hold at least `E·max_lag + 3p + 10` samples
+/// together (E experiments, p parameters).
+fn unfitted_linear(
+    spec: &NetworkSpec,
+    exps: &[Experiment],
+    opts: &FitOptions,
+) -> Result<LocalModelNetwork, LmnError> {
+    let first = exps
+        .first()
+        .ok_or_else(|| LmnError::InvalidArgument("no experiment given".into()))?;
+    spec.check(first.inputs.len())?;
+    opts.check()?;
+    let net = linear_network_on(spec, exps);
+    let n: usize = exps.iter().map(|e| e.output.len()).sum();
+    let needed = exps.len() * spec.max_lag() + 3 * net.n_parameters() + 10;
+    if n < needed {
+        return Err(LmnError::TooShort { needed, got: n });
+    }
+    Ok(net)
+}
+
 /// The cold start of an output-error fit: least squares on the measured
 /// regressors, then up to three rounds of least squares on the simulated
 /// output lags while they lower the simulation error (stabilised); and the
@@ -2126,18 +2139,7 @@ fn cold_start(
     exps: &[Experiment],
     opts: &FitOptions,
 ) -> Result<(LocalModelNetwork, Option<LocalModelNetwork>), LmnError> {
-    let first = exps
-        .first()
-        .ok_or_else(|| LmnError::InvalidArgument("no experiment given".into()))?;
-    spec.check(first.inputs.len())?;
-    opts.check()?;
-    let mut net = linear_network_on(spec, exps);
-    let np = net.n_parameters();
-    let n: usize = exps.iter().map(|e| e.output.len()).sum();
-    let needed = exps.len() * spec.max_lag() + 3 * np + 10;
-    if n < needed {
-        return Err(LmnError::TooShort { needed, got: n });
-    }
+    let mut net = unfitted_linear(spec, exps, opts)?;
     let mut ps = prepare_all(&net, exps, opts.estimate_start)?;
     let rows: Vec<(&Prepared, &[f64])> = ps.iter().map(|p| (p, &p.yn[..])).collect();
     global_ls_records(&mut net, &rows, opts.ridge)?;
