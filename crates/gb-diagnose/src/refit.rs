@@ -251,7 +251,7 @@ fn refit_on_all_records(
         .map(|out| out[out.len() - 1].model.clone());
     let kept = |before: f64, after: f64| {
         format!(
-            "; the model saved: the chosen structure refitted on all {what}, each simulated from its own start (free-run RMSE over the records {before:.4e} -> {after:.4e}); the scores, decisions and verdict here are those of the model fitted on the fit parts"
+            "; the model saved: the chosen structure refitted on all {what}, each simulated from its own start (free-run RMSE over the records {before:.4e} -> {after:.4e}); the scores, decisions and verdict here are those of the model before this refit"
         )
     };
     let scored_model = &chain[chain.len() - 1].model;

@@ -114,7 +114,10 @@ impl ModelSummary {
     pub(crate) fn of(e: &Evaluated) -> Self {
         // an equation-error estimate is simulated like an output-error
         // model but not trained as one
-        let arx = e.lineage.io().is_some_and(|p| p.fit.equation_error);
+        let arx = e
+            .lineage
+            .io()
+            .is_some_and(|p| p.fit.equation_error && crate::extensions::plain_linear(p));
         let model = match e.model.describe() {
             d if arx => d.replacen(
                 "linear output-error",
