@@ -978,10 +978,95 @@ fn solve_normal(
     g.cholesky().map(|c| c.solve(r))
 }
 
+/// The simulation-error problem of one block model on several records
+/// (separate experiments): cost, Gram matrix and gradient summed over
+/// them, each record simulated from its own estimated start history.
+struct RecordsProblem<'a> {
+    parts: Vec<Problem<'a>>,
+    /// Scratch Gram matrix and gradient of one record.
+    gram: Vec<f64>,
+    grad: Vec<f64>,
+}
+
+impl LeastSquaresProblem for RecordsProblem<'_> {
+    fn n_params(&self) -> usize {
+        self.parts.first().map_or(0, LeastSquaresProblem::n_params)
+    }
+    fn cost(&mut self, theta: &[f64]) -> Option<f64> {
+        let mut c = 0.0;
+        for p in &mut self.parts {
+            c += p.eval(theta, None)?;
+        }
+        Some(c)
+    }
+    fn linearize(&mut self, theta: &[f64], gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
+        gram.fill(0.0);
+        grad.fill(0.0);
+        self.gram.resize(gram.len(), 0.0);
+        self.grad.resize(grad.len(), 0.0);
+        let mut c = 0.0;
+        for p in &mut self.parts {
+            c += p.eval(theta, Some((&mut self.gram, &mut self.grad)))?;
+            gram.iter_mut().zip(&self.gram).for_each(|(a, b)| *a += b);
+            grad.iter_mut().zip(&self.grad).for_each(|(a, b)| *a += b);
+        }
+        Some(c)
+    }
+}
+
 impl ValidBlockParams {
     /// The parameters.
     pub fn params(&self) -> &BlockParams {
         &self.0
+    }
+
+    /// `m` trained further on several records `recs` (separate
+    /// experiments): Levenberg–Marquardt on the simulation error summed
+    /// over them, Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))², each record simulated from its
+    /// own estimated start history; the structure (orders, dead times, map
+    /// bases and knots) and the scalings of `m` kept. `None` when the fit
+    /// fails or a record does not have `m`'s inputs.
+    pub fn refine_records(&self, m: &BlockModel, recs: &[Record]) -> Option<BlockModel> {
+        if recs.is_empty() || recs.iter().any(|r| r.n_inputs() != m.n_inputs()) {
+            return None;
+        }
+        let data: Vec<(Vec<Vec<f64>>, Vec<f64>)> = recs
+            .iter()
+            .map(|r| {
+                let un = Scaling::normalise_all(&m.input_scaling, &r.inputs);
+                let sc = m.output_scaling;
+                (un, r.output.iter().map(|&v| sc.to_norm(v)).collect())
+            })
+            .collect();
+        let parts = data
+            .iter()
+            .map(|(un, yn)| Problem {
+                model: m.clone(),
+                un,
+                yn,
+                base: m.mapped(un),
+                free_knots: false,
+                knot_bounds: vec![],
+            })
+            .collect();
+        let mut prob = RecordsProblem {
+            parts,
+            gram: vec![],
+            grad: vec![],
+        };
+        let lm = LmParams::default()
+            .max_iter(self.0.lm_iterations)
+            .tol(1e-9)
+            .stall(10, STALL_TOL)
+            .check()
+            .ok()?;
+        let st = lm
+            .minimize(&mut prob, &m.parameters(), &gb_core::Silent)
+            .ok()?;
+        let mut out = m.clone();
+        out.set_parameters(&st.theta);
+        out.check_consistency().ok()?;
+        Some(out)
     }
 
     /// The linear model's skeleton on `d`'s scalings, ARX start.

@@ -196,7 +196,11 @@ pub(crate) fn fit_block_choosing(
             order: *order,
         })
     });
-    let m = fit_spec(fixed.as_ref().unwrap_or(lineage), ctx, cap)?;
+    let m = on_every_record(
+        fit_spec(fixed.as_ref().unwrap_or(lineage), ctx, cap)?,
+        ctx,
+        cap,
+    );
     let block = m.dynamics.as_any().downcast_ref::<gb_lmn::BlockModel>();
     let map = block
         .and_then(gb_lmn::BlockModel::map_structure)
@@ -209,6 +213,34 @@ pub(crate) fn fit_block_choosing(
     });
     let chosen = map.map(|s| delay.unwrap_or(0) * structures.len() + s);
     Ok((m, chosen))
+}
+
+/// With several training records, a block-oriented model `m` (fitted with
+/// its structure choice on one record, the longest) trained further on
+/// every record's first `cap` samples together, each a separate experiment
+/// ([`gb_lmn::ValidBlockParams::refine_records`]: the summed simulation
+/// error never grows); `m` unchanged with one record, for other classes,
+/// or when that fit fails.
+fn on_every_record(mut m: FittedModel, ctx: &Context, cap: usize) -> FittedModel {
+    if ctx.fits.len() < 2 {
+        return m;
+    }
+    let Some(block) = m.dynamics.as_any().downcast_ref::<gb_lmn::BlockModel>() else {
+        return m;
+    };
+    let recs: Vec<gb_core::Record> = ctx
+        .fits
+        .iter()
+        .map(|r| r.slice(0..r.len().min(cap)))
+        .collect();
+    let refined = gb_lmn::BlockParams::linear(1)
+        .check()
+        .ok()
+        .and_then(|p| p.refine_records(block, &recs));
+    if let Some(b) = refined {
+        m.dynamics = Box::new(b);
+    }
+    m
 }
 
 /// The dead-time alternatives of a block spec's `delay=` option (`1|0|2`
