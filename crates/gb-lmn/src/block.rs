@@ -1020,6 +1020,18 @@ impl ValidBlockParams {
         &self.0
     }
 
+    /// The Levenberg–Marquardt solver of every fit: `lm_iterations`
+    /// iterations, tolerance 1e-9, stopped when 10 iterations together
+    /// gain less than `STALL_TOL` of the cost.
+    fn solver(&self) -> Option<gb_core::solver::LevenbergMarquardt> {
+        LmParams::default()
+            .max_iter(self.0.lm_iterations)
+            .tol(1e-9)
+            .stall(10, STALL_TOL)
+            .check()
+            .ok()
+    }
+
     /// `m` trained further on several records `recs` (separate
     /// experiments): Levenberg–Marquardt on the simulation error summed
     /// over them, Σᵢ Σₖ (yᵢ(k) − ŷᵢ(k))², each record simulated from its
@@ -1054,12 +1066,7 @@ impl ValidBlockParams {
             gram: vec![],
             grad: vec![],
         };
-        let lm = LmParams::default()
-            .max_iter(self.0.lm_iterations)
-            .tol(1e-9)
-            .stall(10, STALL_TOL)
-            .check()
-            .ok()?;
+        let lm = self.solver()?;
         let st = lm
             .minimize(&mut prob, &m.parameters(), &gb_core::Silent)
             .ok()?;
@@ -1176,12 +1183,7 @@ impl ValidBlockParams {
             free_knots: false,
             knot_bounds: vec![],
         };
-        let lm = LmParams::default()
-            .max_iter(self.0.lm_iterations)
-            .tol(1e-9)
-            .stall(10, STALL_TOL)
-            .check()
-            .ok()?;
+        let lm = self.solver()?;
         let st = lm.minimize(&mut prob, &theta0, &gb_core::Silent).ok()?;
         let mut m = prob.model;
         m.set_parameters(&st.theta);
@@ -1234,12 +1236,7 @@ impl ValidBlockParams {
             free_knots: true,
             knot_bounds,
         };
-        let lm = LmParams::default()
-            .max_iter(self.0.lm_iterations)
-            .tol(1e-9)
-            .stall(10, STALL_TOL)
-            .check()
-            .ok()?;
+        let lm = self.solver()?;
         let st = lm.minimize(&mut prob, &theta0, &gb_core::Silent).ok()?;
         let mut out = prob.model;
         out.set_parameters(&st.theta[..np0]);
