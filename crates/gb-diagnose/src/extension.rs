@@ -6,8 +6,8 @@
 //! file in `extensions/` and one line in [`EXTENSIONS`].
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
-    Backlash, Capacity, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder, Lolimot,
-    MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
+    Backlash, Capacity, FeedbackMap, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder,
+    Lolimot, MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
     PhysicsTerms, PolyNoe, PolySimpler, PreisachColumns, ProcessNoise, StateNetwork, StudentTNoise,
     TreeLmn, Wiener, WienerHammerstein,
 };
@@ -294,6 +294,7 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &PhysicsHysteresis,
     &HiddenState,
     &HiddenStateDetail,
+    &FeedbackMap,
     // last: its place in the list sets the bootstrap seeds of the others
     &PolySimpler,
 ];

@@ -1,5 +1,5 @@
 //! More capacity for a cause already named: more local models / operators
-//! and one more lag of every regressor. A new cause must beat it.
+//! (a finer fed-back map) and one more lag of every regressor. A new cause must beat it.
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal, Role};
 use crate::{Cause, DiagnoseError};
@@ -43,6 +43,25 @@ impl Extension for Capacity {
             order: (p.order + 1).min(ctx.policy().max_order),
             ..p.clone()
         };
+        if !(p.network || p.hysteresis || p.output_map > 0) {
+            return vec![];
+        }
+        if !p.network && !p.hysteresis {
+            // a fed-back map of the output (`FeedbackMap`): twice the
+            // intervals
+            return vec![Proposal {
+                cause,
+                text: format!(
+                    "more capacity for the named nonlinearity: a fed-back map of {} intervals, regressor lags {}",
+                    2 * p.output_map,
+                    s.order
+                ),
+                lineage: Lineage::Io(gb_lmn::IoNetworkParams {
+                    output_map: 2 * p.output_map,
+                    ..s
+                }),
+            }];
+        }
         let text = if s.network && cause == Cause::Nonlinearity {
             format!(
                 "more capacity for the named nonlinearity: up to {} local models, regressor lags {}",
@@ -76,7 +95,11 @@ impl Extension for Capacity {
         }]
     }
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        super::fit_io(p.lineage.io().expect("an input-output proposal"), ctx)
+        let io = p.lineage.io().expect("an input-output proposal");
+        if !io.network && !io.hysteresis && io.output_map > 0 {
+            return super::feedback::cold_fit(io, ctx);
+        }
+        super::fit_io(io, ctx)
     }
     fn evidence(&self, p: &Proposal, _ctx: &Context) -> String {
         format!("the named {} pays further with more capacity", p.cause)

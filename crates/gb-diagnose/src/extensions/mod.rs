@@ -1,6 +1,7 @@
 //! The candidate extensions, one file each (see [`crate::Extension`]).
 mod backlash;
 mod capacity;
+mod feedback;
 mod hammerstein;
 mod hidden_state;
 mod hidden_state_detail;
@@ -22,6 +23,7 @@ mod wiener_hammerstein;
 
 pub use backlash::Backlash;
 pub use capacity::Capacity;
+pub use feedback::FeedbackMap;
 pub use hammerstein::Hammerstein;
 pub use hidden_state::HiddenState;
 pub use hidden_state_detail::HiddenStateDetail;
@@ -258,7 +260,7 @@ fn spec_delays(spec: &str) -> Vec<String> {
 }
 
 /// `spec` with option `key` set to `value` (replaced, or appended).
-fn with_option(spec: &str, key: &str, value: &str) -> String {
+pub(crate) fn with_option(spec: &str, key: &str, value: &str) -> String {
     let (head, opts) = spec.split_once(':').unwrap_or((spec, ""));
     let prefix = format!("{key}=");
     let mut parts: Vec<String> = opts
