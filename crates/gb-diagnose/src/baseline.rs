@@ -134,7 +134,11 @@ impl StructureChoice {
             ));
         }
         if let Some([plain, inc]) = self.integrator_test {
-            s.push_str(&format!(" (NRMSE {plain:.4} plain vs {inc:.4} increments)"));
+            s.push_str(&format!(" (NRMSE {plain:.4} plain vs {inc:.4} increments"));
+            if self.integrating && self.arx_pole >= 1.0 && inc > plain {
+                s.push_str("; the ARX pole at or beyond 1, which no stable model has");
+            }
+            s.push(')');
         }
         if let Some(DelayRescan {
             order: n,
@@ -379,10 +383,19 @@ pub(crate) fn baseline(
             || fit_structure(plan0, d, opts, n_ref, (&scan.best, false), None),
             || fit_structure(&inc_plan, d, opts, n_ref, (&scan.best, false), None),
         );
-        let e =
-            |r: &Result<Evaluated, _>| r.as_ref().map_or(f64::INFINITY, |e| e.scores.nrmse_select);
+        // both from a fresh start on the select block, as the increments
+        // model is scored (`block_residuals`); under cross-validation the
+        // folds' held-out scores already are
+        let e = |r: &Result<Evaluated, _>| match r {
+            Ok(m) if !plan0.cv() => {
+                crate::evaluate::fresh_select_nrmse(&m.model, d, plan0.w).unwrap_or(f64::INFINITY)
+            }
+            Ok(m) => m.scores.nrmse_select,
+            Err(_) => f64::INFINITY,
+        };
         choice.integrator_test = Some([e(&plain), e(&inc)]);
-        if e(&inc) <= e(&plain) * (1.0 - pol.integrator_gain) {
+        let beyond = pol.integrator_beyond_unit && scan.real_pole >= 1.0;
+        if beyond || e(&inc) <= e(&plain) * (1.0 - pol.integrator_gain) {
             inc_plan
         } else {
             plan0.clone()

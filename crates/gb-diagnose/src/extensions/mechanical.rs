@@ -182,24 +182,24 @@ fn fit_from_whole(
     fit_physics(start.spec(), &rec, ctx.observer)
 }
 
-/// The order (1 or 2) of the current model when it is the plain linear
-/// model of one input (the template's start), not of an integrating
-/// system's increments (the template's output is a position with a
-/// spring, not a velocity: on EMPS the templates of the increments took
-/// 41 s of fits and changed nothing).
+/// The template's order (1 or 2) when the current model is the plain
+/// linear model of one input (the template's start) of order 1 or 2: that
+/// order; for an integrating system's increments (a velocity, no spring:
+/// the order-2 template's position with a spring took 41 s of fits on
+/// EMPS and changed nothing) the first-order template of the velocity.
 fn plain_order(ctx: &Context) -> Option<usize> {
     ctx.current
         .lineage
         .io()
-        .filter(|p| !p.network && !p.hysteresis && (p.order == 1 || p.order == 2))
-        .filter(|_| ctx.fit.inputs.len() == 1 && !ctx.plan.integrating)
-        .map(|p| p.order)
+        .filter(|p| !p.network && !p.hysteresis && p.output_map == 0)
+        .filter(|p| (p.order == 1 || p.order == 2) && ctx.fit.inputs.len() == 1)
+        .map(|p| if ctx.plan.integrating { 1 } else { p.order })
 }
 
 /// Whether the current model is the plain order-2 linear model of one
 /// input.
 fn plain_order_two(ctx: &Context) -> bool {
-    plain_order(ctx) == Some(2)
+    plain_order(ctx) == Some(2) && !ctx.plan.integrating
 }
 
 /// The static laws [`MechanicalNonlinearity`] tries: (name, equation,

@@ -23,6 +23,7 @@ pub(crate) fn build(family: Family, r: &mut R, ctx: &mut Ctx) -> Result<Built, C
         Family::Wiener => wiener(r, ctx),
         Family::Saturation | Family::DeadZone | Family::Backlash => input_map(family, r, ctx),
         Family::Friction => friction(r, ctx),
+        Family::Integrator => integrator(r, ctx),
         Family::Preisach => preisach(r, ctx),
         Family::BoucWen => bouc_wen(r, ctx),
         Family::TwoMass => two_mass(r, ctx),
@@ -376,6 +377,48 @@ fn friction(r: &mut R, ctx: &mut Ctx) -> Result<Built, CoreError> {
     b.param("coulomb_rel", rho);
     b.param("eps_rel", eps_rel);
     b.param("velocity_output", f64::from(u8::from(velocity)));
+    Ok(b)
+}
+
+/// A free mass with viscous friction whose position is measured: an
+/// integrating system (force → position, a pole at 1), its position a
+/// random walk under a zero-mean force. In two draws of three also
+/// Coulomb friction `F_c·tanh(v/ε)` on its velocity (the EMPS positioning
+/// rig's structure).
+fn integrator(r: &mut R, ctx: &mut Ctx) -> Result<Built, CoreError> {
+    let coulomb = r.random::<f64>() < 2.0 / 3.0;
+    let (rho, eps_rel) = (uni(r, 0.1, 0.5), uni(r, 0.02, 0.1));
+    let m = logu(r, 0.2, 5.0);
+    let tau = logu(r, 0.01, 10.0);
+    let mech = Mech::linear(m, m / tau, 0.0);
+    let v0 = logu(r, 1e-2, 1.0);
+    let mut sys = System::new(Core::Mech(mech), 1);
+    sys.input_scale[0] = m / tau * v0;
+    ctx.excite(tau, 1.0 / (2.0 * PI * tau), 1);
+    let text =
+        format!("integrator: free mass (m {m:.3}, viscous tau {tau:.3e} s), position output");
+    let mut b = if coulomb {
+        let lv = ctx.levels(&mut sys, 0.0)?;
+        let (f_rms, v_rms) = (std(&lv.trace.force), std(&lv.trace.v));
+        let mech = mech_mut(&mut sys)?;
+        mech.coulomb = rho * f_rms;
+        mech.eps = eps_rel * v_rms;
+        sys.set_substeps(0.0);
+        let mut b = Built::new(sys, 2, vec!["nonlinearity"]);
+        b.alternatives = vec![vec!["hysteresis"]];
+        b.description = format!(
+            "{text}, Coulomb friction Fc tanh(v/eps), Fc = {rho:.2} F_rms, eps = {eps_rel:.3} v_rms"
+        );
+        b
+    } else {
+        sys.set_substeps(0.0);
+        let mut b = Built::new(sys, 2, vec![]);
+        b.description = text;
+        b
+    };
+    mech_params(&mut b);
+    b.param("coulomb_rel", if coulomb { rho } else { 0.0 });
+    b.param("eps_rel", eps_rel);
     Ok(b)
 }
 

@@ -27,6 +27,7 @@
 //! | `student-t` | Student-t output noise, ν 2.5–4 | noise |
 //! | `coloured-noise` | ARMA(1,1) output noise | noise (or none) |
 //! | `process-noise` | a low-pass force disturbance in the dynamics | noise (or none) |
+//! | `integrator` | a free mass with viscous friction, position output (an integrating system: force → position); in two draws of three Coulomb friction as well | none, or nonlinearity (or hysteresis) |
 //!
 //! Per draw: the physical parameters, the samples per resonance period (or
 //! per time constant) 5–60, the excitation ([`ExcitationKind`], sometimes
@@ -79,10 +80,11 @@ pub enum Family {
     StudentT,
     ColouredNoise,
     ProcessNoise,
+    Integrator,
 }
 
 /// Names of the families, in the order of [`Family::ALL`].
-pub const FAMILIES: [&str; 18] = [
+pub const FAMILIES: [&str; 19] = [
     "linear",
     "dead-time",
     "duffing",
@@ -101,11 +103,12 @@ pub const FAMILIES: [&str; 18] = [
     "student-t",
     "coloured-noise",
     "process-noise",
+    "integrator",
 ];
 
 impl Family {
     /// Every family.
-    pub const ALL: [Self; 18] = [
+    pub const ALL: [Self; 19] = [
         Self::Linear,
         Self::DeadTime,
         Self::Duffing,
@@ -124,6 +127,7 @@ impl Family {
         Self::StudentT,
         Self::ColouredNoise,
         Self::ProcessNoise,
+        Self::Integrator,
     ];
 
     /// The family's name.

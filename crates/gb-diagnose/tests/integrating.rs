@@ -1,0 +1,37 @@
+//! Integrating systems (force → position) with dry friction: the
+//! generator's `integrator` family, diagnosed from its increments.
+use gb_diagnose::generator::{draw_with, Knobs};
+use gb_diagnose::{diagnose, DiagnoseData, DiagnoseOptions, OrderChoice};
+
+/// The diagnosis of generated case `integrator`/`seed` at 8000 + 4000
+/// samples: (named causes, final validation NRMSE over the noise floor,
+/// the final model in words, the baseline's structure line).
+fn diagnosed(seed: u64) -> (Vec<String>, f64, String, String) {
+    let c = draw_with("integrator", seed, &Knobs::lengths(8000, 4000)).unwrap();
+    let d = DiagnoseData::with_validation(c.train.clone(), c.validate.clone()).unwrap();
+    let o = DiagnoseOptions {
+        order: OrderChoice::Fixed(c.model_order),
+        ..DiagnoseOptions::default()
+    };
+    let r = diagnose(&d, &o, None).unwrap().report;
+    let causes = r.cause_names().iter().map(|c| c.to_string()).collect();
+    let ratio = r.final_model.nrmse / c.noise_floor_nrmse;
+    (causes, ratio, r.final_model.model.clone(), r.to_text())
+}
+
+/// Seed 8: a free mass with viscous and Coulomb friction (Fc = 0.44 F_rms)
+/// driven by a sweep, its position measured at 31 dB. The ARX pole lies
+/// beyond 1 (1.0005), but with dry friction neither linear model fits
+/// (decision NRMSE 0.20 plain, 0.68 increments): while that comparison
+/// decided, the plain model was kept, no cause was named, and it drifted
+/// to 96× the noise floor on the validation record. Taken as an
+/// integrator (policy `integrator_beyond_unit`), the increments get a
+/// friction law and end within 1.3× the floor.
+#[test]
+fn an_integrator_with_dry_friction_is_modelled_from_its_increments() {
+    let (causes, ratio, model, text) = diagnosed(8);
+    assert!(
+        causes == ["nonlinearity"] && ratio <= 1.3 && model.starts_with("integrating"),
+        "named {causes:?}, final/floor {ratio:.2}, final {model}\n{text}"
+    );
+}
