@@ -4,17 +4,8 @@
 //! (motor force → position), its training file diagnosed, the saved model
 //! simulated once on the official test file.
 mod common;
-use common::{run, scratch, text};
+use common::{printed, run, scratch, text};
 use std::path::{Path, PathBuf};
-
-/// The RMSE printed by `simulate`.
-fn rmse(out: &str) -> f64 {
-    out.lines()
-        .find_map(|l| l.split("RMSE ").nth(1))
-        .and_then(|r| r.split_whitespace().next())
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("no RMSE in\n{out}"))
-}
 
 /// The first step on EMPS' increments (a velocity): the fed-back map of
 /// the simulated output — a friction law of the velocity inside the loop —
@@ -70,7 +61,7 @@ fn emps_first_step_is_a_friction_law_of_the_velocity() {
     ]);
     let (sout, serr) = text(&o);
     assert!(o.status.success(), "{sout}\n{serr}");
-    let got = rmse(&sout);
+    let got = printed(&sout, "RMSE ");
     eprintln!("EMPS, first step: test RMSE {:.3} mm", 1e3 * got);
     assert!(got <= 2.64e-3, "test RMSE {got:.4e}\n{out}");
 }

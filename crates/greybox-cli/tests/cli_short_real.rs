@@ -4,7 +4,7 @@
 //! 600 samples the training record and the next 400 the test record, the
 //! test scored once by `greybox simulate --init-window 20`.
 mod common;
-use common::{run, scratch, text};
+use common::{printed, run, scratch, text};
 use std::path::{Path, PathBuf};
 
 /// Rows `rows` of `from` (after its header) written to `to` with the header.
@@ -14,15 +14,6 @@ fn rows(from: &Path, to: &Path, rows: std::ops::Range<usize>) {
     let head = lines.next().unwrap();
     let body: Vec<&str> = lines.skip(rows.start).take(rows.len()).collect();
     std::fs::write(to, format!("{head}\n{}\n", body.join("\n"))).unwrap();
-}
-
-/// The NRMSE printed by `simulate`.
-fn nrmse(out: &str) -> f64 {
-    out.lines()
-        .find_map(|l| l.split("NRMSE ").nth(1))
-        .and_then(|r| r.split_whitespace().next())
-        .and_then(|v| v.parse().ok())
-        .unwrap_or_else(|| panic!("no NRMSE in\n{out}"))
 }
 
 /// The reference is a least-squares ARX model of order (na = nb, nk)
@@ -66,7 +57,7 @@ fn a_short_robot_arm_record_is_modelled_as_well_as_by_a_least_squares_arx_model(
     ]);
     let (sout, serr) = text(&o);
     assert!(o.status.success(), "{sout}\n{serr}");
-    let got = nrmse(&sout);
+    let got = printed(&sout, "NRMSE ");
     eprintln!("robot arm, 600 training samples: test NRMSE {got:.4} (LS-ARX 0.0285)");
     assert!(got <= 1.05 * 0.0285, "test NRMSE {got:.4}\n{out}");
 }

@@ -4,6 +4,16 @@
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
+/// The number printed after `label` (e.g. `"RMSE "`, `"NRMSE "`) on the
+/// first line of `out` that has one (`simulate`'s error line).
+pub fn printed(out: &str, label: &str) -> f64 {
+    out.lines()
+        .find_map(|l| l.split(label).nth(1))
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|v| v.parse().ok())
+        .unwrap_or_else(|| panic!("no {label}in\n{out}"))
+}
+
 /// The `greybox` binary of this build.
 pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_greybox"))
