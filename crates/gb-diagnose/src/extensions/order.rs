@@ -142,9 +142,10 @@ impl Extension for LinearOrder {
 /// policy's `max_order`), its map structure and dead time those of the
 /// current model (re-chosen, a finer map paid as if it were the order:
 /// saturation 1 of the generator at 608 samples named a spurious
-/// `dynamics`, +5.0 % on the folds, +1.2 % on the validation record). Without it a block-oriented model ended the search: no other
-/// extension extends it, and a nonlinearity found at the baseline's order
-/// kept that order whatever the residual spectrum said.
+/// `dynamics`, +5.0 % on the folds, +1.2 % on the validation record).
+/// Without it a block-oriented model ended the search: no other extension
+/// extends it, and a nonlinearity found at the baseline's order kept that
+/// order whatever the residual spectrum said.
 fn block_orders(ctx: &Context) -> Vec<Proposal> {
     let Lineage::Other { spec, order } = &ctx.current.lineage else {
         return vec![];
