@@ -4,7 +4,7 @@
 //! (motor force → position), its training file diagnosed, the saved model
 //! simulated once on the official test file.
 mod common;
-use common::{printed, run, scratch, text};
+use common::{run, scratch, simulated, text};
 use std::path::{Path, PathBuf};
 
 /// The first step on EMPS' increments (a velocity): the fed-back map of
@@ -50,18 +50,7 @@ fn emps_first_step_is_a_friction_law_of_the_velocity() {
     );
     let fin = out.lines().find(|l| l.starts_with("final:")).unwrap_or("");
     assert!(fin.contains("integrating (pole at 1)"), "{fin}");
-    let o = run(&[
-        "simulate",
-        &s(&model),
-        &s(&test),
-        "-o",
-        &s(&sim),
-        "--init-window",
-        "20",
-    ]);
-    let (sout, serr) = text(&o);
-    assert!(o.status.success(), "{sout}\n{serr}");
-    let got = printed(&sout, "RMSE ");
+    let got = simulated(&model, &test, &sim, 20, "RMSE ");
     eprintln!("EMPS, first step: test RMSE {:.3} mm", 1e3 * got);
     assert!(got <= 2.64e-3, "test RMSE {got:.4e}\n{out}");
 }

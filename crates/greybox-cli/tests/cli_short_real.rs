@@ -4,7 +4,7 @@
 //! 600 samples the training record and the next 400 the test record, the
 //! test scored once by `greybox simulate --init-window 20`.
 mod common;
-use common::{printed, run, scratch, text};
+use common::{run, scratch, simulated, text};
 use std::path::{Path, PathBuf};
 
 /// Rows `rows` of `from` (after its header) written to `to` with the header.
@@ -46,18 +46,7 @@ fn a_short_robot_arm_record_is_modelled_as_well_as_by_a_least_squares_arx_model(
     assert!(out.contains("causes: dynamics"), "{out}");
     let fin = out.lines().find(|l| l.starts_with("final:")).unwrap_or("");
     assert!(fin.contains("(ARX, equation error)"), "{fin}");
-    let o = run(&[
-        "simulate",
-        &s(&model),
-        &s(&test),
-        "-o",
-        &s(&sim),
-        "--init-window",
-        "20",
-    ]);
-    let (sout, serr) = text(&o);
-    assert!(o.status.success(), "{sout}\n{serr}");
-    let got = printed(&sout, "NRMSE ");
+    let got = simulated(&model, &test, &sim, 20, "NRMSE ");
     eprintln!("robot arm, 600 training samples: test NRMSE {got:.4} (LS-ARX 0.0285)");
     assert!(got <= 1.05 * 0.0285, "test NRMSE {got:.4}\n{out}");
 }

@@ -14,6 +14,31 @@ pub fn printed(out: &str, label: &str) -> f64 {
         .unwrap_or_else(|| panic!("no {label}in\n{out}"))
 }
 
+/// `greybox simulate MODEL TEST -o SIM --init-window W` (it must succeed)
+/// and the number it prints after `label` (`"RMSE "`, `"NRMSE "`).
+pub fn simulated(
+    model: &std::path::Path,
+    test: &std::path::Path,
+    sim: &std::path::Path,
+    w: usize,
+    label: &str,
+) -> f64 {
+    let s = |p: &std::path::Path| p.to_str().expect("a UTF-8 path").to_string();
+    let w = w.to_string();
+    let o = run(&[
+        "simulate",
+        &s(model),
+        &s(test),
+        "-o",
+        &s(sim),
+        "--init-window",
+        &w,
+    ]);
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    printed(&out, label)
+}
+
 /// The `greybox` binary of this build.
 pub fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_greybox"))
