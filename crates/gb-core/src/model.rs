@@ -162,6 +162,15 @@ pub trait DynamicModel: Debug + Send + Sync {
         0
     }
 
+    /// Whether the model integrates: an output is the running sum (the
+    /// integral) of a signal that does not depend on it — a pole at 1 in
+    /// discrete time, at 0 in continuous time (force → position). Its
+    /// simulation error drifts like a random walk, so a later block is met
+    /// from a fresh start rather than simulated on. `false` by default.
+    fn integrates(&self) -> bool {
+        false
+    }
+
     /// One-line description, e.g. `linear output-error, order 2`.
     fn describe(&self) -> String;
 

@@ -211,10 +211,7 @@ fn fit_net(
         .and_then(|t| gb_lmn::fixed_pole_start_records(t, &spec, &exps))
         .and_then(|s| gb_lmn::refine_output_error_records(&s, &exps, &p.fit, &gb_core::Silent).ok())
         .map(|(m, _)| m);
-    let err = |m: &LocalModelNetwork| {
-        m.simulation_residuals_records(&exps)
-            .map_or(f64::INFINITY, |e| gb_core::metrics::rms(&e))
-    };
+    let err = |m: &LocalModelNetwork| gb_lmn::criterion_rms(m, &exps, &p.fit);
     match (cold, warm) {
         (Ok(c), Some(w)) => Ok(if err(&w) < err(&c) { w } else { c }),
         (Ok(c), None) => Ok(c),
@@ -379,9 +376,10 @@ pub(crate) fn baseline(
     // an integrator? the increments model must pay on the decision data
     let plan = if (scan.real_pole - 1.0).abs() < pol.integrator_pole {
         let inc_plan = plan0.integrating(true);
+        let inc_opts = opts.for_plan(&inc_plan);
         let (plain, inc) = rayon::join(
             || fit_structure(plan0, d, opts, n_ref, (&scan.best, false), None),
-            || fit_structure(&inc_plan, d, opts, n_ref, (&scan.best, false), None),
+            || fit_structure(&inc_plan, d, &inc_opts, n_ref, (&scan.best, false), None),
         );
         // both from a fresh start on the select block, as the increments
         // model is scored (`block_residuals`); under cross-validation the
@@ -404,6 +402,7 @@ pub(crate) fn baseline(
         plan0.clone()
     };
     choice.integrating = plan.integrating;
+    let opts = &*opts.for_plan(&plan);
     // the delay: an output-error scan proposes, the decision data confirm
     let (oe, poles) = oe_delay_scan(&plan.fits, n_ref, bound, &scan.best, opts);
     choice.oe_delay = oe.clone();

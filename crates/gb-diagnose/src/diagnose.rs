@@ -76,6 +76,20 @@ impl DiagnoseOptions {
         self.lolimot.check()?;
         Ok(())
     }
+
+    /// The options for fitting on `plan`: for an integrating plan (models
+    /// of the increments) the output-error fits minimise the error of the
+    /// increments' running sum ([`FitOptions::integrated_error`]) when the
+    /// policy says so.
+    pub(crate) fn for_plan(&self, plan: &crate::plan::Plan) -> std::borrow::Cow<'_, Self> {
+        let on = plan.integrating && self.policy.integrated_criterion;
+        if on == self.fit.integrated_error {
+            return std::borrow::Cow::Borrowed(self);
+        }
+        let mut o = self.clone();
+        o.fit.integrated_error = on;
+        std::borrow::Cow::Owned(o)
+    }
 }
 
 /// Result of [`diagnose`]: the report, the final model and every model of
@@ -963,8 +977,17 @@ pub(crate) fn search(
         None => timed_phase("baseline", || baseline(d, &plan0, opts))?,
     };
     let plan = base.plan;
+    let opts = &*opts.for_plan(&plan);
     let mut choice = base.choice;
     choice.decision = plan.describe(d);
+    if let Some(note) = crate::repeat::repeated_note(
+        &d.train,
+        d.fit.clone(),
+        d.select.clone(),
+        opts.policy.repeat_correlation,
+    ) {
+        choice.decision.push_str(&note);
+    }
     let mut chain = vec![base.eval];
     let mut steps = vec![];
     let mut causes: Vec<Cause> = vec![];

@@ -181,8 +181,10 @@ pub fn residuals_on(
     })
 }
 
-/// [`residuals_on`], except that an integrating model (a pole at 1:
-/// `gb_model::IntegratingModel`) meets the block `range` from a fresh
+/// [`residuals_on`], except that an integrating model (a pole at 1,
+/// [`gb_core::DynamicModel::integrates`]: `gb_model::IntegratingModel`, or
+/// the engineer's equations with a position that only integrates its
+/// velocity) meets the block `range` from a fresh
 /// start: simulated from `w` samples before the block, its state from
 /// those measured outputs, scored on the same samples. Simulated on from
 /// the record's start, an integrator's error on a later block is mostly
@@ -197,8 +199,7 @@ pub fn block_residuals(
     range: &Range<usize>,
     w: usize,
 ) -> Result<Residuals, DiagnoseError> {
-    let integrating = model.dynamics.as_any().is::<gb_model::IntegratingModel>();
-    if integrating {
+    if model.dynamics.integrates() {
         fresh_residuals(model, data, range, w)
     } else {
         residuals_on(model, data, range, w)

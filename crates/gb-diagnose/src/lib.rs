@@ -42,6 +42,7 @@ mod physics;
 mod plan;
 mod policy;
 mod refit;
+mod repeat;
 mod report;
 mod select;
 pub mod stats;

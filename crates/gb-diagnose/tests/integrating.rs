@@ -35,3 +35,22 @@ fn an_integrator_with_dry_friction_is_modelled_from_its_increments() {
         "named {causes:?}, final/floor {ratio:.2}, final {model}\n{text}"
     );
 }
+
+/// Seeds 1 and 5: a free mass with viscous friction only (no dry
+/// friction: no cause), driven by a sweep (seed 1, 44 dB) and by a PRBS
+/// with slow components (seed 5, 35 dB). Its increments model trained for
+/// the increments' error stayed at 1.93× and 2.83× the floor on the
+/// validation record, and seed 1 took a dead time of 2 samples; trained
+/// for the error of the summed increments (the position; policy
+/// `integrated_criterion`) the linear baseline reaches 1.08× and 1.10×,
+/// and nothing is named.
+#[test]
+fn a_linear_integrator_is_fitted_to_its_position_noise_floor() {
+    for seed in [1, 5] {
+        let (causes, ratio, model, text) = diagnosed(seed);
+        assert!(
+            causes.is_empty() && ratio <= 1.3 && model.starts_with("integrating"),
+            "seed {seed}: named {causes:?}, final/floor {ratio:.2}, final {model}\n{text}"
+        );
+    }
+}

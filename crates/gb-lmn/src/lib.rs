@@ -91,10 +91,10 @@ pub use lolimot::{
 pub use narx::RefineReport;
 pub use network::{Leaf, LocalModelNetwork};
 pub use noe::{
-    embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_records, fit_linear_oe_warm,
-    fit_linear_oe_warm_records, fixed_pole_start, fixed_pole_start_records, refine_output_error,
-    refine_output_error_records, refine_output_error_with_observer, zero_linear_network,
-    Experiment, FitOptions, TrainReport,
+    criterion_rms, embed_hysteresis, embed_linear, fit_linear_oe, fit_linear_oe_records,
+    fit_linear_oe_warm, fit_linear_oe_warm_records, fixed_pole_start, fixed_pole_start_records,
+    refine_output_error, refine_output_error_records, refine_output_error_with_observer,
+    zero_linear_network, Experiment, FitOptions, TrainReport,
 };
 pub use poly::{PolyNarx, PolyParams, ValidPolyParams};
 pub use regressors::{RegressorSpec, Signal, Tap};

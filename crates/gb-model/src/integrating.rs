@@ -98,6 +98,9 @@ impl DynamicModel for IntegratingModel {
     fn history_len(&self) -> usize {
         1 + self.inner.history_len()
     }
+    fn integrates(&self) -> bool {
+        true
+    }
     fn describe(&self) -> String {
         format!(
             "integrating (pole at 1): the increments by a {}",

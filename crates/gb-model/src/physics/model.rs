@@ -391,6 +391,17 @@ impl DynamicModel for PhysicsModel {
     fn class(&self) -> &'static str {
         CLASS
     }
+    /// A state that an output reads and that no state equation, no
+    /// Preisach operator and not its own equation uses (`q̇ = v` with `q`
+    /// nowhere else): the output sums the rest of the model.
+    fn integrates(&self) -> bool {
+        let c = &self.compiled;
+        (0..c.n).any(|s| {
+            c.g_used.iter().any(|g| g.contains(&s))
+                && !c.f_used.iter().any(|f| f.contains(&s))
+                && !c.ops.iter().any(|o| o.driver == s)
+        })
+    }
     fn class_version(&self) -> u32 {
         CLASS_VERSION
     }

@@ -516,3 +516,29 @@ fn preisach_operators_round_trip_and_are_checked() {
         .to_string()
         .contains("'P1' is used twice"));
 }
+
+/// A position that only integrates its velocity (`q̇ = v`, `q` in no other
+/// equation: a rigid body with friction) makes the model integrate; a
+/// spring on the position (`k·q` in `v̇`), a Preisach operator driven by
+/// it, or an output that reads no such state does not.
+#[test]
+fn a_position_read_by_nothing_but_the_output_integrates() {
+    use gb_core::DynamicModel;
+    let body = |force: &str, out: &str| {
+        PhysicsSpec::new("body")
+            .input("u")
+            .parameter(Parameter::new("m", 2.0))
+            .parameter(Parameter::new("c", 10.0))
+            .parameter(Parameter::new("k", 50.0))
+            .state(State::new("q", 0.0), "v")
+            .state(State::new("v", 0.0), force)
+            .output("y", out)
+            .sample_time(0.01)
+    };
+    let integrates = |s: PhysicsSpec| super::PhysicsModel::new(s).unwrap().integrates();
+    assert!(integrates(body("u/m - c/m*tanh(v)", "q")));
+    assert!(!integrates(body("u/m - c/m*v - k/m*q", "q")));
+    assert!(!integrates(body("u/m - c/m*v", "v")));
+    assert!(!integrates(bouc_wen()));
+    assert!(!integrates(preisach_spring(3)));
+}
