@@ -49,6 +49,13 @@ fn emps_first_step_is_a_friction_law_of_the_velocity() {
         step.contains("static map of the simulated output fed back"),
         "{step}"
     );
+    // the training record is four runs of one trajectory: the decisions
+    // line says that its held-out blocks repeat the fit block's input
+    let dec = out.lines().find(|l| l.starts_with("decisions:")).unwrap_or("");
+    assert!(
+        dec.contains("the select block repeats the fit block's input"),
+        "{dec}"
+    );
     let fin = out.lines().find(|l| l.starts_with("final:")).unwrap_or("");
     assert!(fin.contains("integrating (pole at 1)"), "{fin}");
     let got = simulated(&model, &test, &sim, 20, "RMSE ");
