@@ -156,7 +156,11 @@ pub static RECIPES: &[Recipe] = &[
         name: "linear",
         components: &["preisach", "feedback", "student-t"],
         summary: "linear output-error model of order n (+preisach: play-operator and discrete Preisach columns; +feedback: a static piecewise-linear map of the simulated output fed back into the dynamics, a nonlinear spring or friction; +student-t: heavy-tailed noise, robust fit)",
-        options: &["order=2: n = n_a = n_b", "delay=1: input dead time, one or one per input (a/b)"],
+        options: &[
+            "order=2: n = n_a = n_b",
+            "delay=1: input dead time, one or one per input (a/b)",
+            "integrating=false: model the increments of an integrating output (a pole at 1: force -> position), trained for the error of their sum",
+        ],
         fit: fit_io_network,
     },
     Recipe {
@@ -164,7 +168,7 @@ pub static RECIPES: &[Recipe] = &[
         components: &["preisach", "feedback", "student-t"],
         summary: "LOLIMOT local model network on the order-n regressors; any tree option selects the full tree network (HILOMOT/oblique, several records allowed)",
         options: &[
-            "order=2", "delay=1", "weights=tree: gauss|tree", "splits=axis: axis|oblique",
+            "order=2", "delay=1", "integrating=false: the increments summed (not with tree options)", "weights=tree: gauss|tree", "splits=axis: axis|oblique",
             "prune=false", "focus=simulation: simulation|prediction", "max_leaves=20",
             "degree=1: 1..3", "dead_time=1 (list)", "input_lags=order (list)", "output_lags=order",
             "criterion=aicc: aicc|bic", "partition=all: all|y1",
@@ -319,7 +323,8 @@ fn fit_io_network(
     let d = one_record(data, "an input-output network")?;
     let order = o.usize("order", 2, 1, gb_lmn::MAX_IO_ORDER)?;
     let delay = o.usize_list("delay", d.n_inputs(), 1, 0, 64)?;
-    o.finish(&["order", "delay"])?;
+    let integrating = o.flag("integrating", false)?;
+    o.finish(&["order", "delay", "integrating"])?;
     d.check_identifiable("training record", io_min_samples(spec, order, d.n_inputs()))?;
     let p = gb_lmn::IoNetworkParams {
         delay,
@@ -329,9 +334,35 @@ fn fit_io_network(
         robust: spec.has("student-t"),
         ..gb_lmn::IoNetworkParams::linear(order)
     };
+    if integrating {
+        return fit_integrating(p, d);
+    }
     let net = p.check()?.fit(d, gb_lmn::WarmStart::default())?;
     let noise = net.noise.clone();
     wrap(d, Box::new(net), noise, vec![])
+}
+
+/// `integrating=true`: the network models the increments Δy(k) =
+/// y(k) − y(k−1) of `d`'s output, trained for the error of their running
+/// sum (gb-lmn's `FitOptions::integrated_error`), and the output is that
+/// sum ([`crate::IntegratingModel`]: a pole at 1); the noise model from
+/// the summed free-run residuals, the state from an init window of 50
+/// samples (a tenth of a short record).
+fn fit_integrating(mut p: gb_lmn::IoNetworkParams, d: &Record) -> Result<Fitted, CoreError> {
+    p.fit.integrated_error = true;
+    let mut inc = d.clone();
+    inc.output = crate::integrating::output_increments(&d.output);
+    let net = p.check()?.fit(&inc, gb_lmn::WarmStart::default())?;
+    let dynamics = crate::IntegratingModel::new(Box::new(net))?;
+    let w = 50.min(d.len() / 10).max(1);
+    let sim = gb_core::DynamicModel::simulate(
+        &dynamics,
+        &d.inputs,
+        gb_core::Init::Window(&d.output[..w]),
+    )?;
+    let noise = residual_noise(&d.output, &sim, w);
+    let note = "note: the output integrates (integrating=true): the network models its increments, trained for the error of their sum, and the output is their running sum".to_string();
+    wrap(d, Box::new(dynamics), noise, vec![note])
 }
 
 /// Fewest training samples of an input–output network of `order` with
@@ -705,6 +736,71 @@ mod tests {
         let bad = "hammerstein:map=spline5".parse().unwrap();
         let err = super::fit(&bad, &data, &crate::Silent).unwrap_err();
         assert!(err.to_string().contains("spline5"), "{err}");
+    }
+
+    /// An integrator (velocity v(k) = 0.9 v(k−1) + 0.1 u(k−1) of a slow
+    /// random input, its position measured with 1 % noise): with
+    /// `integrating=true` the fitted model integrates (its class; a pole
+    /// at one) and simulates the noise-free position of a fresh input far
+    /// closer than the output-error model of the position itself, which a
+    /// stable fit cannot make drift; a tree option with it is refused.
+    #[test]
+    fn integrating_true_models_the_increments_and_sums_them() {
+        use rand::Rng;
+        let plant = |u: &[f64]| {
+            let (mut v, mut q) = (0.0, 0.0);
+            let mut y = vec![0.0; u.len()];
+            for k in 1..u.len() {
+                v = 0.9 * v + 0.1 * u[k - 1];
+                q += v;
+                y[k] = q;
+            }
+            y
+        };
+        let slow = |seed: u64, n: usize| {
+            let mut r = gb_core::rng::seeded(seed);
+            let mut l = 0.0;
+            (0..n)
+                .map(|_| {
+                    l = 0.97 * l + 0.3 * r.random_range(-1.0..1.0);
+                    l
+                })
+                .collect::<Vec<f64>>()
+        };
+        let u = slow(1, 3000);
+        let pos = plant(&u);
+        let sd = gb_core::metrics::std(&pos);
+        let mut r = gb_core::rng::seeded(2);
+        let y: Vec<f64> = pos
+            .iter()
+            .map(|p| p + 0.01 * sd * r.random_range(-1.7..1.7))
+            .collect();
+        let rec = gb_core::Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap();
+        let data = gb_core::Records::single(rec);
+        let fit = |spec: &str| super::fit(&spec.parse().unwrap(), &data, &crate::Silent);
+        let summed = fit("linear:order=1,delay=1,integrating=true").unwrap();
+        let plain = fit("linear:order=2,delay=1").unwrap();
+        assert_eq!(summed.model.dynamics.class(), crate::INTEGRATING_CLASS);
+        assert!(summed.model.dynamics.integrates());
+        let uv = slow(7, 2000);
+        let truth = plant(&uv);
+        let err = |m: &gb_core::FittedModel| {
+            let sim = m
+                .simulate(
+                    std::slice::from_ref(&uv),
+                    gb_core::Init::Window(&truth[..20]),
+                )
+                .unwrap();
+            let e: Vec<f64> = truth.iter().zip(&sim).map(|(a, b)| a - b).collect();
+            gb_core::metrics::rms(&e[20..]) / gb_core::metrics::std(&truth)
+        };
+        let (es, ep) = (err(&summed.model), err(&plain.model));
+        eprintln!("position error: summed {es:.4}, the position's own {ep:.4}");
+        assert!(
+            es < 0.05 && es < 0.2 * ep,
+            "summed {es}, the position's own {ep}"
+        );
+        assert!(fit("lmn:integrating=true,max_leaves=3").is_err());
     }
 
     /// A sixth-order system (three lightly damped modes) on 200 samples:

@@ -91,8 +91,16 @@ fn auto_structure(
         c.nrmse_select
     );
     println!("  {}", c.choice.text());
-    if c.choice.integrating {
-        println!("  note: the output integrates; `diagnose` models its increments, `fit` fits the output itself");
+    // an integrator: the input-output networks model the increments and
+    // sum them (`integrating=true`), as the diagnosis' baseline does
+    let o = spec.options();
+    let tree =
+        spec.name == "lmn" && (several || gb_model::recipes::TREE_KEYS.iter().any(|k| o.given(k)));
+    if c.choice.integrating && (spec.name == "linear" || spec.name == "lmn") && !tree {
+        spec.set_default("integrating", "true");
+        println!("  the output integrates: the increments are modelled and summed (integrating=true; integrating=false fits the output itself)");
+    } else if c.choice.integrating {
+        println!("  note: the output integrates; `diagnose` and `linear`/`lmn` model its increments, '{spec}' fits the output itself");
     }
     spec.set_default("order", c.order.to_string());
     if spec.name == "poly" {
@@ -100,9 +108,6 @@ fn auto_structure(
     }
     // the tree network of `lmn` (a tree option or several records) names
     // its input delays `dead_time`
-    let o = spec.options();
-    let tree =
-        spec.name == "lmn" && (several || gb_model::recipes::TREE_KEYS.iter().any(|k| o.given(k)));
     if tree {
         spec.set_default("dead_time", delay.join("/"));
     } else if has("delay") {
