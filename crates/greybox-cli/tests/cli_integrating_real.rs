@@ -7,28 +7,53 @@ mod common;
 use common::{run, scratch, simulated, text};
 use std::path::{Path, PathBuf};
 
+/// EMPS' training and test files (`None`, with a notice, when the data
+/// folder is absent and not required) and a model and a simulation path
+/// in a scratch folder named `tag`.
+struct Emps {
+    train: String,
+    test: PathBuf,
+    model: String,
+    sim: PathBuf,
+}
+
+fn emps(tag: &str) -> Option<Emps> {
+    let default = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+    let dir = gb_core::benchmark_data_dir(&default, "emps")?;
+    let d = scratch("greybox-cli", tag);
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    Some(Emps {
+        train: s(&dir.join("emps/train.csv")),
+        test: dir.join("emps/test.csv"),
+        model: s(&d.join("m.gbm")),
+        sim: d.join("sim.csv"),
+    })
+}
+
 /// The first step on EMPS' increments (a velocity): the fed-back map of
 /// the simulated output — a friction law of the velocity inside the loop —
 /// is chosen on the training record alone, and the one-step model
 /// simulates the pulses test at 1.64 mm (published LTI 5.53 mm, dynoNet
 /// 2.64 mm; 1.94 mm while the increments models were trained for the
-/// increments' error, before policy `integrated_criterion`). The bound is dynoNet's. While the select block was simulated
+/// increments' error, before policy `integrated_criterion`). The bound is
+/// dynoNet's. While the select block was simulated
 /// on from the fit block, the integrator's accumulated drift made a
 /// Hammerstein model win the step by a hair (select gains +0.829 against
 /// +0.819): 5.86 mm, which fails it.
 #[test]
 fn emps_first_step_is_a_friction_law_of_the_velocity() {
-    let default = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    let Some(dir) = gb_core::benchmark_data_dir(&default, "emps") else {
+    let Some(Emps {
+        train,
+        test,
+        model,
+        sim,
+    }) = emps("emps-first-step")
+    else {
         return;
     };
-    let (train, test) = (dir.join("emps/train.csv"), dir.join("emps/test.csv"));
-    let d = scratch("greybox-cli", "emps-first-step");
-    let (model, sim) = (d.join("m.gbm"), d.join("sim.csv"));
-    let s = |p: &Path| p.to_str().unwrap().to_string();
     let o = run(&[
         "diagnose",
-        &s(&train),
+        &train,
         "--input",
         "u",
         "--output",
@@ -37,7 +62,7 @@ fn emps_first_step_is_a_friction_law_of_the_velocity() {
         "1",
         "--quiet",
         "--save",
-        &s(&model),
+        &model,
     ]);
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
@@ -61,7 +86,7 @@ fn emps_first_step_is_a_friction_law_of_the_velocity() {
     );
     let fin = out.lines().find(|l| l.starts_with("final:")).unwrap_or("");
     assert!(fin.contains("integrating (pole at 1)"), "{fin}");
-    let got = simulated(&model, &test, &sim, 20, "RMSE ");
+    let got = simulated(Path::new(&model), &test, &sim, 20, "RMSE ");
     eprintln!("EMPS, first step: test RMSE {:.3} mm", 1e3 * got);
     assert!(got <= 2.64e-3, "test RMSE {got:.4e}\n{out}");
 }
@@ -76,17 +101,18 @@ fn emps_first_step_is_a_friction_law_of_the_velocity() {
 /// model gave 63.5 mm.
 #[test]
 fn emps_fit_without_flags_models_the_integrator() {
-    let default = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
-    let Some(dir) = gb_core::benchmark_data_dir(&default, "emps") else {
+    let Some(Emps {
+        train,
+        test,
+        model,
+        sim,
+    }) = emps("emps-fit")
+    else {
         return;
     };
-    let (train, test) = (dir.join("emps/train.csv"), dir.join("emps/test.csv"));
-    let d = scratch("greybox-cli", "emps-fit");
-    let (model, sim) = (d.join("m.gbm"), d.join("sim.csv"));
-    let s = |p: &Path| p.to_str().unwrap().to_string();
     let o = run(&[
         "fit",
-        &s(&train),
+        &train,
         "--input",
         "u",
         "--output",
@@ -95,7 +121,7 @@ fn emps_fit_without_flags_models_the_integrator() {
         "linear+feedback",
         "--quiet",
         "-o",
-        &s(&model),
+        &model,
     ]);
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
@@ -104,7 +130,7 @@ fn emps_fit_without_flags_models_the_integrator() {
             && out.contains("class: integrating"),
         "{out}"
     );
-    let got = simulated(&model, &test, &sim, 20, "RMSE ");
+    let got = simulated(Path::new(&model), &test, &sim, 20, "RMSE ");
     eprintln!("EMPS, fit linear+feedback: test RMSE {:.3} mm", 1e3 * got);
     assert!(got <= 5.53e-3, "test RMSE {got:.4e}\n{out}");
 }
