@@ -214,8 +214,12 @@ pub trait Extension: Sync {
     }
     /// The candidates for the current model (none when it does not apply).
     fn propose(&self, ctx: &Context) -> Vec<Proposal>;
-    /// Fit a proposal on the fit block.
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError>;
+    /// Fit a proposal on the fit block. An extension implements this or
+    /// [`fit_choosing`](Self::fit_choosing) (each defaults to the other).
+    /// Default: `fit_choosing`'s model.
+    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
+        self.fit_choosing(p, ctx).map(|(m, _)| m)
+    }
     /// [`fit`](Self::fit), saying which of several starts won (a
     /// multi-start fit): under cross-validation the folds then refit only
     /// that start ([`Context::start_choice`]). Default: `fit`, no choice.

@@ -236,9 +236,6 @@ impl Extension for Backlash {
         }
         out
     }
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        self.fit_choosing(p, ctx).map(|(m, _)| m)
-    }
     /// The half-width is searched on the fit block (on one training record
     /// longer than the policy's `nonlinear_fit_samples`, on that many
     /// leading samples); a fold of cross-validation refits at the chosen

@@ -326,9 +326,6 @@ impl Extension for MechanicalHysteresis {
             text: "a mechanical grey-box model from the order-2 linear model: q̇ = v, v̇ = g·u − k·q − c·v + w·ζ, y = q + y₀, with a hysteretic state ζ̇ = v − (b/h)|v|ζ − (c_h/h)v|ζ| (Bouc–Wen) in continuous time".into(),
         }]
     }
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        self.fit_choosing(p, ctx).map(|(m, _)| m)
-    }
     fn fit_choosing(
         &self,
         _p: &Proposal,

@@ -196,9 +196,6 @@ impl Extension for PhysicsHysteresis {
             })
             .collect()
     }
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        self.fit_choosing(p, ctx).map(|(m, _)| m)
-    }
     /// Started from the current model's estimates with `w = 0`, `c = 0` and
     /// each start of `b` (a fold: the one the whole block chose); the
     /// lowest training RMSE is kept.

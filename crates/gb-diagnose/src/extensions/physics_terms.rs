@@ -632,9 +632,6 @@ impl Extension for PhysicsTerms {
         }
         out
     }
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        self.fit_choosing(p, ctx).map(|(m, _)| m)
-    }
     /// Started from the current model's estimates (of this fold under
     /// cross-validation) with the new coefficients at 0 and new limits at
     /// each quantile of [`LIMIT_STARTS`] of the simulation (in a fold only

@@ -41,9 +41,6 @@ impl Extension for Wiener {
             })
             .collect()
     }
-    fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        self.fit_choosing(p, ctx).map(|(m, _)| m)
-    }
     fn fit_choosing(
         &self,
         p: &Proposal,
