@@ -229,6 +229,11 @@ impl DynamicModel for WienerHammersteinNetwork {
     fn class(&self) -> &'static str {
         "wiener-hammerstein"
     }
+    /// Version 2 appends the static map's training support to the
+    /// version-1 body.
+    fn class_version(&self) -> u32 {
+        2
+    }
     fn n_inputs(&self) -> usize {
         1
     }
@@ -270,7 +275,7 @@ impl DynamicModel for WienerHammersteinNetwork {
         Ok(Box::new(WhStepper::new(self)))
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
-        encode(self)
+        encode(&(self, self.nonlinearity.support))
     }
     fn clone_box(&self) -> Box<dyn DynamicModel> {
         Box::new(self.clone())
@@ -409,11 +414,21 @@ impl LmnModel {
 }
 
 impl WienerHammersteinNetwork {
-    /// Decode a model-file body of class `wiener-hammerstein`.
+    /// Decode a model-file body of class `wiener-hammerstein` (version 1:
+    /// the network alone, extrapolated by its outermost local models;
+    /// version 2: the static map's training support follows).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
-        decode_checked("wiener-hammerstein", version, body, |m: &Self| {
-            m.check().map_err(|e| e.to_string())
-        })
+        let check = |m: &Self| m.check().map_err(|e| e.to_string());
+        if version < 2 {
+            return decode_checked("wiener-hammerstein", version, body, check);
+        }
+        let (mut m, support): (Self, Option<[f64; 2]>) =
+            gb_core::decode_postcard("wiener-hammerstein", version, 2, body)?;
+        m.nonlinearity.support = support;
+        check(&m).map_err(|e| {
+            CoreError::ModelFile(format!("inconsistent 'wiener-hammerstein' model ({e})"))
+        })?;
+        Ok(m)
     }
 }
 
@@ -574,6 +589,41 @@ mod tests {
         assert!(m.stepper(Init::State(&[1.0])).is_err());
     }
 
+    /// The static map's support travels in the model file (version 2); a
+    /// version-1 body reads without it (the outermost local models
+    /// extrapolate), and the two simulate differently beyond the support.
+    #[test]
+    fn a_wiener_hammerstein_file_keeps_the_support() {
+        let mut m = WienerHammersteinNetwork {
+            b1: vec![1.0],
+            a1: vec![1.0],
+            b2: vec![1.0],
+            a2: vec![1.0],
+            nonlinearity: StaticNetwork {
+                knots: vec![0.0, 1.5],
+                width: 0.05,
+                coefficients: vec![0.0, 1.0, 0.0, 1.0, 0.0, 20.0],
+                support: Some([-1.0, 1.0]),
+            },
+        };
+        assert_eq!(m.class_version(), 2);
+        let back = WienerHammersteinNetwork::decode(&m.encode().unwrap(), 2).unwrap();
+        assert_eq!(back, m);
+        let v1 = WienerHammersteinNetwork::decode(&encode(&m).unwrap(), 1).unwrap();
+        assert_eq!(v1.nonlinearity.support, None);
+        let u = [vec![0.5, 2.0]];
+        let (a, b) = (
+            DynamicModel::simulate(&m, &u, Init::Rest).unwrap(),
+            DynamicModel::simulate(&v1, &u, Init::Rest).unwrap(),
+        );
+        assert!((a[0] - b[0]).abs() < 1e-9);
+        // v = 2 is beyond the support: the outer trend (slope 1) continues
+        // there, not the outermost model (slope 20, no data in its region)
+        assert!(b[1] > 20.0 && (a[1] - 2.0).abs() < 0.05, "{a:?} {b:?}");
+        m.nonlinearity.support = Some([1.0, -1.0]);
+        assert!(WienerHammersteinNetwork::decode(&m.encode().unwrap(), 2).is_err());
+    }
+
     #[test]
     fn stepping_a_wiener_hammerstein_network_is_bit_identical_to_simulate() {
         let m = WienerHammersteinNetwork {
@@ -585,6 +635,7 @@ mod tests {
                 knots: vec![-0.5, 0.0, 0.5],
                 width: 0.1,
                 coefficients: vec![0.1, 0.5, 0.0, 1.0, 0.2, 0.8, -0.1, 0.3],
+                support: None,
             },
         };
         let mut r = Xoshiro256PlusPlus::seed_from_u64(5);
