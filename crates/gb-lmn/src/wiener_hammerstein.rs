@@ -213,7 +213,9 @@ impl StaticNetwork {
     }
 
     /// `f(v)` and its slope `f′(v) = Σᵢ Φᵢ′(v)(cᵢ₀ + cᵢ₁v) + Φᵢ(v)cᵢ₁`,
-    /// `Φᵢ = ψᵢ − ψᵢ₊₁` with `ψ′ = ψ(1 − ψ)/width` for the sigmoids.
+    /// `Φᵢ = ψᵢ − ψᵢ₊₁` with `ψ′ = ψ(1 − ψ)/width` for the sigmoids. The
+    /// network itself, without the support bound (what the fit's Jacobian
+    /// needs; the support is set after the fit).
     pub fn eval_with_slope(&self, v: f64) -> (f64, f64) {
         let m = self.knots.len();
         let (mut prev, mut dprev) = (1.0, 0.0);
@@ -704,8 +706,7 @@ impl Layout {
 
 /// `[min, max]` of a finite, non-empty signal.
 fn support_of(v: &[f64]) -> Option<[f64; 2]> {
-    let lo = v.iter().copied().fold(f64::INFINITY, f64::min);
-    let hi = v.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let (lo, hi) = gb_core::metrics::min_max(v);
     (lo.is_finite() && hi.is_finite() && hi > lo).then_some([lo, hi])
 }
 
