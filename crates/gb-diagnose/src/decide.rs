@@ -119,10 +119,17 @@ fn score_gain(
         GainMetric::Nrmse => {
             let (g, ci) =
                 relative_gain_ci(&cur.select.e, &fitted.select.e, block, pol.bootstrap, seed);
-            let large =
-                g >= pol.min_gain || answers_missing_dynamics(proposal.cause, fitted, ctx, g);
-            let pays = ci[0] > 0.0 && large;
-            let pays = pays && pays_from_a_fresh_start(fitted, ctx, seed);
+            // the gain a fresh start must show: `min_gain`, or the evidenced
+            // dynamics gain for a candidate admitted on the residual evidence
+            let need = if g >= pol.min_gain {
+                Some(pol.min_gain)
+            } else if answers_missing_dynamics(proposal.cause, fitted, ctx, g) {
+                Some(pol.evidenced_dynamics_gain)
+            } else {
+                None
+            };
+            let pays = ci[0] > 0.0
+                && need.is_some_and(|need| pays_from_a_fresh_start(fitted, ctx, need, seed));
             let pays = pays && wins_on_most_folds(fitted, ctx);
             (g, ci, pays && realised_by_the_refit(fitted, ctx))
         }
@@ -158,9 +165,10 @@ fn answers_missing_dynamics(cause: Cause, fitted: &Evaluated, ctx: &Context, g: 
 /// a burn-in of a third of the block. The select block
 /// is otherwise simulated on from the fit block, whose history a candidate
 /// with long memory (play operators, a Preisach operator on the output)
-/// may need to look right; such a candidate must pay both ways. Folds of
+/// may need to look right; such a candidate must pay both ways, by at
+/// least `need` (the gain that admitted it on the select block). Folds of
 /// the cross-validation are already simulated from their own start.
-fn pays_from_a_fresh_start(cand: &Evaluated, ctx: &Context, seed: u64) -> bool {
+fn pays_from_a_fresh_start(cand: &Evaluated, ctx: &Context, need: f64, seed: u64) -> bool {
     if ctx.plan.cv() {
         return true;
     }
@@ -187,7 +195,15 @@ fn pays_from_a_fresh_start(cand: &Evaluated, ctx: &Context, seed: u64) -> bool {
     if !ok(&before.e) || !ok(&after.e) {
         return false;
     }
-    pays_against(&before.e, &after.e, ctx.policy(), seed.wrapping_add(7919))
+    let pol = ctx.policy();
+    let (g, ci) = relative_gain_ci(
+        &before.e,
+        &after.e,
+        pol.block_for(&before.e),
+        pol.bootstrap,
+        seed.wrapping_add(7919),
+    );
+    ci[0] > 0.0 && g >= need
 }
 
 /// Under cross-validation, whether the candidate beats the current model on

@@ -8,7 +8,7 @@ use crate::DiagnoseError;
 /// | field | default | rationale |
 /// |---|---|---|
 /// | `min_gain` | 0.05 | a structural extension must lower the select-block NRMSE by ≥ 5 % (an effect size, on top of significance) |
-/// | `evidenced_dynamics_gain` | 0.01 | a `dynamics` candidate (an order increase) with a significant gain below `min_gain` still pays when it lowers the select-block NRMSE by ≥ 1 % and answers the evidence of missing dynamics: the current model's input–residual cross-correlation test rejects at `verdict_level`, the candidate's passes on every input |
+/// | `evidenced_dynamics_gain` | 0.01 | a `dynamics` candidate (an order increase) with a significant gain below `min_gain` still pays when it lowers the select-block NRMSE by ≥ 1 % and answers the evidence of missing dynamics: the current model's input–residual cross-correlation test rejects at `verdict_level`, the candidate's passes on every input; from a fresh start of the select block it must then gain this much too, not `min_gain` |
 /// | `min_nll_gain` | 0.02 | a noise model must lower the select-block negative log-likelihood by ≥ 0.02 nats/sample |
 /// | `bootstrap` | 400 | moving-block bootstrap replicates of every gain interval (95 %) |
 /// | `seed` | 1 | seed of the bootstrap streams (a diagnosis is reproducible) |
