@@ -25,6 +25,19 @@ fn diagnosed_case(c: gb_diagnose::generator::Case) -> (Report, Vec<String>, f64)
     (r, causes, ratio)
 }
 
+/// `dynamics` alone named, by an accepted order increase 2 → 4, and the
+/// final model within `max_ratio` × the noise floor.
+fn assert_named_by_order_2_to_4((r, causes, ratio): (Report, Vec<String>, f64), max_ratio: f64) {
+    let order_step = r
+        .steps
+        .iter()
+        .any(|s| s.accepted && s.extension.starts_with("order 2 -> 4"));
+    assert!(
+        causes == ["dynamics"] && ratio <= max_ratio && order_step,
+        "{causes:?}, final/floor {ratio:.3}, order increase accepted: {order_step}"
+    );
+}
+
 /// `two-mass` seed 9 (4425 training samples, PRBS, 18.8 dB SNR; true
 /// order 4): the order increase 2 → 4 gains +1.7 % [+1 %, +2 %] on the
 /// select block. Before the evidence rule the diagnosis named no cause and
@@ -32,15 +45,7 @@ fn diagnosed_case(c: gb_diagnose::generator::Case) -> (Report, Vec<String>, f64)
 /// noise floor.
 #[test]
 fn a_small_second_mode_is_named_dynamics_when_the_residual_asks_for_it() {
-    let (r, causes, ratio) = diagnosed("two-mass", 9);
-    let order_step = r
-        .steps
-        .iter()
-        .any(|s| s.accepted && s.extension.starts_with("order 2 -> 4"));
-    assert!(
-        causes == ["dynamics"] && ratio <= 1.05 && order_step,
-        "{causes:?}, final/floor {ratio:.3}, order increase accepted: {order_step}"
-    );
+    assert_named_by_order_2_to_4(diagnosed("two-mass", 9), 1.05);
 }
 
 /// `two-mass` seed 9 at 8000 + 4000 samples (the sweep's lengths): the
@@ -53,15 +58,7 @@ fn a_small_second_mode_is_named_dynamics_when_the_residual_asks_for_it() {
 #[test]
 fn a_small_second_mode_pays_from_a_fresh_start_at_the_evidenced_gain() {
     let c = draw_with("two-mass", 9, &Knobs::lengths(8000, 4000)).unwrap();
-    let (r, causes, ratio) = diagnosed_case(c);
-    let order_step = r
-        .steps
-        .iter()
-        .any(|s| s.accepted && s.extension.starts_with("order 2 -> 4"));
-    assert!(
-        causes == ["dynamics"] && ratio <= 1.02 && order_step,
-        "{causes:?}, final/floor {ratio:.3}, order increase accepted: {order_step}"
-    );
+    assert_named_by_order_2_to_4(diagnosed_case(c), 1.02);
 }
 
 /// `linear` seed 4 at 8000 + 4000 samples (true order 4, dead time 3
