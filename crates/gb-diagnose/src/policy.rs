@@ -9,6 +9,7 @@ use crate::DiagnoseError;
 /// |---|---|---|
 /// | `min_gain` | 0.05 | a structural extension must lower the select-block NRMSE by ≥ 5 % (an effect size, on top of significance) |
 /// | `evidenced_dynamics_gain` | 0.01 | a `dynamics` candidate (an order increase) with a significant gain below `min_gain` still pays when it lowers the select-block NRMSE by ≥ 1 % and answers the evidence of missing dynamics: the current model's input–residual cross-correlation test rejects at `verdict_level`, the candidate's passes on every input; from a fresh start of the select block it must then gain this much too, not `min_gain` |
+/// | `information_order_margin` | 10 | under cross-validation forced by a select block unlike the training record (a sweep's last stretch), an order increase of a plain linear model with a positive gain on the folds whose interval reaches below 0 still pays when Schwarz's criterion `N ln σ̂² + p ln N` of the free-run residuals on the whole training record falls by at least this much (strong evidence on the Kass–Raftery scale): a fold then holds out a frequency band the rest of the record never excites, and a mode there cannot be refitted from the rest |
 /// | `min_nll_gain` | 0.02 | a noise model must lower the select-block negative log-likelihood by ≥ 0.02 nats/sample |
 /// | `bootstrap` | 400 | moving-block bootstrap replicates of every gain interval (95 %) |
 /// | `seed` | 1 | seed of the bootstrap streams (a diagnosis is reproducible) |
@@ -78,6 +79,11 @@ pub struct DecisionPolicy {
     /// Smallest select-block gain of a `dynamics` candidate that turns a
     /// rejecting input cross-correlation test into a passing one.
     pub evidenced_dynamics_gain: f64,
+    /// Under cross-validation forced by an unrepresentative select block:
+    /// the fall of Schwarz's criterion on the whole training record that
+    /// lets an order increase of a plain linear model pay when its folds
+    /// cannot agree.
+    pub information_order_margin: f64,
     /// Smallest nll gain per sample (nats) that counts for `noise`.
     pub min_nll_gain: f64,
     /// Bootstrap replicates.
@@ -275,6 +281,7 @@ impl Default for DecisionPolicy {
         Self {
             min_gain: 0.05,
             evidenced_dynamics_gain: 0.01,
+            information_order_margin: 10.0,
             min_nll_gain: 0.02,
             bootstrap: 400,
             seed: 1,
@@ -372,6 +379,9 @@ impl DecisionPolicy {
             return bad(
                 "min_gain, evidenced_dynamics_gain and futile_gain in [0,1), bootstrap >= 50",
             );
+        }
+        if self.information_order_margin.is_nan() || self.information_order_margin < 0.0 {
+            return bad("information_order_margin >= 0 (not NaN)");
         }
         if !(self.min_nll_gain >= 0.0 && self.min_nll_gain.is_finite()) {
             return bad("min_nll_gain >= 0");
