@@ -343,10 +343,6 @@ pub(crate) fn choose(
         chosen = Some(pick);
         note = Some(text);
     }
-    if let Some((pick, text)) = chosen.and_then(|ci| simpler_of_the_cause(cands, ci, ctx)) {
-        chosen = Some(pick);
-        note = Some(note.unwrap_or_default() + &text);
-    }
     if let Some(ci) = chosen {
         if let Some((pick, text)) = tie_break(cands, ci, ctx) {
             chosen = Some(pick);
@@ -374,42 +370,6 @@ pub(crate) fn choose(
         })
     });
     (chosen, note)
-}
-
-/// The chosen candidate names a new `nonlinearity` or `hysteresis` cause
-/// and another paying candidate of the same cause has fewer parameters
-/// and an overlapping gain interval: unless the chosen one pays against
-/// that one's residuals, the simpler one (of several, the largest gain;
-/// policy `simpler_within_cause`). The data cannot tell them apart, and
-/// the flexible one more often fits what the decision data happen to
-/// share with the fit block.
-fn simpler_of_the_cause(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, String)> {
-    let pol = ctx.policy();
-    let c = &cands[ci];
-    if !pol.simpler_within_cause || !matches!(c.cause(), Cause::Nonlinearity | Cause::Hysteresis) {
-        return None;
-    }
-    let np =
-        |i: usize| gb_core::DynamicModel::n_parameters(cands[i].fitted.model.dynamics.as_ref());
-    let s = best_overlapping_where(cands, c.ci, c.cause(), |d| {
-        gb_core::DynamicModel::n_parameters(d.fitted.model.dynamics.as_ref()) < np(ci)
-    })?;
-    let seed = pol.seed.wrapping_add(9000 + ci as u64);
-    if pays_against(&cands[s].fitted.select.e, &c.fitted.select.e, pol, seed) {
-        return None;
-    }
-    Some((
-        s,
-        format!(
-            "; the {} candidate ({:+.3}, {} parameters) does not pay against {} ({:+.3}, {} parameters): the simpler one",
-            c.ext.name(),
-            c.gain,
-            np(ci),
-            cands[s].ext.name(),
-            cands[s].gain,
-            np(s)
-        ),
-    ))
 }
 
 /// The chosen candidate names a new `nonlinearity` or `hysteresis` cause

@@ -87,6 +87,10 @@ fn window_misfit(w: &[f64], d: &[f64], s: &mut [f64]) -> f64 {
         .sum()
 }
 
+/// Whether a state-space inner model's state is fitted to the window's
+/// positions too (see [`IntegratingModel::start_fitting_positions`]).
+const STATE_START_FITTED: bool = false;
+
 /// How the inner model's start is parametrised for fitting a window's
 /// positions: its output history (input–output models) or its state.
 #[derive(Clone, Copy)]
@@ -106,11 +110,11 @@ impl StartBy {
 
 impl IntegratingModel {
     /// The inner model's start — its output history (its first
-    /// `history_len` increments) or, for a state-space model, its state —
-    /// that fits the window's *positions* `w` (level fitted) by Gauss–Newton
-    /// with a forward-difference Jacobian; a history starts from the one
-    /// the inner model estimated from the window's increments `d`, a state
-    /// from 0. The increments of noisy positions carry twice the noise
+    /// `history_len` increments; for a state-space model its state when
+    /// [`STATE_START_FITTED`]) — that fits the window's *positions* `w`
+    /// (level fitted) by Gauss–Newton with a forward-difference Jacobian; a
+    /// history starts from the one the inner model estimated from the
+    /// window's increments `d`, a state from 0. The increments of noisy positions carry twice the noise
     /// variance and little of a slow signal: an initial velocity taken from
     /// them leaves a position offset after its transient (a viscous mass at
     /// 40 samples per period, an order-1 model with dead time 0: a fresh
@@ -124,8 +128,13 @@ impl IntegratingModel {
         d: &[f64],
         ws: &mut Workspace,
     ) -> Option<(StartBy, Vec<f64>)> {
+        // a state-space inner model keeps its own estimate: fitted from 0
+        // to the positions, the dry-friction template of the sweep's
+        // `integrator` seed 8 won the search and ended at 1.73× the noise
+        // floor against 1.09× (not understood yet; see docs/diagnose.md)
         let (by, m) = match self.inner.history_len() {
-            0 => (StartBy::State, self.inner.n_states()),
+            0 if STATE_START_FITTED => (StartBy::State, self.inner.n_states()),
+            0 => return None,
             m => (StartBy::History, m),
         };
         let nw = w.len().min(d.len());
@@ -391,7 +400,63 @@ mod tests {
         assert!(back.describe().contains("integrating (pole at 1)"));
     }
 
-    /// A slow velocity (x⁺ = 0.95 x + 0.05 u, the increments) started at
+    /// An input–output model of increments, v(k) = 0.95 v(k−1) + 0.05
+    /// u(k−1), its one-sample history v(0) (from an init window: the first
+    /// sample, as a model without a better estimate would take it).
+    #[derive(Clone, Debug)]
+    struct SlowVelocity;
+
+    impl DynamicModel for SlowVelocity {
+        fn class(&self) -> &'static str {
+            "slow-velocity"
+        }
+        fn n_inputs(&self) -> usize {
+            1
+        }
+        fn n_states(&self) -> usize {
+            1
+        }
+        fn history_len(&self) -> usize {
+            1
+        }
+        fn describe(&self) -> String {
+            "slow velocity".into()
+        }
+        fn n_parameters(&self) -> usize {
+            2
+        }
+        fn simulate_into(
+            &self,
+            u: &[Vec<f64>],
+            init: Init<'_>,
+            y: &mut [f64],
+            _: &mut Workspace,
+        ) -> Result<(), CoreError> {
+            let v0 = match init {
+                Init::History(h) | Init::Window(h) | Init::State(h) => h.first().copied(),
+                _ => None,
+            };
+            for k in 0..y.len() {
+                y[k] = if k == 0 {
+                    v0.unwrap_or(0.0)
+                } else {
+                    0.95 * y[k - 1] + 0.05 * u[0][k - 1]
+                };
+            }
+            Ok(())
+        }
+        fn encode(&self) -> Result<Vec<u8>, CoreError> {
+            Ok(vec![])
+        }
+        fn clone_box(&self) -> Box<dyn DynamicModel> {
+            Box::new(self.clone())
+        }
+        fn as_any(&self) -> &dyn Any {
+            self
+        }
+    }
+
+    /// A slow velocity (v(k) = 0.95 v(k−1) + 0.05 u(k−1), the increments) started at
     /// x₀ = 2 and level 1, its position measured with noise of σ = 0.5 over
     /// a 30-sample window: the state fitted to the window's positions
     /// simulates the noise-free position after the window to within σ/2,
@@ -401,11 +466,7 @@ mod tests {
     #[test]
     fn an_init_window_fits_the_start_to_the_positions() {
         use rand_distr::{Distribution, StandardNormal};
-        let inner = || -> Box<dyn DynamicModel> {
-            Box::new(
-                SparseStateSpace::linear(vec![0.95], vec![0.05], vec![1.0], vec![0.0]).unwrap(),
-            )
-        };
+        let inner = || -> Box<dyn DynamicModel> { Box::new(SlowVelocity) };
         let m = IntegratingModel::new(inner()).unwrap();
         let n = 300;
         let u = vec![(0..n).map(|k| (0.07 * k as f64).sin()).collect::<Vec<_>>()];
