@@ -75,68 +75,36 @@ impl IntegratingModel {
 }
 
 /// Σ over the window of (wₖ − sₖ − c)², c the least-squares level: the
-/// squared misfit of the running sums `s` of increments to the measured
-/// positions `w`, the level fitted.
+/// squared misfit of the running sums `s` of increments `d` to the
+/// measured positions `w`, the level fitted.
 fn window_misfit(w: &[f64], d: &[f64], s: &mut [f64]) -> f64 {
     summed(d, 0.0, s);
-    let n = w.len() as f64;
-    let c = w.iter().zip(s.iter()).map(|(a, b)| a - b).sum::<f64>() / n;
-    w.iter()
-        .zip(s.iter())
-        .map(|(a, b)| (a - b - c).powi(2))
-        .sum()
-}
-
-/// Whether a state-space inner model's state is fitted to the window's
-/// positions too (see [`IntegratingModel::start_fitting_positions`]).
-const STATE_START_FITTED: bool = false;
-
-/// How the inner model's start is parametrised for fitting a window's
-/// positions: its output history (input–output models) or its state.
-#[derive(Clone, Copy)]
-enum StartBy {
-    History,
-    State,
-}
-
-impl StartBy {
-    fn init(self, x: &[f64]) -> Init<'_> {
-        match self {
-            Self::History => Init::History(x),
-            Self::State => Init::State(x),
-        }
-    }
+    centred_residual(w, s).iter().map(|r| r * r).sum()
 }
 
 impl IntegratingModel {
-    /// The inner model's start — its output history (its first
-    /// `history_len` increments; for a state-space model its state when
-    /// [`STATE_START_FITTED`]) — that fits the window's *positions* `w`
-    /// (level fitted) by Gauss–Newton with a forward-difference Jacobian; a
-    /// history starts from the one the inner model estimated from the
-    /// window's increments `d`, a state from 0. The increments of noisy positions carry twice the noise
-    /// variance and little of a slow signal: an initial velocity taken from
-    /// them leaves a position offset after its transient (a viscous mass at
-    /// 40 samples per period, an order-1 model with dead time 0: a fresh
-    /// record simulated at 0.38 of its spread, 0.14 from the window's
-    /// positions). `None` when the window is too short for the start's
-    /// dimension or the fit is no closer to the positions than `d`.
-    fn start_fitting_positions(
+    /// The output history of an input–output increments model (its first
+    /// `history_len` increments) that fits the window's *positions* `w`
+    /// (level fitted), by Gauss–Newton with a forward-difference Jacobian
+    /// started from the history the inner model estimated from the window's
+    /// increments `d`. The increments of noisy positions carry twice the
+    /// noise variance and little of a slow signal: an initial velocity
+    /// taken from them leaves a position offset after its transient (a
+    /// viscous mass at 40 samples per period, an order-1 model with dead
+    /// time 0: a fresh record simulated at 0.38 of its spread, 0.14 from
+    /// the window's positions). A state-space inner model keeps its own
+    /// estimate: with its state fitted from 0 this way, the dry-friction
+    /// template won the sweep's `integrator` seed 8 and ended at 1.73× the
+    /// noise floor against 1.09× (docs/diagnose.md). `None` when the window
+    /// is too short or the fit is no closer to the positions than `d`.
+    fn history_fitting_positions(
         &self,
         u: &[Vec<f64>],
         w: &[f64],
         d: &[f64],
         ws: &mut Workspace,
-    ) -> Option<(StartBy, Vec<f64>)> {
-        // a state-space inner model keeps its own estimate: fitted from 0
-        // to the positions, the dry-friction template of the sweep's
-        // `integrator` seed 8 won the search and ended at 1.73× the noise
-        // floor against 1.09× (not understood yet; see docs/diagnose.md)
-        let (by, m) = match self.inner.history_len() {
-            0 if STATE_START_FITTED => (StartBy::State, self.inner.n_states()),
-            0 => return None,
-            m => (StartBy::History, m),
-        };
+    ) -> Option<Vec<f64>> {
+        let m = self.inner.history_len();
         let nw = w.len().min(d.len());
         if m == 0 || nw < 2 * m + 2 {
             return None;
@@ -146,14 +114,13 @@ impl IntegratingModel {
         let (mut dd, mut s) = (vec![0.0; nw], vec![0.0; nw]);
         let before = window_misfit(w, &d[..nw], &mut s);
         let mut misfit = |x: &[f64], dd: &mut [f64], s: &mut [f64]| -> Option<f64> {
-            self.inner.simulate_into(&uw, by.init(x), dd, ws).ok()?;
+            self.inner
+                .simulate_into(&uw, Init::History(x), dd, ws)
+                .ok()?;
             let c = window_misfit(w, dd, s);
             c.is_finite().then_some(c)
         };
-        let mut x = match by {
-            StartBy::History => d[..m].to_vec(),
-            StartBy::State => vec![0.0; m],
-        };
+        let mut x = d[..m].to_vec();
         let mut best = misfit(&x, &mut dd, &mut s)?;
         let scale = d[..nw].iter().map(|v| v.abs()).fold(0.0, f64::max);
         for _ in 0..6 {
@@ -182,7 +149,7 @@ impl IntegratingModel {
                 _ => break,
             }
         }
-        (best < before).then_some((by, x))
+        (best < before).then_some(x)
     }
 }
 
@@ -260,8 +227,8 @@ impl DynamicModel for IntegratingModel {
             Init::Window(w) => {
                 let dw = output_increments(w);
                 self.inner.simulate_into(u, Init::Window(&dw), &mut d, ws)?;
-                if let Some((by, x)) = self.start_fitting_positions(u, w, &d, ws) {
-                    self.inner.simulate_into(u, by.init(&x), &mut d, ws)?;
+                if let Some(h) = self.history_fitting_positions(u, w, &d, ws) {
+                    self.inner.simulate_into(u, Init::History(&h), &mut d, ws)?;
                 }
                 Some((w, true))
             }
