@@ -980,6 +980,7 @@ pub(crate) fn search(
     let opts = &*opts.for_plan(&plan);
     let mut choice = base.choice;
     choice.decision = plan.describe(d);
+    let mut repeated = false;
     if let Some(note) = crate::repeat::repeated_note(
         &d.train,
         d.fit.clone(),
@@ -987,6 +988,7 @@ pub(crate) fn search(
         opts.policy.repeat_correlation,
     ) {
         choice.decision.push_str(&note);
+        repeated = true;
     }
     let mut chain = vec![base.eval];
     let mut steps = vec![];
@@ -1031,10 +1033,28 @@ pub(crate) fn search(
         }) else {
             break;
         };
-        steps.extend(step.rows);
+        let mut rows = step.rows;
         if let Some(note) = &step.notes {
             choice.decision.push_str(note);
         }
+        let stop = match &step.chosen {
+            // a noise model changes how the residual is read, not the response to the input
+            Some((model, pick)) if repeated && pick.0 != Cause::Noise => {
+                learns_trajectory(d, cur, model, pick, opts, it)
+            }
+            _ => None,
+        };
+        if let Some((_, note)) = &stop {
+            choice.decision.push_str(note);
+        }
+        if stop.is_some_and(|(s, _)| s) {
+            for r in rows.iter_mut().filter(|r| r.iteration == it) {
+                r.accepted = false;
+            }
+            steps.extend(rows);
+            break;
+        }
+        steps.extend(rows);
         match step.chosen {
             Some((model, pick)) => {
                 if pick.0 == Cause::Noise && !opts.policy.retry_after_noise_step {
@@ -1104,6 +1124,42 @@ pub(crate) fn search(
     );
     diagnosis.saved = saved;
     Ok(diagnosis)
+}
+
+/// On a repeated excitation: the note that stops the search when step
+/// `it`'s chosen model parts from the current one on shifted inputs more
+/// than `repeat_shift_ratio` times as much as on the fit block's input
+/// ([`crate::repeat::shift_disagreement`]), `(true, note)`; `(false,
+/// note)` when it carries over; `None` when the models cannot be compared.
+fn learns_trajectory(
+    d: &DiagnoseData,
+    cur: &Evaluated,
+    chosen: &Evaluated,
+    pick: &crate::refit::Pick,
+    opts: &DiagnoseOptions,
+    it: usize,
+) -> Option<(bool, String)> {
+    let u: Vec<Vec<f64>> = d
+        .train
+        .inputs
+        .iter()
+        .map(|s| s[d.fit.clone()].to_vec())
+        .collect();
+    let (r, how) = crate::repeat::shift_disagreement(&cur.model, &chosen.model, &u)?;
+    if r <= opts.policy.repeat_shift_ratio {
+        return Some((
+            false,
+            format!("; step {it}'s choice carries over the repeated excitation (on the fit block's input {how} it parts from the current model {r:.2}× as much as on the input itself; at most {}×)", opts.policy.repeat_shift_ratio),
+        ));
+    }
+    Some((true, {
+        format!(
+            "; step {it}'s choice ({}: {}) was not accepted and the search stopped: simulated on the fit block's input {how} it parts from the current model {r:.1}× as much as on the input itself (at most {}×) — it reproduces the repeated trajectory, not what carries over to other inputs",
+            pick.0.name(),
+            chosen.model.describe(),
+            opts.policy.repeat_shift_ratio
+        )
+    }))
 }
 
 /// The diagnosis from its chain of models and its rows: `(chain, judged)`,

@@ -41,6 +41,7 @@ use crate::DiagnoseError;
 /// | `integrator_beyond_unit` | true | … or whatever the linear fits say when the ARX pole lies at or beyond 1: a stable model cannot place it there, and with dry friction neither linear model fits, so their comparison says nothing (the generator's `integrator` family, seeds 3 and 8: a plain model of NRMSE 23× and 96× the floor on the validation record; with the increments 2.1× and 1.1×) |
 /// | `integrated_criterion` | true | an integrator's increments models are trained for the error of their running sum (the output), the mean projected out, after a first training for the increments' error: the maximum-likelihood criterion for white noise on the output, where the increments' error weights the low frequencies, where the output's error accumulates, as little as the high ones (the generator's `integrator` family, seeds 1 and 5, linear: 1.93× and 2.83× the floor → 1.08× and 1.10×; EMPS' friction-map step: the pulses test 1.94 → 1.64 mm) |
 /// | `repeat_correlation` | 0.99 | three 256-sample windows of the select block's every input each matched by a window of the fit block at this correlation: the record repeats its excitation, and the decisions line says that the held-out gains then show how a model reproduces this input, not how it carries over to others (EMPS: four runs of one trajectory, correlation 0.99996 at 6240 samples; Bouc–Wen's training multisine: five periods) |
+/// | `repeat_shift_ratio` | 3 | when the select block repeats the fit block's input (`repeat_correlation`), a chosen step must carry over: simulated on the fit block's input time-reversed and on it scaled by 0.8 about its mean (the same amplitudes and spectrum, not the trajectory), it may differ from the current model at most this many times more (rms) than on the input itself; else the search stops there and says so. A model that learns the trajectory pays on a held-out repeat as much as one that carries over (EMPS, four runs of one trajectory: the 10-leaf network after the friction law 8.5× scaled, and it takes the pulses test from 1.63 to 16.4 mm; Bouc–Wen's five multisine periods: the hidden-state steps after the Preisach component 1.01× and 0.95× reversed, and they take the multisine test from 8.9e-5 to 5.3e-6 m) |
 /// | `bootstrap_min_samples` | 300 | with fewer select samples the bootstrap of the select block is not trusted (fewer than 12 blocks of 25): decisions use blocked cross-validation over the training record instead |
 /// | `block_shift_ratio` | 1.5 | decisions also use blocked cross-validation when the select block is not representative of the fit block: the level (rms about the fit block's mean) or the pace (rms increment over rms) of the output or an input differs by more than this factor either way (a sweep, a changing amplitude) … |
 /// | `block_shift_outside` | 0.05 | … or more than this share of the select block's samples of a signal lie outside the fit block's range widened by a tenth (a drifting level): a gain measured there would not speak for the record |
@@ -169,6 +170,10 @@ pub struct DecisionPolicy {
     /// Correlation at which a window of the select block's input counts as
     /// a repeat of the fit block's (a note on the decisions line).
     pub repeat_correlation: f64,
+    /// On a repeated excitation, the largest ratio of a chosen step's
+    /// disagreement with the current model on shifted inputs to that on
+    /// the training input.
+    pub repeat_shift_ratio: f64,
     /// Fewest select samples for the bootstrap (else cross-validation).
     pub bootstrap_min_samples: usize,
     /// Level/pace ratio of the select to the fit block beyond which
@@ -320,6 +325,7 @@ impl Default for DecisionPolicy {
             integrator_beyond_unit: true,
             integrated_criterion: true,
             repeat_correlation: 0.99,
+            repeat_shift_ratio: 3.0,
             bootstrap_min_samples: 300,
             block_shift_ratio: 1.5,
             block_shift_outside: 0.05,
@@ -388,6 +394,9 @@ impl DecisionPolicy {
         }
         if !(self.repeat_correlation > 0.0 && self.repeat_correlation <= 1.0) {
             return bad("repeat_correlation in (0, 1]");
+        }
+        if self.repeat_shift_ratio.is_nan() || self.repeat_shift_ratio < 1.0 {
+            return bad("repeat_shift_ratio >= 1 (infinity: no check)");
         }
         if self.block_divisor == 0
             || self.block_min == 0
