@@ -1031,6 +1031,10 @@ pub(crate) fn search(
         let Some(step) = timed_phase("step", || {
             iterate(&run, cur, &causes, (&mut tried, &skip), it)
         }) else {
+            choice.decision.push_str(&format!(
+                "; before step {it} no candidate extension applies to the current model ({}) that was not tried already: the search ended there",
+                cur.model.dynamics.describe()
+            ));
             break;
         };
         let mut rows = step.rows;
