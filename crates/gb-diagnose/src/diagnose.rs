@@ -1037,28 +1037,24 @@ pub(crate) fn search(
             ));
             break;
         };
-        let mut rows = step.rows;
         if let Some(note) = &step.notes {
             choice.decision.push_str(note);
         }
-        let stop = match &step.chosen {
-            // a noise model changes how the residual is read, not the response to the input
-            Some((model, pick)) if repeated && pick.0 != Cause::Noise => {
-                learns_trajectory(d, cur, model, pick, opts, it)
-            }
-            _ => None,
-        };
-        if let Some((_, note)) = &stop {
-            choice.decision.push_str(note);
-        }
-        if stop.is_some_and(|(s, _)| s) {
-            for r in rows.iter_mut().filter(|r| r.iteration == it) {
-                r.accepted = false;
-            }
-            steps.extend(rows);
+        let mut rows = step.rows;
+        let stop = repeated
+            && step.chosen.as_ref().is_some_and(|(model, pick)| {
+                carry_over_stop(
+                    d,
+                    (cur, model, pick),
+                    opts,
+                    it,
+                    (&mut rows, &mut choice.decision),
+                )
+            });
+        steps.extend(rows);
+        if stop {
             break;
         }
-        steps.extend(rows);
         match step.chosen {
             Some((model, pick)) => {
                 if pick.0 == Cause::Noise && !opts.policy.retry_after_noise_step {
@@ -1087,10 +1083,33 @@ pub(crate) fn search(
             None => break,
         }
     }
+    Ok(finish(
+        d,
+        &plan,
+        (chain, picks),
+        (steps, causes, choice),
+        opts,
+        obs,
+        (refit, total),
+    ))
+}
+
+/// After the search: the chain refitted on the whole training record (with
+/// `refit`), the cross-validated figure of a record that the folds span,
+/// the model saved refitted on all samples, and the assembled diagnosis.
+fn finish(
+    d: &DiagnoseData,
+    plan: &Plan,
+    (chain, picks): (Vec<Evaluated>, Vec<crate::refit::Pick>),
+    (steps, causes, mut choice): (Vec<Step>, Vec<Cause>, StructureChoice),
+    opts: &DiagnoseOptions,
+    obs: &dyn Observer,
+    (refit, total): (bool, usize),
+) -> Diagnosis {
     let refitted = refit
         .then(|| {
             timed_phase("refit", || {
-                crate::refit::refit_chain(d, &plan, &chain, &picks, opts, obs)
+                crate::refit::refit_chain(d, plan, &chain, &picks, opts, obs)
             })
         })
         .flatten();
@@ -1109,7 +1128,7 @@ pub(crate) fn search(
     let saved = refit
         .then(|| {
             timed_phase("refit on all samples", || {
-                crate::refit::refit_on_all_samples(d, &plan, &reported, &picks, opts, obs)
+                crate::refit::refit_on_all_samples(d, plan, &reported, &picks, opts, obs)
             })
         })
         .flatten()
@@ -1119,7 +1138,7 @@ pub(crate) fn search(
         });
     let mut diagnosis = assemble(
         d,
-        &plan,
+        plan,
         (reported, judged.as_deref()),
         steps,
         causes,
@@ -1127,43 +1146,52 @@ pub(crate) fn search(
         &opts.policy,
     );
     diagnosis.saved = saved;
-    Ok(diagnosis)
+    diagnosis
 }
 
-/// On a repeated excitation: the note that stops the search when step
-/// `it`'s chosen model parts from the current one on shifted inputs more
-/// than `repeat_shift_ratio` times as much as on the fit block's input
-/// ([`crate::repeat::shift_disagreement`]), `(true, note)`; `(false,
-/// note)` when it carries over; `None` when the models cannot be compared.
-fn learns_trajectory(
+/// On a repeated excitation, whether step `it`'s chosen structural model
+/// fails to carry over: it parts from the current one on shifted inputs
+/// more than `repeat_shift_ratio` times as much as on the fit block's
+/// input ([`crate::repeat::shift_disagreement`]). The decisions line gets
+/// the ratio either way; a step that does not carry over has its rows
+/// unmarked and the search stops. A noise step changes how the residual is
+/// read, not the response to the input, and is not checked; nor are models
+/// that cannot be compared.
+fn carry_over_stop(
     d: &DiagnoseData,
-    cur: &Evaluated,
-    chosen: &Evaluated,
-    pick: &crate::refit::Pick,
+    (cur, chosen, pick): (&Evaluated, &Evaluated, &crate::refit::Pick),
     opts: &DiagnoseOptions,
     it: usize,
-) -> Option<(bool, String)> {
+    (rows, decision): (&mut [Step], &mut String),
+) -> bool {
+    if pick.0 == Cause::Noise {
+        return false;
+    }
     let u: Vec<Vec<f64>> = d
         .train
         .inputs
         .iter()
         .map(|s| s[d.fit.clone()].to_vec())
         .collect();
-    let (r, how) = crate::repeat::shift_disagreement(&cur.model, &chosen.model, &u)?;
-    if r <= opts.policy.repeat_shift_ratio {
-        return Some((
-            false,
-            format!("; step {it}'s choice carries over the repeated excitation (on the fit block's input {how} it parts from the current model {r:.2}× as much as on the input itself; at most {}×)", opts.policy.repeat_shift_ratio),
+    let Some((r, how)) = crate::repeat::shift_disagreement(&cur.model, &chosen.model, &u) else {
+        return false;
+    };
+    let max = opts.policy.repeat_shift_ratio;
+    if r <= max {
+        decision.push_str(&format!(
+            "; step {it}'s choice carries over the repeated excitation (on the fit block's input {how} it parts from the current model {r:.2}× as much as on the input itself; at most {max}×)"
         ));
+        return false;
     }
-    Some((true, {
-        format!(
-            "; step {it}'s choice ({}: {}) was not accepted and the search stopped: simulated on the fit block's input {how} it parts from the current model {r:.1}× as much as on the input itself (at most {}×) — it reproduces the repeated trajectory, not what carries over to other inputs",
-            pick.0.name(),
-            chosen.model.describe(),
-            opts.policy.repeat_shift_ratio
-        )
-    }))
+    decision.push_str(&format!(
+        "; step {it}'s choice ({}: {}) was not accepted and the search stopped: simulated on the fit block's input {how} it parts from the current model {r:.1}× as much as on the input itself (at most {max}×) — it reproduces the repeated trajectory, not what carries over to other inputs",
+        pick.0.name(),
+        chosen.model.describe()
+    ));
+    for row in rows.iter_mut().filter(|row| row.iteration == it) {
+        row.accepted = false;
+    }
+    true
 }
 
 /// The diagnosis from its chain of models and its rows: `(chain, judged)`,
