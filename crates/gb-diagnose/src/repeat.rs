@@ -128,29 +128,32 @@ fn shifted_inputs(u: &[Vec<f64>]) -> [(&'static str, Vec<Vec<f64>>); 2] {
     [("time-reversed", reversed), ("scaled by 0.8", scaled)]
 }
 
-/// `sqrt(mean((ŷ_a − ŷ_b)²))` of two models simulated on `u` from their
-/// stored start, the first `skip` samples left out; `None` when either
-/// simulation fails or is not finite.
-fn disagreement(a: &FittedModel, b: &FittedModel, u: &[Vec<f64>], skip: usize) -> Option<f64> {
-    let ya = a.simulate(u, Init::Stored).ok()?;
-    let yb = b.simulate(u, Init::Stored).ok()?;
-    let n = ya.len().min(yb.len());
+/// The simulation of `m` on `u` from its stored start; `None` when it
+/// fails or is not finite.
+fn finite_simulation(m: &FittedModel, u: &[Vec<f64>]) -> Option<Vec<f64>> {
+    let y = m.simulate(u, Init::Stored).ok()?;
+    y.iter().all(|v| v.is_finite()).then_some(y)
+}
+
+/// `sqrt(mean((a − b)²))` over the samples from `skip` on; `None` when
+/// there are none.
+fn rms_difference(a: &[f64], b: &[f64], skip: usize) -> Option<f64> {
+    let n = a.len().min(b.len());
     if n <= skip {
         return None;
     }
-    let ss: f64 = ya[skip..n]
+    let ss: f64 = a[skip..n]
         .iter()
-        .zip(&yb[skip..n])
+        .zip(&b[skip..n])
         .map(|(p, q)| (p - q) * (p - q))
         .sum();
-    let d = (ss / (n - skip) as f64).sqrt();
-    d.is_finite().then_some(d)
+    Some((ss / (n - skip) as f64).sqrt())
 }
 
 /// How much more a candidate disagrees with the current model on inputs
 /// the training record does not show than on its own input `u`:
 /// `max_v D(u_v) / D(u)` over the [`shifted_inputs`] `u_v`, with `D` the
-/// [`disagreement`] of the two simulations, and the variant that gave it.
+/// [`rms_difference`] of the two simulations, and the variant that gave it.
 /// On a repeated excitation a candidate that reproduces the trajectory
 /// better but does not carry over parts from the current model far more on
 /// the shifted inputs than on the trajectory (EMPS: a 10-leaf network after
@@ -165,21 +168,25 @@ pub(crate) fn shift_disagreement(
 ) -> Option<(f64, &'static str)> {
     let n = u.first().map_or(0, Vec::len);
     let skip = (n / 10).min(50);
-    let base = disagreement(current, candidate, u, skip)?;
-    if base <= 0.0 {
+    let base = rms_difference(
+        &finite_simulation(current, u)?,
+        &finite_simulation(candidate, u)?,
+        skip,
+    )?;
+    if !(base > 0.0 && base.is_finite()) {
         return None;
     }
     let mut worst: Option<(f64, &'static str)> = None;
     for (name, v) in shifted_inputs(u) {
-        let r = match disagreement(current, candidate, &v, skip) {
-            Some(d) => d / base,
-            None if current
-                .simulate(&v, Init::Stored)
-                .is_ok_and(|y| y.iter().all(|x| x.is_finite())) =>
-            {
-                f64::INFINITY
-            }
-            None => continue,
+        let Some(ya) = finite_simulation(current, &v) else {
+            continue;
+        };
+        let r = match finite_simulation(candidate, &v) {
+            Some(yb) => match rms_difference(&ya, &yb, skip) {
+                Some(d) => d / base,
+                None => continue,
+            },
+            None => f64::INFINITY,
         };
         if worst.is_none_or(|(w, _)| r > w) {
             worst = Some((r, name));
