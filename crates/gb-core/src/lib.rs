@@ -25,6 +25,7 @@ mod data;
 mod error;
 mod fitted;
 pub mod gram;
+pub mod integrated;
 pub mod metrics;
 mod model;
 pub mod noise;

@@ -107,7 +107,8 @@ pub struct Context<'a> {
     pub(crate) start_choice: Option<usize>,
     /// In a fold's fit (cross-validation): the same candidate fitted on the
     /// whole fit block, a start for the fits whose own start leads astray
-    /// on a shorter record ([`Extension::fit_choosing`]).
+    /// on a shorter record ([`Extension::fit_choosing`]); in the refit on
+    /// the whole training record (`refit.rs`): the step's fit-block model.
     pub(crate) whole_fit: Option<&'a FittedModel>,
     /// The linear mechanical templates fitted so far in this step, shared
     /// by its mechanical candidates (`None`: not shared).

@@ -90,6 +90,26 @@ pub(crate) fn refit_physics_direct(
     direct_fit(fit_params(spec.clone(), rec), rec, obs)
 }
 
+/// [`refit_physics_direct`] for the error of the outputs' running sum
+/// (`PhysicsFitParams::integrated`): a model of an integrating system's
+/// increments, refitted from its estimates for the position it predicts
+/// (the criterion of the plan's linear and network models,
+/// `DecisionPolicy::integrated_criterion`).
+pub(crate) fn refit_physics_integrated(
+    spec: &PhysicsSpec,
+    rec: &Record,
+    obs: &dyn Observer,
+) -> Result<FittedModel, DiagnoseError> {
+    direct_fit(fit_params(spec.clone(), rec).integrated(true), rec, obs)
+}
+
+/// Whether the fits of `ctx` model an integrator's increments for the
+/// error of their running sum (an integrating plan under
+/// `DecisionPolicy::integrated_criterion`).
+pub(crate) fn integrated_fits(ctx: &crate::extension::Context) -> bool {
+    ctx.plan.integrating && ctx.policy().integrated_criterion
+}
+
 /// One Levenberg–Marquardt path of `params` on all of `rec`.
 fn direct_fit(
     params: PhysicsFitParams,

@@ -430,6 +430,8 @@ impl<'a> Refit<'a> {
         let sims = crate::diagnose::simulated_on(&prev.model, &self.whole.fit);
         let ctx = Context {
             start_choice: choice,
+            // a template law goes on from where its fit-block fit ended
+            whole_fit: Some(&judged.model),
             ..self.context(prev, &ev, sims.as_deref())
         };
         let (m, _) = ext.fit_choosing(p, &ctx).ok()?;

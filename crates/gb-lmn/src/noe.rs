@@ -15,6 +15,7 @@ use crate::network::{spectral_radius, EvalScratch, Leaf};
 use crate::separable::{Separable, SeparableProblem};
 use crate::{LmnError, LocalModelNetwork, NetworkSpec, Scaling};
 use gb_core::gram::dot;
+use gb_core::integrated::{integrated_cost, RunningSum};
 use gb_core::solver::{LeastSquaresProblem, LevenbergMarquardt, LmParams};
 use gb_core::{NoiseModel, Observer, Silent};
 use nalgebra::{DMatrix, DVector};
@@ -111,74 +112,6 @@ pub struct TrainReport {
     pub mse_initial: f64,
     /// Mean squared simulation error after LM.
     pub mse_final: f64,
-}
-
-/// Running sums of the integrated criterion ([`FitOptions::integrated_error`]):
-/// Eₖ = Σ_{j≤k} eⱼ and Sₖ = Σ_{j≤k} sⱼ (s the sensitivity ∂ŷ/∂θ), and
-/// ΣE, ΣS over k for the mean projected out.
-struct Integrated {
-    acc_e: f64,
-    acc_s: Vec<f64>,
-    sum_e: f64,
-    sum_s: Vec<f64>,
-    count: f64,
-}
-
-impl Integrated {
-    fn new(np: usize) -> Self {
-        Self {
-            acc_e: 0.0,
-            acc_s: vec![0.0; np],
-            sum_e: 0.0,
-            sum_s: vec![0.0; np],
-            count: 0.0,
-        }
-    }
-
-    /// Add sample k's error and sensitivity; returns Eₖ (Sₖ in `acc_s`).
-    fn add(&mut self, e: f64, s: &[f64]) -> f64 {
-        self.acc_e += e;
-        self.sum_e += self.acc_e;
-        for ((a, t), v) in self.acc_s.iter_mut().zip(self.sum_s.iter_mut()).zip(s) {
-            *a += v;
-            *t += *a;
-        }
-        self.count += 1.0;
-        self.acc_e
-    }
-
-    /// Project the mean out of JᵀJ = ΣSSᵀ and Jᵀe = ΣSE:
-    /// JᵀJ − (ΣS)(ΣS)ᵀ/N, Jᵀe − (ΣS)(ΣE)/N; returns (ΣE)²/N, the part of
-    /// ΣE² to subtract from the cost.
-    fn project_mean(&self, jtj: &mut DMatrix<f64>, jtr: &mut DVector<f64>) -> f64 {
-        if self.count < 1.0 {
-            return 0.0;
-        }
-        let n = self.count;
-        for (i, si) in self.sum_s.iter().enumerate() {
-            jtr[i] -= si * self.sum_e / n;
-            for (j, sj) in self.sum_s.iter().enumerate() {
-                jtj[(i, j)] -= si * sj / n;
-            }
-        }
-        self.sum_e * self.sum_e / n
-    }
-}
-
-/// Σₖ (Eₖ − Ē)² of the running sum Eₖ of the errors `e`.
-fn integrated_cost(e: impl Iterator<Item = f64>) -> f64 {
-    let (mut acc, mut s1, mut s2, mut n) = (0.0, 0.0, 0.0, 0.0);
-    for v in e {
-        acc += v;
-        s1 += acc;
-        s2 += acc * acc;
-        n += 1.0;
-    }
-    if n < 1.0 {
-        0.0
-    } else {
-        s2 - s1 * s1 / n
-    }
 }
 
 /// dst += Σ_j c_j · src[o_j .. o_j + len] over `terms` = [(c_j, o_j)], four
@@ -1044,7 +977,7 @@ impl LocalModelNetwork {
         let mut nblk = 0;
         // the integrated criterion: running sums of the error and of its
         // sensitivity, and their sums over k for projecting out the mean
-        let mut run = p.integrated.then(|| Integrated::new(np));
+        let mut run = p.integrated.then(|| RunningSum::new(np));
         for k in k0..n {
             oh.advance(k, out[k - 1]);
             sc.output_columns(&oh, k, k0);
@@ -1055,7 +988,7 @@ impl LocalModelNetwork {
             out[k] = v;
             sc.feed_back(k, k0, self.spec.n_dynamic());
             let (e, w, s) = match run.as_mut() {
-                Some(r) => (r.add(p.yn[k] - v, &sc.snew), 1.0, r.acc_s.as_slice()),
+                Some(r) => (r.add(p.yn[k] - v, &sc.snew), 1.0, r.row()),
                 None => (
                     p.yn[k] - v,
                     weights.map_or(1.0, |w| w[k]),
@@ -1081,7 +1014,7 @@ impl LocalModelNetwork {
         }
         mirror_upper(jtj);
         if let Some(r) = run {
-            cost -= r.project_mean(jtj, jtr);
+            cost -= r.project_mean(jtj.as_mut_slice(), jtr.as_mut_slice());
         }
         Some(cost)
     }

@@ -6,7 +6,10 @@ use super::physics_hysteresis::fit_state;
 use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::physics_row_text;
-use crate::physics::{fit_physics, physics_of, TEMPLATE_NAME};
+use crate::physics::{
+    fit_physics, fit_physics_warm, integrated_fits, physics_of, refit_physics_direct,
+    refit_physics_integrated, TEMPLATE_NAME,
+};
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
 use gb_model::physics::{Parameter, PhysicsSpec, State};
@@ -171,15 +174,69 @@ fn fitted_template(ctx: &Context, order: usize) -> Result<Template, DiagnoseErro
 /// law than the fit block did (friction on a slow sweep: the fit block's
 /// fit within 1 % of the noise floor on held-out data, the folds' fits
 /// diverging on theirs), and the candidate is judged by fits it would
-/// never make.
+/// never make. One Levenberg–Marquardt path from that optimum
+/// ([`refit_physics_direct`]): the growing prefixes of [`fit_physics`]
+/// guard a cold start and, from an optimum, refit its neighbourhood again
+/// and again (backlash 2 of the 8000 + 4000 sweep, the whole fit as
+/// before: the dry-friction law with its four folds 11.6 → 5.1 s, its
+/// held-out gain +0.03 → +0.18, the diagnosis the same).
 fn fit_from_whole(
     whole: &gb_model::physics::PhysicsModel,
     ctx: &Context,
+    running_sum: bool,
 ) -> Result<FittedModel, DiagnoseError> {
     let core = |e| DiagnoseError::from(gb_core::CoreError::from(e));
     let rec = crate::physics::physics_fit_record(ctx, whole);
     let start = whole.with_start_at_values().map_err(core)?;
-    fit_physics(start.spec(), &rec, ctx.observer)
+    if running_sum && integrated_fits(ctx) {
+        return refit_physics_integrated(start.spec(), &rec, ctx.observer);
+    }
+    refit_physics_direct(start.spec(), &rec, ctx.observer)
+}
+
+/// The suffix of a law's proposal fitted for the error of the running
+/// sum of an integrating system's increments.
+const RUNNING_SUM: &str = " for the running sum";
+
+/// For the [`RUNNING_SUM`] proposal of an integrating plan, the law's fit
+/// of the increments `m` refitted from its estimates for the error of
+/// their running sum (the position), the criterion the plan's linear
+/// models and networks are trained for and its folds score; `m` itself
+/// otherwise or when that refit fails. Both fits are proposed: on the
+/// 8000 + 4000 sweep's `integrator` family the running-sum fit of the
+/// dry-friction law takes seed 3 from 1.78× the floor to 1.07× and seed
+/// 9 from 2.90× to 1.30×, while on seed 8 (a sweep) one fold's
+/// running-sum fit misses its held-out band and only the increments' fit
+/// pays (1.31×). The larger select gain decides between them: on seed 3
+/// (a repeated multisine) the increments' fit leads, +0.930 against
+/// +0.903, and ends at 1.78× (the running-sum fit: 1.07×); a rule that
+/// gave overlapping intervals to the running-sum fit lost seed 8 (5.58×).
+fn integrated_refit(
+    m: FittedModel,
+    rec: &gb_core::Record,
+    ctx: &Context,
+    running_sum: bool,
+) -> FittedModel {
+    if !(running_sum && integrated_fits(ctx)) {
+        return m;
+    }
+    let refit = physics_of(&m).and_then(|p| {
+        let start = p.with_start_at_values().ok()?;
+        refit_physics_integrated(start.spec(), rec, ctx.observer).ok()
+    });
+    refit.unwrap_or(m)
+}
+
+/// The physics model of a fitted template, also inside the running sum of
+/// an integrating system's increments (a refit on the whole training
+/// record starts from the step's fit-block model, which the plan wrapped).
+fn template_of(m: &FittedModel) -> Option<&gb_model::physics::PhysicsModel> {
+    physics_of(m).or_else(|| {
+        m.dynamics
+            .as_any()
+            .downcast_ref::<gb_model::IntegratingModel>()
+            .and_then(|i| i.inner().as_any().downcast_ref())
+    })
 }
 
 /// The template's order (1 or 2) when the current model is the plain
@@ -255,15 +312,25 @@ impl Extension for MechanicalNonlinearity {
             return vec![];
         };
         let states = if order == 1 { "(x)" } else { "(q, v)" };
+        let variants: &[&str] = if integrated_fits(ctx) {
+            &["", RUNNING_SUM]
+        } else {
+            &[""]
+        };
         laws(order)
             .into_iter()
-            .map(|(law, eq, var, text)| Proposal {
-                cause: Cause::Nonlinearity,
-                lineage: Lineage::Other {
-                    spec: format!("mechanical {states} + {law}({var}) in d{eq}/dt"),
-                    order,
-                },
-                text: text.into(),
+            .flat_map(|(law, eq, var, text)| {
+                variants.iter().map(move |v| Proposal {
+                    cause: Cause::Nonlinearity,
+                    lineage: Lineage::Other {
+                        spec: format!("mechanical {states} + {law}({var}) in d{eq}/dt{v}"),
+                        order,
+                    },
+                    text: match *v {
+                        "" => text.into(),
+                        _ => format!("{text}, fitted for the error of the increments' running sum (the position)"),
+                    },
+                })
             })
             .collect()
     }
@@ -277,8 +344,9 @@ impl Extension for MechanicalNonlinearity {
             .into_iter()
             .find(|(law, _, v, _)| spec.contains(&format!("+ {law}({v})")))
             .ok_or_else(|| bad("unknown law"))?;
-        if let Some(whole) = ctx.whole_fit.and_then(physics_of) {
-            return fit_from_whole(whole, ctx);
+        let running_sum = spec.ends_with(RUNNING_SUM);
+        if let Some(whole) = ctx.whole_fit.and_then(template_of) {
+            return fit_from_whole(whole, ctx, running_sum);
         }
         let (rec, lin) = fitted_template(ctx, order)?;
         let cur = physics_of(&lin).ok_or_else(|| bad("not a physics model"))?;
@@ -287,7 +355,13 @@ impl Extension for MechanicalNonlinearity {
         } else {
             super::physics_terms::with_centred_law(cur, &rec, eq, var)?
         };
-        fit_physics(&spec, &rec, ctx.observer)
+        // the law starts at 0 on the fitted linear template: one path
+        // (fit_physics_warm). With the growing prefixes the dry-friction
+        // law of the sweep's integrator 3 ended where it lost to another
+        // candidate (final 11.4× the noise floor); from the direct path it
+        // wins, 1.8× (integrator 8: 1.09 → 1.31×)
+        let m = fit_physics_warm(&spec, &rec, ctx.observer)?;
+        Ok(integrated_refit(m, &rec, ctx, running_sum))
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()

@@ -6,6 +6,7 @@
 use super::error::{PhysicsError, PhysicsResult};
 use super::simulate::{simulate, simulate_dual, Lanes};
 use super::spec::{Compiled, PhysicsSpec, Prior};
+use gb_core::integrated::{integrated_cost, RunningSum};
 use gb_core::solver::LeastSquaresProblem;
 use nalgebra::{DMatrix, SymmetricEigen};
 use serde::{Deserialize, Serialize};
@@ -126,6 +127,10 @@ pub(crate) struct OeProblem<'a> {
     pub(crate) with_prior: bool,
     /// Weight of each output's error.
     pub(crate) weights: Vec<f64>,
+    /// The integrated criterion (`gb_core::integrated`): the outputs are
+    /// increments and the error is that of their running sum per record,
+    /// its mean projected out.
+    pub(crate) integrated: bool,
     ybuf: Vec<f64>,
 }
 
@@ -152,6 +157,7 @@ impl<'a> OeProblem<'a> {
             prior_weight: 0.0,
             with_prior: false,
             weights: vec![1.0; c.g.n_outputs()],
+            integrated: false,
             ybuf: vec![],
         }
     }
@@ -215,7 +221,11 @@ impl<'a> OeProblem<'a> {
             )
             .ok()?;
             for ((y, sim), w) in seg.y.iter().zip(self.ybuf.chunks(len)).zip(&self.weights) {
-                let e2: f64 = y.iter().zip(sim).map(|(y, s)| (y - s) * (y - s)).sum();
+                let e2: f64 = if self.integrated {
+                    integrated_cost(y.iter().zip(sim).map(|(y, s)| y - s))
+                } else {
+                    y.iter().zip(sim).map(|(y, s)| (y - s) * (y - s)).sum()
+                };
                 sse += w * w * e2;
             }
         }
@@ -223,7 +233,8 @@ impl<'a> OeProblem<'a> {
     }
 
     /// SSE, Gram `JᵀJ` and gradient `Jᵀe` (LM coordinates) at the current
-    /// point, without priors.
+    /// point, without priors (with [`OeProblem::integrated`]: of the
+    /// running sums, their means projected out per record and output).
     pub(crate) fn gram(&self, gram: &mut [f64], grad: &mut [f64]) -> Option<f64> {
         let l = self.lanes.n;
         gram.fill(0.0);
@@ -231,17 +242,38 @@ impl<'a> OeProblem<'a> {
         let scale: Vec<f64> = self.coords.iter().map(|c| c.scale).collect();
         let mut acc = gb_core::gram::GramAccumulator::new(l);
         let mut sse = 0.0;
+        let mut row = vec![0.0; l];
         for seg in &self.segments {
             let len = seg.len();
+            let mut runs: Vec<RunningSum> = match self.integrated {
+                true => vec![RunningSum::new(l); seg.y.len()],
+                false => vec![],
+            };
             let sink = |t: usize, y: &[f64], dy: &[f64]| {
                 for (o, (ym, w)) in seg.y.iter().zip(&self.weights).enumerate() {
                     let e = w * (ym[t] - y[o]);
+                    let fill = |j: &mut [f64]| {
+                        for ((jk, d), s) in j.iter_mut().zip(&dy[o * l..(o + 1) * l]).zip(&scale) {
+                            *jk = w * d * s;
+                        }
+                    };
+                    // the row straight into the accumulator, or (the
+                    // integrated criterion) its running sum
+                    let (e, j): (f64, &[f64]) = match runs.get_mut(o) {
+                        None => {
+                            let j = acc.next_row(gram);
+                            fill(j);
+                            (e, j)
+                        }
+                        Some(r) => {
+                            fill(&mut row);
+                            let e = r.add(e, &row);
+                            acc.push(gram, r.row());
+                            (e, r.row())
+                        }
+                    };
                     sse += e * e;
-                    let j = acc.next_row(gram);
-                    for ((jk, d), s) in j.iter_mut().zip(&dy[o * l..(o + 1) * l]).zip(&scale) {
-                        *jk = w * d * s;
-                    }
-                    for (g, jk) in grad.iter_mut().zip(j.iter()) {
+                    for (g, jk) in grad.iter_mut().zip(j) {
                         *g += jk * e;
                     }
                 }
@@ -258,6 +290,9 @@ impl<'a> OeProblem<'a> {
                 sink,
             )
             .ok()?;
+            for r in &runs {
+                sse -= r.project_mean(gram, grad);
+            }
         }
         acc.finish(gram);
         sse.is_finite().then_some(sse)

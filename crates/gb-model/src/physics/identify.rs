@@ -21,6 +21,7 @@ pub struct PhysicsFitParams {
     source: Option<String>,
     lm: LmParams,
     direct_max_iter: Option<usize>,
+    integrated: bool,
 }
 
 impl PhysicsFitParams {
@@ -31,7 +32,18 @@ impl PhysicsFitParams {
             source: None,
             lm: LmParams::default().max_iter(200).tol(1e-10).stall(10, 1e-5),
             direct_max_iter: None,
+            integrated: false,
         }
+    }
+    /// Fit the error of the outputs' running sums per record, their means
+    /// projected out (`gb_core::integrated`), instead of the outputs'
+    /// error: for a model of an integrating system's increments, whose
+    /// running sum is what is measured (with white noise on it, the
+    /// maximum-likelihood criterion). The fit report (RMSE, σ̂,
+    /// intervals) stays that of the increments at the optimum.
+    pub fn integrated(mut self, on: bool) -> Self {
+        self.integrated = on;
+        self
     }
     /// Most iterations.
     pub fn max_iter(mut self, n: usize) -> Self {
@@ -84,6 +96,7 @@ impl PhysicsFitParams {
             model,
             lm: self.lm.check()?,
             direct_lm: direct.check()?,
+            integrated: self.integrated,
         })
     }
 }
@@ -95,6 +108,8 @@ pub struct PhysicsFit {
     lm: LevenbergMarquardt,
     /// The solver of the direct path of [`identify_growing`](Self::identify_growing).
     direct_lm: LevenbergMarquardt,
+    /// The integrated criterion ([`PhysicsFitParams::integrated`]).
+    integrated: bool,
 }
 
 impl PhysicsFit {
@@ -109,6 +124,7 @@ impl PhysicsFit {
             model,
             lm: self.lm,
             direct_lm: self.direct_lm,
+            integrated: self.integrated,
         }
     }
 
@@ -119,6 +135,7 @@ impl PhysicsFit {
             model: self.model.clone(),
             lm: self.direct_lm,
             direct_lm: self.direct_lm,
+            integrated: self.integrated,
         }
     }
 
@@ -513,6 +530,7 @@ impl PhysicsFit {
         );
         p.weights = sds.iter().map(|s| sds[0] / s).collect();
         self.check_start(&mut p)?;
+        p.integrated = self.integrated;
         let n = p.samples();
         let mut iterations = 0;
         let mut termination = "no free parameters".to_string();
@@ -537,6 +555,7 @@ impl PhysicsFit {
         }
         let l = coords.len();
         let (mut gram, mut grad) = (vec![0.0; l * l], vec![0.0; l]);
+        p.integrated = false;
         let sse = p
             .gram(&mut gram, &mut grad)
             .ok_or_else(|| PhysicsError::Numerical("the fitted model does not simulate".into()))?;

@@ -542,3 +542,173 @@ fn a_position_read_by_nothing_but_the_output_integrates() {
     assert!(!integrates(bouc_wen()));
     assert!(!integrates(preisach_spring(3)));
 }
+
+/// A velocity with viscous and dry friction whose output is the increment
+/// of the position over one sample (`Δq ≈ Ts·v`): a model of an
+/// integrating system's increments.
+fn increments_model(g: f64, c: f64, f: f64) -> PhysicsSpec {
+    PhysicsSpec::new("increments")
+        .input("u")
+        .parameter(Parameter::new("g", g))
+        .parameter(Parameter::new("c", c))
+        .parameter(Parameter::new("f", f))
+        .state(State::new("v", 0.0), "g*u - c*v - f*tanh(v/0.05)")
+        .output("dq", "0.01*v")
+        .sample_time(0.01)
+        .substeps(2)
+}
+
+/// A slow random force (first-order filtered noise, fixed seed).
+fn slow_force(n: usize, seed: u64) -> Vec<f64> {
+    use rand::Rng;
+    let mut r = gb_core::rng::seeded(seed);
+    let mut f = 0.0;
+    (0..n)
+        .map(|_| {
+            f = 0.97 * f + 0.3 * (r.random::<f64>() - 0.5);
+            f
+        })
+        .collect()
+}
+
+/// The integrated criterion's gradient and cost (running sums, means
+/// projected out) against central differences of its cost.
+#[test]
+fn the_integrated_criterion_gradient_matches_finite_differences() {
+    use super::fit::{OeProblem, Segment};
+    use gb_core::solver::LeastSquaresProblem;
+    let spec = increments_model(2.0, 1.5, 0.3);
+    let c = spec.compile().unwrap();
+    let u = slow_force(600, 3);
+    let truth = increments_model(2.4, 1.2, 0.5);
+    let ct = truth.compile().unwrap();
+    let mut y = vec![0.0; u.len()];
+    simulate(&ct, &[2.4, 1.2, 0.5], &[0.0], &[&u], 0.01, 2, &mut y).unwrap();
+    let coords = coordinates(&spec, &[2.0, 1.5, 0.3], &[0.0], false);
+    let seg = || Segment {
+        u: vec![u.as_slice()],
+        y: vec![y.as_slice()],
+    };
+    let mut p = OeProblem::new(
+        &c,
+        0.01,
+        2,
+        vec![seg()],
+        coords.clone(),
+        vec![2.0, 1.5, 0.3],
+        vec![0.0],
+    );
+    p.integrated = true;
+    let phi = p.phi();
+    let l = phi.len();
+    let (mut gram, mut grad) = (vec![0.0; l * l], vec![0.0; l]);
+    let sse = p.linearize(&phi, &mut gram, &mut grad).unwrap();
+    let cost = p.cost(&phi).unwrap();
+    assert!((sse - cost).abs() <= 1e-9 * cost, "{sse} vs {cost}");
+    // the cost by hand: the running sum of the errors, centred
+    let mut sim = vec![0.0; u.len()];
+    simulate(&c, &[2.0, 1.5, 0.3], &[0.0], &[&u], 0.01, 2, &mut sim).unwrap();
+    let mut acc = 0.0;
+    let run: Vec<f64> = y
+        .iter()
+        .zip(&sim)
+        .map(|(a, b)| {
+            acc += a - b;
+            acc
+        })
+        .collect();
+    let mean = run.iter().sum::<f64>() / run.len() as f64;
+    let by_hand: f64 = run.iter().map(|e| (e - mean) * (e - mean)).sum();
+    assert!((cost - by_hand).abs() <= 1e-9 * by_hand);
+    for k in 0..l {
+        let h = 1e-6 * phi[k].abs().max(1e-3);
+        let (mut a, mut b) = (phi.clone(), phi.clone());
+        a[k] += h;
+        b[k] -= h;
+        let fd = (p.cost(&a).unwrap() - p.cost(&b).unwrap()) / (2.0 * h);
+        // d cost / dφ = −2 Jᵀe
+        assert!(
+            (fd + 2.0 * grad[k]).abs() <= 1e-5 * fd.abs().max(1e-9),
+            "coordinate {k}: {fd} vs {}",
+            -2.0 * grad[k]
+        );
+    }
+    // JᵀJ is symmetric and positive on the diagonal
+    for i in 0..l {
+        assert!(gram[i * l + i] > 0.0);
+        for j in 0..l {
+            assert!((gram[i * l + j] - gram[j * l + i]).abs() <= 1e-9 * gram[i * l + i]);
+        }
+    }
+}
+
+/// With white noise on the measured position, the fit of the increments
+/// for the error of their running sum places the model closer to the
+/// true position over the record than the fit of the increments' error
+/// from the same start.
+#[test]
+fn the_integrated_fit_tracks_the_position_better_than_the_increments_fit() {
+    use super::PhysicsFitParams;
+    use gb_core::{Record, Records};
+    use rand_distr::{Distribution, Normal};
+    let (g, c, f) = (2.4, 1.2, 0.5);
+    let u = slow_force(4000, 7);
+    let ct = increments_model(g, c, f).compile().unwrap();
+    let mut dq = vec![0.0; u.len()];
+    simulate(&ct, &[g, c, f], &[0.0], &[&u], 0.01, 2, &mut dq).unwrap();
+    let q: Vec<f64> = dq
+        .iter()
+        .scan(0.0, |a, d| {
+            *a += d;
+            Some(*a)
+        })
+        .collect();
+    let sd = {
+        let m = q.iter().sum::<f64>() / q.len() as f64;
+        (q.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / q.len() as f64).sqrt()
+    };
+    let mut r = gb_core::rng::seeded(11);
+    let noise = Normal::new(0.0, 0.03 * sd).unwrap();
+    let qm: Vec<f64> = q.iter().map(|v| v + noise.sample(&mut r)).collect();
+    let dqm: Vec<f64> = std::iter::once(qm[0])
+        .chain(qm.windows(2).map(|w| w[1] - w[0]))
+        .collect();
+    let rec = Record::new(vec!["u".into()], "dq".into(), vec![u.clone()], dqm).unwrap();
+    let data = Records::single(rec);
+    let fit = |integrated: bool| {
+        PhysicsFitParams::new(increments_model(2.0, 1.5, 0.3))
+            .integrated(integrated)
+            .check()
+            .unwrap()
+            .identify_outputs(std::slice::from_ref(&data), &gb_core::Silent)
+            .unwrap()
+    };
+    // centred RMS of the simulated position against the true one
+    let position_error = |m: &super::PhysicsModel| {
+        let mut sim = vec![0.0; u.len()];
+        let cm = m.spec().compile().unwrap();
+        simulate(&cm, m.parameters(), &[0.0], &[&u], 0.01, 2, &mut sim).unwrap();
+        let e: Vec<f64> = sim.iter().zip(&dq).map(|(a, b)| a - b).collect();
+        (integrated_cost_of(&e) / e.len() as f64).sqrt() / sd
+    };
+    let (plain, integrated) = (fit(false), fit(true));
+    let (ep, ei) = (position_error(&plain), position_error(&integrated));
+    assert!(ei < 0.0015, "integrated fit: position NRMSE {ei}");
+    assert!(ei < 0.5 * ep, "integrated {ei} vs increments {ep}");
+    // the report stays that of the increments
+    let rmse_inc = integrated.fit_report().unwrap().rmse;
+    assert!(rmse_inc > 0.0 && rmse_inc < 0.1 * sd);
+}
+
+/// `Σ (Eₖ − Ē)²` of the running sums, written out.
+fn integrated_cost_of(e: &[f64]) -> f64 {
+    let run: Vec<f64> = e
+        .iter()
+        .scan(0.0, |a, v| {
+            *a += v;
+            Some(*a)
+        })
+        .collect();
+    let m = run.iter().sum::<f64>() / run.len() as f64;
+    run.iter().map(|v| (v - m) * (v - m)).sum()
+}
