@@ -26,31 +26,35 @@ fn diagnosed(seed: u64) -> (Vec<String>, f64, String, String) {
 /// decided, the plain model was kept, no cause was named, and it drifted
 /// to 96× the noise floor on the validation record. Taken as an
 /// integrator (policy `integrator_beyond_unit`), the increments get a
-/// friction law and end within 1.5× the floor (1.09× while the law was fitted
-/// over growing prefixes; 1.31× along one Levenberg–Marquardt path since
-/// session 57, which took seeds 3 and 9 from 11.4× and 3.2× to 1.8× and
-/// 2.9×).
+/// friction law and end within 1.3× the floor (1.09× while the law was
+/// fitted over growing prefixes, 1.31× along one Levenberg–Marquardt path
+/// from the increments' template, 1.13× since the velocity template starts
+/// from the running sums' fit).
 #[test]
 fn an_integrator_with_dry_friction_is_modelled_from_its_increments() {
     let (causes, ratio, model, text) = diagnosed(8);
     assert!(
-        causes == ["nonlinearity"] && ratio <= 1.5 && model.starts_with("integrating"),
+        causes == ["nonlinearity"] && ratio <= 1.3 && model.starts_with("integrating"),
         "named {causes:?}, final/floor {ratio:.2}, final {model}\n{text}"
     );
 }
 
-/// Seed 9: dry friction (Fc = 0.26 F_rms, a sharp law: ε = 0.022 v_rms)
-/// under filtered noise, 37 dB. The law fitted for the increments' error
-/// ended at 2.90× the floor on the validation record; the same law refitted
-/// for the error of their running sum (the position; proposed beside it on
-/// an integrating plan) is chosen (select gain +0.954) and ends at 1.30×.
+/// Seeds 3 and 9: dry friction under a repeated multisine (seed 3, 31 dB)
+/// and under filtered noise (seed 9, a sharp law: ε = 0.022 v_rms, 37 dB).
+/// The law fitted for the increments' error ended at 1.78× and 2.90× the
+/// floor on the validation record; the same law refitted for the error of
+/// their running sum (the position; proposed beside it on an integrating
+/// plan, its velocity template started from the running sums) is chosen
+/// and ends at 1.07× and 1.30×.
 #[test]
 fn a_dry_friction_law_is_fitted_for_the_integrated_position() {
-    let (causes, ratio, model, text) = diagnosed(9);
-    assert!(
-        causes == ["nonlinearity"] && ratio <= 1.5 && model.starts_with("integrating"),
-        "named {causes:?}, final/floor {ratio:.2}, final {model}\n{text}"
-    );
+    for (seed, bound) in [(3, 1.3), (9, 1.5)] {
+        let (causes, ratio, model, text) = diagnosed(seed);
+        assert!(
+            causes == ["nonlinearity"] && ratio <= bound && model.starts_with("integrating"),
+            "seed {seed}: named {causes:?}, final/floor {ratio:.2}, final {model}\n{text}"
+        );
+    }
 }
 
 /// Seeds 1 and 5: a free mass with viscous friction only (no dry
