@@ -342,7 +342,7 @@ fn state_terms(
                     Some(format!("-{}*tanh({var}/{})", names[0], names[1])),
                 ),
                 (
-                    Parameter::new(&names[1], eps).bounds(1e-6 * eps, f64::INFINITY),
+                    Parameter::new(&names[1], eps).bounds(1e-6 * eps, COULOMB_WIDTH_MAX * eps),
                     None,
                 ),
             ]
@@ -366,6 +366,16 @@ fn state_terms(
             .collect(),
     }
 }
+
+/// The widest smoothing width ε of a dry-friction law, in units of its
+/// start (5 % of the rms of its variable): ε ≤ the rms. Unbounded, a law
+/// the data do not ask for drifts along `f, ε → ∞` with `f/ε` fixed (a
+/// linear term beside `c·v`): the blind template's first-order law on
+/// wiener 6 of the 8000 + 4000 sweep ran 200 iterations to f = −644,
+/// ε = 140 (the velocity's rms ≈ 5), its folds 130–150 each, 10.1 s of the
+/// case's 24 s; bounded, 34 and 1–21 iterations, 1.5 s, every diagnosis
+/// of the sweep the same.
+const COULOMB_WIDTH_MAX: f64 = 20.0;
 
 /// `cur`'s spec started at its estimates with the terms of `kind` at `at`
 /// (in `var`), normalised on `cur`'s simulation of `fit`; a limit starts
