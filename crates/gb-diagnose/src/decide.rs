@@ -64,6 +64,13 @@ impl Candidate {
     pub fn structural_new(&self) -> bool {
         self.role() == Role::NewCause && self.cause().is_structural()
     }
+    /// Whether its gain is a reading of the decision data: not for a
+    /// candidate screened out by a rival at another input delay (its gain
+    /// is in-sample; the rival's, cross-validated, speaks for the
+    /// structure).
+    pub fn gain_counts(&self) -> bool {
+        self.fitted.screened_by_rival.is_none()
+    }
 }
 
 /// Score `fitted` against the current model: gain, interval and whether it
@@ -352,7 +359,7 @@ pub(crate) fn choose(
     let _ = it;
     let rival = cands
         .iter()
-        .filter(|c| c.cause().is_structural())
+        .filter(|c| c.cause().is_structural() && c.gain_counts())
         .map(|c| c.gain)
         .fold(f64::NEG_INFINITY, f64::max);
     // a simpler model of a named cause when nothing else is chosen

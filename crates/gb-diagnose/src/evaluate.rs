@@ -157,8 +157,13 @@ pub struct Evaluated {
     /// whose fit on the whole training range gains less than the policy's
     /// `min_gain` over the current model there (free-run residuals over the
     /// folds' samples): that in-sample gain; its folds are not fitted and
-    /// it does not pay ([`crate::plan::screen`]).
+    /// it does not pay ([`crate::plan::scored_in_sample`]).
     pub screened: Option<f64>,
+    /// Under cross-validation, a candidate screened out by a rival of the
+    /// same structure at another input delay (policy
+    /// `rival_screen_ratio`): its in-sample RMS residual over the best
+    /// rival's; `screened` holds its in-sample gain.
+    pub screened_by_rival: Option<f64>,
 }
 
 /// Residuals of `model` on `range` of `data`, simulating in free run from
@@ -311,5 +316,6 @@ pub(crate) fn evaluate_on(
         finding: None,
         start_choice: None,
         screened: None,
+        screened_by_rival: None,
     })
 }

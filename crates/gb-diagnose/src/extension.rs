@@ -258,6 +258,15 @@ pub trait Extension: Sync {
         let _ = fitted;
         p.text.clone()
     }
+    /// Its structure without the input delay: proposals of one extension
+    /// with the same key are the same structure at different dead times,
+    /// rivals of the in-sample screen under cross-validation (policy
+    /// `rival_screen_ratio`), the first of them at the current model's
+    /// delay. Default: none.
+    fn delay_rivals_key(&self, p: &Proposal) -> Option<String> {
+        let _ = p;
+        None
+    }
     /// The input a candidate makes nonlinear alone (reports say which input
     /// the nonlinearity lives on).
     fn input(&self, p: &Proposal, ctx: &Context) -> Option<String> {

@@ -679,26 +679,34 @@ pub(crate) fn assess(
     })
 }
 
-/// The in-sample screen of cross-validation: `m`, fitted on the whole
-/// training range, and the current model `cur`, compared by their free-run
-/// residuals over the folds' samples. When `m` gains less than `min_gain`
-/// there, its held-out gain (what must reach `min_gain` to pay) is not
-/// expected to: the candidate is scored in-sample, marked `screened`, and
-/// its fold fits (four of its five fits) are skipped. `None`: not
-/// screened out (or no cross-validation).
-pub(crate) fn screen(
+/// The in-sample gain of cross-validation's screen: `m`, fitted on the
+/// whole training range, and the current model `cur`, compared by their
+/// free-run residuals over the folds' samples, `1 − rms(e_m)/rms(e_cur)`,
+/// with `m`'s residuals there. `None` when either simulation fails.
+pub(crate) fn in_sample_gain(
     plan: &Plan,
     d: &DiagnoseData,
-    (m, lineage): (&FittedModel, &Lineage),
+    m: &FittedModel,
     cur: &Evaluated,
-    min_gain: f64,
-) -> Option<Evaluated> {
+) -> Option<(f64, Residuals)> {
     let after = plan.in_sample(m, d)?;
     let before = plan.in_sample(&cur.model, d)?;
     let gain = 1.0 - metrics::rms(&after.e) / metrics::rms(&before.e).max(f64::MIN_POSITIVE);
-    if gain >= min_gain || !gain.is_finite() {
-        return None;
-    }
+    Some((gain, after))
+}
+
+/// `m` scored on its in-sample residuals `after` (gain `gain` over the
+/// current model there), marked `screened`: its folds are not fitted and
+/// it does not pay. The in-sample screen of cross-validation: a candidate
+/// that gains less than `min_gain` there is not expected to gain it on
+/// held-out data (what it must reach to pay), and its fold fits (four of
+/// its five fits) are skipped.
+pub(crate) fn scored_in_sample(
+    plan: &Plan,
+    d: &DiagnoseData,
+    (m, lineage): (&FittedModel, &Lineage),
+    (gain, after): (f64, Residuals),
+) -> Option<Evaluated> {
     let y: Vec<f64> = after
         .yhat
         .iter()
@@ -787,6 +795,7 @@ fn fold_scores(
         finding: None,
         start_choice: None,
         screened: None,
+        screened_by_rival: None,
     })
 }
 

@@ -283,6 +283,9 @@ impl Extension for Backlash {
         }
         Ok(())
     }
+    fn delay_rivals_key(&self, p: &Proposal) -> Option<String> {
+        super::delay_free_key(&p.lineage)
+    }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()
     }

@@ -111,6 +111,9 @@ impl Extension for Hammerstein {
         }));
         out
     }
+    fn delay_rivals_key(&self, p: &Proposal) -> Option<String> {
+        super::delay_free_key(&p.lineage)
+    }
     fn fit_choosing(
         &self,
         p: &Proposal,

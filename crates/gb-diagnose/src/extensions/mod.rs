@@ -259,6 +259,30 @@ fn spec_delays(spec: &str) -> Vec<String> {
         )
 }
 
+/// A block or input–output proposal's structure without its input delay
+/// ([`Extension::delay_rivals_key`]): a spec without its `delay=` option,
+/// an input–output structure with its delays cleared.
+pub(crate) fn delay_free_key(lineage: &Lineage) -> Option<String> {
+    match lineage {
+        Lineage::Other { spec, order } => {
+            let (head, opts) = spec.split_once(':').unwrap_or((spec, ""));
+            let rest: Vec<&str> = opts
+                .split(',')
+                .filter(|kv| !kv.starts_with("delay="))
+                .collect();
+            Some(format!("{head}:{}|{order}", rest.join(",")))
+        }
+        Lineage::Io(p) => Some(format!(
+            "{:?}",
+            IoNetworkParams {
+                delay: vec![],
+                ..p.clone()
+            }
+        )),
+        _ => None,
+    }
+}
+
 /// `spec` with option `key` set to `value` (replaced, or appended).
 pub(crate) fn with_option(spec: &str, key: &str, value: &str) -> String {
     let (head, opts) = spec.split_once(':').unwrap_or((spec, ""));

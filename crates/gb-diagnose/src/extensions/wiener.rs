@@ -41,6 +41,9 @@ impl Extension for Wiener {
             })
             .collect()
     }
+    fn delay_rivals_key(&self, p: &Proposal) -> Option<String> {
+        super::delay_free_key(&p.lineage)
+    }
     fn fit_choosing(
         &self,
         p: &Proposal,
