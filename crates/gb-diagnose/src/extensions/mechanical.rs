@@ -7,8 +7,8 @@ use crate::evaluate::Lineage;
 use crate::extension::{Context, Extension, Proposal};
 use crate::physics::physics_row_text;
 use crate::physics::{
-    fit_physics, fit_physics_screened, fit_physics_warm, integrated_fits, physics_of,
-    refit_physics_direct, refit_physics_integrated, TEMPLATE_NAME,
+    fit_physics, fit_physics_screened, integrated_fits, physics_of, refit_physics_direct,
+    refit_physics_integrated, TEMPLATE_NAME,
 };
 use crate::{Cause, DiagnoseError};
 use gb_core::FittedModel;
@@ -448,14 +448,13 @@ impl Extension for MechanicalNonlinearity {
         // (fit_physics_warm). With the growing prefixes the dry-friction
         // law of the sweep's integrator 3 ended where it lost to another
         // candidate (final 11.4× the noise floor; one path: 1.8×, and
-        // 1.07× with the running-sum template and refit)
-        if !integrated_fits(ctx) {
-            // a law that cannot lower the template's training RMSE by the
-            // policy's `futile_gain` within a few iterations is left there
-            // (the in-sample screen drops it; a fold or a refit fits in full)
-            return fit_physics_screened(&spec, &rec, ctx.observer, ctx.futile_gain);
-        }
-        let m = fit_physics_warm(&spec, &rec, ctx.observer)?;
+        // 1.07× with the running-sum template and refit). A law that
+        // cannot lower the template's training RMSE by the policy's
+        // `futile_gain` within a few iterations is left there (the
+        // in-sample screen drops it); on an integrating plan, in a fold or
+        // a refit it is fitted in full.
+        let futile = ctx.futile_gain.filter(|_| !integrated_fits(ctx));
+        let m = fit_physics_screened(&spec, &rec, ctx.observer, futile)?;
         Ok(integrated_refit(m, &rec, ctx, running_sum))
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
