@@ -164,10 +164,15 @@ fn fit_candidates(
 ) -> (Vec<(usize, Candidate)>, Vec<String>) {
     let pol = ctx.policy();
     let cost = |k: usize| proposals[k].1 .0.fit_cost();
+    let after = rival_siblings(ctx, &proposals);
     let mut firsts: Vec<Result<FirstFit, DiagnoseError>> =
-        longest_first(proposals.len(), cost, |k| {
+        longest_first_after(proposals.len(), cost, &after, |k, sibling| {
             let (e, p) = &proposals[k].1;
-            timed(e.name(), &p.lineage, || first_fit(*e, p, ctx))
+            let rival_of = sibling
+                .and_then(|f: &Result<FirstFit, DiagnoseError>| f.as_ref().ok())
+                .map(FirstFit::whole);
+            let c = Context { rival_of, ..*ctx };
+            timed(e.name(), &p.lineage, || first_fit(*e, p, &c))
         });
     screen_delay_rivals(ctx, &proposals, &mut firsts);
     let waiting: Vec<usize> = (0..firsts.len())
@@ -282,26 +287,109 @@ fn screen_delay_rivals(
     }
 }
 
+/// For each proposal under cross-validation of an extension that
+/// [`starts_from_rival`](Extension::starts_from_rival), the delay rival's
+/// sibling: the first proposal of the step with the same
+/// [`Extension::delay_rivals_key`] (the structure at the current model's
+/// delay), whose whole fit the rival's starts from; `None` for that first
+/// one and for every other proposal.
+fn rival_siblings(
+    ctx: &Context,
+    proposals: &[(usize, (&'static dyn Extension, Proposal))],
+) -> Vec<Option<usize>> {
+    if !ctx.plan.cv() {
+        return vec![None; proposals.len()];
+    }
+    let keys: Vec<Option<String>> = proposals
+        .iter()
+        .map(|(_, (e, p))| {
+            e.delay_rivals_key(p)
+                .filter(|_| e.starts_from_rival())
+                .map(|k| format!("{}|{k}", e.name()))
+        })
+        .collect();
+    (0..keys.len())
+        .map(|k| {
+            let key = keys[k].as_ref()?;
+            (0..k).find(|&j| keys[j].as_ref() == Some(key))
+        })
+        .collect()
+}
+
 /// `run(k)` for `k` in `0..n`, in order, computed by one worker per thread
 /// of the pool, each taking the next job of the largest `cost` first (a
 /// step's costly fit started last ran alone at its end); the jobs' own
 /// parallel work is helped by idle workers.
-fn longest_first<T: Send>(
+fn longest_first<T: Send + Sync>(
     n: usize,
     cost: impl Fn(usize) -> u8,
     run: impl Fn(usize) -> T + Sync,
 ) -> Vec<T> {
-    use std::sync::atomic::{AtomicUsize, Ordering};
-    use std::sync::Mutex;
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by_key(|&k| std::cmp::Reverse(cost(k)));
-    let next = AtomicUsize::new(0);
-    let out: Vec<Mutex<Option<T>>> = (0..n).map(|_| Mutex::new(None)).collect();
-    let work = || {
-        while let Some(&k) = order.get(next.fetch_add(1, Ordering::Relaxed)) {
-            let r = run(k);
-            *out[k].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
+    longest_first_after(n, cost, &vec![None; n], |k, _| run(k))
+}
+
+/// [`longest_first`] where job `k` with `after[k] = Some(j)` waits for job
+/// `j` (which waits for none) and runs with its result, `run(k, Some(&r_j))`;
+/// a job becomes ready when its sibling is done and joins the queue by its
+/// cost (behind the ready jobs of the same cost).
+fn longest_first_after<T: Send + Sync>(
+    n: usize,
+    cost: impl Fn(usize) -> u8,
+    after: &[Option<usize>],
+    run: impl Fn(usize, Option<&T>) -> T + Sync,
+) -> Vec<T> {
+    use std::sync::{Condvar, Mutex, OnceLock};
+    let costs: Vec<u8> = (0..n).map(cost).collect();
+    let waits = |k: usize| after.get(k).copied().flatten().filter(|&j| j < n && j != k);
+    let mut ready: Vec<usize> = (0..n).filter(|&k| waits(k).is_none()).collect();
+    ready.sort_by_key(|&k| std::cmp::Reverse(costs[k]));
+    // the ready queue, how many jobs have started, whether a job panicked
+    let state = Mutex::new((ready, 0usize, false));
+    let woken = Condvar::new();
+    let out: Vec<OnceLock<T>> = (0..n).map(|_| OnceLock::new()).collect();
+    let lock = || state.lock().unwrap_or_else(|e| e.into_inner());
+    let next = || {
+        let mut g = lock();
+        loop {
+            if g.2 {
+                return None;
+            }
+            if !g.0.is_empty() {
+                g.1 += 1;
+                return Some(g.0.remove(0));
+            }
+            if g.1 >= n {
+                return None;
+            }
+            g = woken.wait(g).unwrap_or_else(|e| e.into_inner());
         }
+    };
+    // a job that panics wakes the waiting workers, which stop (the scope
+    // then raises the panic) instead of waiting for its rivals forever
+    struct Abandon<'s>(&'s Mutex<(Vec<usize>, usize, bool)>, &'s Condvar);
+    impl Drop for Abandon<'_> {
+        fn drop(&mut self) {
+            if std::thread::panicking() {
+                self.0.lock().unwrap_or_else(|e| e.into_inner()).2 = true;
+                self.1.notify_all();
+            }
+        }
+    }
+    let work = || {
+        let _abandon = Abandon(&state, &woken);
+        while let Some(k) = next() {
+            let sibling = waits(k).and_then(|j| out[j].get());
+            let _ = out[k].set(run(k, sibling));
+            let mut g = lock();
+            for d in (0..n).filter(|&d| waits(d) == Some(k)) {
+                let at = g.0.iter().position(|&x| costs[x] < costs[d]);
+                let at = at.unwrap_or(g.0.len());
+                g.0.insert(at, d);
+            }
+            drop(g);
+            woken.notify_all();
+        }
+        woken.notify_all();
     };
     rayon::scope(|s| {
         for _ in 1..rayon::current_num_threads().min(n) {
@@ -310,8 +398,7 @@ fn longest_first<T: Send>(
         work();
     });
     out.into_iter()
-        .map(|m| m.into_inner().unwrap_or_else(|e| e.into_inner()))
-        .map(|r| r.expect("every job ran"))
+        .map(|c| c.into_inner().expect("every job ran"))
         .collect()
 }
 
@@ -538,6 +625,16 @@ enum FirstFit {
     Done(Box<Evaluated>),
     /// The fit on the whole fit block, waiting for its folds.
     Whole(Box<Waiting>),
+}
+
+impl FirstFit {
+    /// The fit on the whole fit block and the start it chose.
+    fn whole(&self) -> (&FittedModel, Option<usize>) {
+        match self {
+            FirstFit::Done(c) => (&c.model, c.start_choice),
+            FirstFit::Whole(w) => (&w.raw, w.start),
+        }
+    }
 }
 
 /// A proposal's fit on the whole fit block, waiting for its folds.
@@ -794,6 +891,7 @@ fn iterate(
         fold_sims_all: &fold_sims_all,
         start_choice: None,
         whole_fit: None,
+        rival_of: None,
         templates: Some(&templates),
         futile_gain: (opts.policy.futile_gain > 0.0).then_some(opts.policy.futile_gain),
     };
@@ -930,6 +1028,22 @@ fn diverged(c: &Candidate, cur: &Evaluated, pol: &DecisionPolicy) -> bool {
     !after.is_finite() || (after > pol.diverged_ratio * before && after > pol.diverged_nrmse)
 }
 
+/// A candidate in a few words: its extension's name and, where that
+/// extension proposes several, what it adds (its proposal's text up to the
+/// model it extends, at most 90 characters).
+fn short_label(c: &Candidate) -> String {
+    let text = c.proposal.text.as_str();
+    let head = text.split(" in the model").next().unwrap_or(text);
+    if head.is_empty() || head == c.ext.name() {
+        return c.ext.name().to_string();
+    }
+    let mut short: String = head.chars().take(90).collect();
+    if short.len() < head.len() {
+        short.push('…');
+    }
+    format!("{}: {short}", c.ext.name())
+}
+
 /// The decisions line's note on the candidates of step `it` that diverged
 /// (indices `which` of `cands`), `None` when none did.
 fn diverged_note(
@@ -948,7 +1062,7 @@ fn diverged_note(
             let c = &cands[i];
             format!(
                 "{} (NRMSE {:.3e})",
-                c.ext.name(),
+                short_label(c),
                 c.fitted.scores.nrmse_select
             )
         })
@@ -1455,7 +1569,7 @@ pub(crate) fn assemble(
 
 #[cfg(test)]
 mod tests {
-    use super::{beaten, kind_once, longest_first};
+    use super::{beaten, kind_once, longest_first, longest_first_after};
 
     /// A failed candidate's error says its kind once, and a message that
     /// merely contains a colon is left whole.
@@ -1492,6 +1606,15 @@ mod tests {
         assert!(beaten(std::iter::empty()).is_empty());
     }
 
+    /// `f()` on a pool of one worker thread.
+    fn on_one_thread<T: Send>(f: impl FnOnce() -> T + Send) -> T {
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .expect("a one-thread pool")
+            .install(f)
+    }
+
     /// The parallel fits of a step come back in proposal order, each run
     /// once, and a single worker starts them costliest first (stable among
     /// equal costs).
@@ -1500,11 +1623,7 @@ mod tests {
         use std::sync::Mutex;
         let cost = [1u8, 3, 0, 3, 2, 1];
         let started = Mutex::new(vec![]);
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(1)
-            .build()
-            .expect("a one-thread pool");
-        let out = pool.install(|| {
+        let out = on_one_thread(|| {
             longest_first(
                 cost.len(),
                 |k| cost[k],
@@ -1534,5 +1653,73 @@ mod tests {
         ran.sort_unstable();
         assert_eq!(ran, (0..40).collect::<Vec<_>>());
         assert!(longest_first(0, |_| 0, |k| k).is_empty());
+    }
+
+    /// A job that waits for a sibling runs after it, with its result, and
+    /// joins the queue by its cost once the sibling is done; a single
+    /// worker runs them all (no job waits forever).
+    #[test]
+    fn delay_rivals_run_after_their_sibling_with_its_result() {
+        use std::sync::Mutex;
+        let cost = [3u8, 3, 1, 0, 2, 3];
+        let after = [None, Some(0), None, Some(2), Some(0), None];
+        // a job's result: 100 + its sibling's, or its own index
+        let run = |k: usize, sibling: Option<&usize>| sibling.map_or(k, |s| 100 + s);
+        let expected = vec![0, 100, 2, 102, 100, 5];
+        let started = Mutex::new(vec![]);
+        let out = on_one_thread(|| {
+            longest_first_after(
+                cost.len(),
+                |k| cost[k],
+                &after,
+                |k, s| {
+                    started.lock().expect("not poisoned").push(k);
+                    run(k, s)
+                },
+            )
+        });
+        assert_eq!(out, expected);
+        // 0 and 5 (cost 3) first; 0's rivals 1 (cost 3) and 4 (cost 2)
+        // join behind 5, before 2 (cost 1); 2's rival 3 last
+        assert_eq!(
+            *started.lock().expect("not poisoned"),
+            vec![0, 5, 1, 4, 2, 3]
+        );
+        // on the global pool, many rivals of few siblings
+        let n = 60;
+        let after: Vec<Option<usize>> = (0..n).map(|k| (k >= 3).then_some(k % 3)).collect();
+        let out = longest_first_after(
+            n,
+            |k| (k % 4) as u8,
+            &after,
+            |k, s| s.map_or(k, |s| 100 + s),
+        );
+        let want: Vec<usize> = (0..n)
+            .map(|k| if k < 3 { k } else { 100 + k % 3 })
+            .collect();
+        assert_eq!(out, want);
+        // a job that panics: the panic comes back, no worker waits forever
+        // for its rivals
+        let two = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .expect("a two-thread pool");
+        let caught = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            two.install(|| {
+                longest_first_after(
+                    4,
+                    |_| 1,
+                    &[None, Some(0), Some(0), None],
+                    |k, _| {
+                        if k == 0 {
+                            std::thread::sleep(std::time::Duration::from_millis(50));
+                            panic!("job 0 fails");
+                        }
+                        k
+                    },
+                )
+            })
+        }));
+        assert!(caught.is_err());
     }
 }

@@ -110,6 +110,13 @@ pub struct Context<'a> {
     /// on a shorter record ([`Extension::fit_choosing`]); in the refit on
     /// the whole training record (`refit.rs`): the step's fit-block model.
     pub(crate) whole_fit: Option<&'a FittedModel>,
+    /// In the whole fit of a delay rival ([`Extension::delay_rivals_key`]:
+    /// the same structure at another input delay, under cross-validation)
+    /// of an extension that [`starts_from_rival`](Extension::starts_from_rival):
+    /// the fit at the current delay and the start it chose, which the
+    /// rival's search starts from (a backlash's half-width) instead of
+    /// searching the whole grid again.
+    pub(crate) rival_of: Option<(&'a FittedModel, Option<usize>)>,
     /// The linear mechanical templates fitted so far in this step, shared
     /// by its mechanical candidates (`None`: not shared).
     pub(crate) templates: Option<&'a crate::extensions::TemplateCache>,
@@ -158,6 +165,7 @@ impl<'a> Context<'a> {
         Context {
             start_choice,
             whole_fit,
+            rival_of: None,
             futile_gain: None,
             fit: self.plan.fit_of(Some(k)),
             fits: self.plan.fits_of(Some(k)),
@@ -266,6 +274,13 @@ pub trait Extension: Sync {
     fn delay_rivals_key(&self, p: &Proposal) -> Option<String> {
         let _ = p;
         None
+    }
+    /// Whether its delay rivals (the proposals after the first of a
+    /// [`delay_rivals_key`](Self::delay_rivals_key)) are fitted once the
+    /// first is, starting from its fit ([`Context::rival_of`]). Default:
+    /// no, every proposal is fitted from its own start at once.
+    fn starts_from_rival(&self) -> bool {
+        false
     }
     /// The input a candidate makes nonlinear alone (reports say which input
     /// the nonlinearity lives on).

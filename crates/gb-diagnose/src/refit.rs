@@ -464,6 +464,7 @@ impl<'a> Refit<'a> {
             fold_sims_all: &[],
             start_choice: None,
             whole_fit: None,
+            rival_of: None,
             templates: None,
             futile_gain: None,
         }

@@ -200,7 +200,7 @@ fn screen_skips_costly((family, seed): (&str, u64), phrase: &str, cause: &str) {
 /// `preisach` seed 3: at step 2 the hidden-state model diverges (its
 /// select-block RMS error is millions of times the current model's). With
 /// the policy's rule it is left out of the table and the decisions line
-/// names it; with the rule off (`diverged_ratio` infinite) its row is
+/// names it by what it adds; with the rule off (`diverged_ratio` infinite) its row is
 /// there. The causes and the final model are the same either way: a
 /// diverged candidate never pays.
 #[test]
@@ -227,6 +227,19 @@ fn diverged_candidates_are_left_out_of_the_table_with_a_note() {
             .contains("diverged on the decision data")
             && kept.structure.decision.contains("hidden-state"),
         "{}",
+        kept.structure.decision
+    );
+    // the note names the candidate by what it adds, not by its
+    // extension's name alone
+    let added = all
+        .steps
+        .iter()
+        .find(|s| wild(s))
+        .map(|s| s.extension.chars().take(40).collect::<String>())
+        .expect("a diverged row");
+    assert!(
+        kept.structure.decision.contains(&added),
+        "'{added}' not in {}",
         kept.structure.decision
     );
     assert!(!all.structure.decision.contains("diverged"));

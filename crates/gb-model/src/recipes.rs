@@ -553,6 +553,43 @@ fn fit_wiener_hammerstein(
     wrap(d, Box::new(w), noise, notes)
 }
 
+/// A Wiener–Hammerstein network `start` (as the `wiener-hammerstein`
+/// recipe fits it) refined on `data` with its structure kept
+/// ([`gb_lmn::WhFitter::refit_from`]): the same network fitted on other
+/// data of the same system, a fold of a cross-validation or a longer
+/// record, without scanning the pole/zero splits again. `None` when
+/// `start` is not such a network.
+pub fn refit_wiener_hammerstein(
+    start: &FittedModel,
+    data: &Records,
+) -> Result<Option<Fitted>, CoreError> {
+    let Some(w0) = start
+        .dynamics
+        .as_any()
+        .downcast_ref::<gb_lmn::WienerHammersteinNetwork>()
+    else {
+        return Ok(None);
+    };
+    let d = one_record(data, "a Wiener-Hammerstein network")?;
+    if d.n_inputs() != 1 {
+        return Err(CoreError::InvalidArgument(format!(
+            "a Wiener-Hammerstein network needs exactly one input, got {}",
+            d.n_inputs()
+        )));
+    }
+    d.check_identifiable("training record", 1000)?;
+    let (w, rmse, iterations) =
+        gb_lmn::WhParams::new()
+            .check()?
+            .refit_from(w0, &d.inputs[0], &d.output)?;
+    let sim = w.simulate(&d.inputs[0]);
+    let noise = residual_noise(&d.output, &sim, 200.min(d.len() / 4));
+    let notes = vec![format!(
+        "refined from a fitted network ({iterations} iterations): RMSE {rmse:.4e}"
+    )];
+    wrap(d, Box::new(w), noise, notes).map(Some)
+}
+
 /// The help line of the block-oriented recipes' `delay` option.
 const DELAY_CHOICES: &str = "delay=1: dead time, one or one per input (a/b); alternatives separated by | (delay=1|0|2) are compared by their fit error at the map structure chosen at the first";
 

@@ -167,6 +167,27 @@ impl Backlash {
         all.push(first);
         best(all)
     }
+
+    /// The fine steps of [`search`](Self::search) (the scan value among
+    /// them) around the scan value of choice `sibling` — a delay rival's
+    /// search from the half-width its sibling at the current delay found:
+    /// the best fit, its score and its choice index.
+    fn search_fine(
+        io: &IoNetworkParams,
+        j: usize,
+        ctx: &Context,
+        sibling: usize,
+    ) -> Option<(usize, f64, FittedModel)> {
+        let per = (2 * FINE - 1) as usize;
+        let base = (sibling % PER_DELAY) / per * per;
+        (base..base + per)
+            .into_par_iter()
+            .filter_map(|c| {
+                let (s, m) = Self::fit_at(io, j, half_width_of(c)?, ctx)?;
+                Some((c, s, m))
+            })
+            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+    }
 }
 
 impl Extension for Backlash {
@@ -260,7 +281,11 @@ impl Extension for Backlash {
                         .and_then(|r| Self::fit_at(&at, j, r, c))
                         .map(|(_, m)| (k, m))
                 }
-                None if c.plan.cv() => Self::search(io, j, c).map(|(k, _, m)| (k, m)),
+                None if c.plan.cv() => match ctx.rival_of {
+                    Some((_, Some(k))) => Self::search_fine(io, j, c, k),
+                    _ => Self::search(io, j, c),
+                }
+                .map(|(k, _, m)| (k, m)),
                 None => Self::search_delays(io, j, c),
             }
         });
@@ -285,6 +310,12 @@ impl Extension for Backlash {
     }
     fn delay_rivals_key(&self, p: &Proposal) -> Option<String> {
         super::delay_free_key(&p.lineage)
+    }
+    /// A rival delay searches the fine steps around the half-width found at
+    /// the current delay ([`Backlash::search_fine`]): a play's width hardly
+    /// moves with a one-sample shift, and the coarse scan is half its cost.
+    fn starts_from_rival(&self) -> bool {
+        true
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.hysteresis_text()

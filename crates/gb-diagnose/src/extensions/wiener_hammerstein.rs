@@ -47,8 +47,20 @@ impl Extension for WienerHammerstein {
             text: "Wiener-Hammerstein network: a static local model network between two linear filters split from the best linear approximation, refined on the simulation error".into(),
         }]
     }
+    /// A fold of cross-validation (and the refit on the whole training
+    /// record) refines the network fitted on the whole fit block, its
+    /// orders, split and local models kept, instead of fitting one from
+    /// the best linear approximation again; the full fit when that fails.
     fn fit(&self, p: &Proposal, ctx: &Context) -> Result<FittedModel, DiagnoseError> {
-        fit_spec(&p.lineage, ctx, ctx.policy().expensive_fit_samples)
+        let cap = ctx.policy().expensive_fit_samples;
+        if let Some(start) = ctx.whole_fit {
+            let sub = ctx.fit.slice(0..ctx.fit.len().min(cap));
+            let data = gb_core::Records::single(sub);
+            if let Ok(Some(f)) = gb_model::recipes::refit_wiener_hammerstein(start, &data) {
+                return Ok(f.model);
+            }
+        }
+        fit_spec(&p.lineage, ctx, cap)
     }
     fn evidence(&self, _p: &Proposal, ctx: &Context) -> String {
         ctx.evidence.nonlinearity_text()
