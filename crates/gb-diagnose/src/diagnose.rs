@@ -237,10 +237,7 @@ fn screen_delay_rivals(
     if ratio < 1.0 {
         return;
     }
-    let keys: Vec<Option<String>> = proposals
-        .iter()
-        .map(|(_, (e, p))| e.delay_rivals_key(p).map(|k| format!("{}|{k}", e.name())))
-        .collect();
+    let keys = rival_keys(proposals, false);
     let rms = |f: &Result<FirstFit, DiagnoseError>| match f {
         Ok(FirstFit::Whole(w)) if w.in_sample.0.is_finite() && !w.in_sample.1.e.is_empty() => {
             Some(metrics::rms(&w.in_sample.1.e))
@@ -287,6 +284,23 @@ fn screen_delay_rivals(
     }
 }
 
+/// Each proposal's [`Extension::delay_rivals_key`] with its extension's
+/// name (`None`: no rivals); with `starting`, only of the extensions that
+/// [`starts_from_rival`](Extension::starts_from_rival).
+fn rival_keys(
+    proposals: &[(usize, (&'static dyn Extension, Proposal))],
+    starting: bool,
+) -> Vec<Option<String>> {
+    proposals
+        .iter()
+        .map(|(_, (e, p))| {
+            e.delay_rivals_key(p)
+                .filter(|_| !starting || e.starts_from_rival())
+                .map(|k| format!("{}|{k}", e.name()))
+        })
+        .collect()
+}
+
 /// For each proposal under cross-validation of an extension that
 /// [`starts_from_rival`](Extension::starts_from_rival), the delay rival's
 /// sibling: the first proposal of the step with the same
@@ -300,14 +314,7 @@ fn rival_siblings(
     if !ctx.plan.cv() {
         return vec![None; proposals.len()];
     }
-    let keys: Vec<Option<String>> = proposals
-        .iter()
-        .map(|(_, (e, p))| {
-            e.delay_rivals_key(p)
-                .filter(|_| e.starts_from_rival())
-                .map(|k| format!("{}|{k}", e.name()))
-        })
-        .collect();
+    let keys = rival_keys(proposals, true);
     (0..keys.len())
         .map(|k| {
             let key = keys[k].as_ref()?;

@@ -138,15 +138,7 @@ impl Backlash {
             .filter(|&i| !top.is_finite() || i == 0 || SCAN[i] <= top)
             .map(|i| i * per + centre)
             .collect();
-        let fit_all = |choices: &[usize]| -> Vec<(usize, f64, FittedModel)> {
-            choices
-                .par_iter()
-                .filter_map(|&c| {
-                    let (s, m) = Self::fit_at(io, j, half_width_of(c)?, ctx)?;
-                    Some((c, s, m))
-                })
-                .collect()
-        };
+        let fit_all = |choices: &[usize]| Self::fit_choices(io, j, ctx, choices);
         let best =
             |v: Vec<(usize, f64, FittedModel)>| v.into_iter().min_by(|a, b| a.1.total_cmp(&b.1));
         let first = best(fit_all(&coarse))?;
@@ -180,13 +172,28 @@ impl Backlash {
     ) -> Option<(usize, f64, FittedModel)> {
         let per = (2 * FINE - 1) as usize;
         let base = (sibling % PER_DELAY) / per * per;
-        (base..base + per)
-            .into_par_iter()
-            .filter_map(|c| {
+        let fine: Vec<usize> = (base..base + per).collect();
+        Self::fit_choices(io, j, ctx, &fine)
+            .into_iter()
+            .min_by(|a, b| a.1.total_cmp(&b.1))
+    }
+
+    /// Each half-width choice of `choices` fitted ([`fit_at`](Self::fit_at),
+    /// in parallel): the choice, its score and its fit, in order; the
+    /// choices that could not be fitted left out.
+    fn fit_choices(
+        io: &IoNetworkParams,
+        j: usize,
+        ctx: &Context,
+        choices: &[usize],
+    ) -> Vec<(usize, f64, FittedModel)> {
+        choices
+            .par_iter()
+            .filter_map(|&c| {
                 let (s, m) = Self::fit_at(io, j, half_width_of(c)?, ctx)?;
                 Some((c, s, m))
             })
-            .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+            .collect()
     }
 }
 
