@@ -452,7 +452,9 @@ pub(crate) fn baseline(
         OrderChoice::Auto => 2,
     };
     let bound = pol.delay_bound(plan0.fit_y.len());
-    let scan = structure::scan(&plan0.fits_y, n_ref, bound, pol.structure_scan_samples);
+    let scan = crate::diagnose::timed_phase("baseline: ARX delay scan", || {
+        structure::scan(&plan0.fits_y, n_ref, bound, pol.structure_scan_samples)
+    });
     let mut choice = StructureChoice {
         delay_bound: bound,
         arx_delay: scan.best.clone(),
@@ -464,10 +466,12 @@ pub(crate) fn baseline(
     let plan = if (scan.real_pole - 1.0).abs() < pol.integrator_pole {
         let inc_plan = plan0.integrating(true);
         let inc_opts = opts.for_plan(&inc_plan);
-        let (plain, inc) = rayon::join(
-            || fit_structure(plan0, d, opts, n_ref, (&scan.best, false), None),
-            || fit_structure(&inc_plan, d, &inc_opts, n_ref, (&scan.best, false), None),
-        );
+        let (plain, inc) = crate::diagnose::timed_phase("baseline: integrator test", || {
+            rayon::join(
+                || fit_structure(plan0, d, opts, n_ref, (&scan.best, false), None),
+                || fit_structure(&inc_plan, d, &inc_opts, n_ref, (&scan.best, false), None),
+            )
+        });
         // both from a fresh start on the select block, as the increments
         // model is scored (`block_residuals`); under cross-validation the
         // folds' held-out scores already are
@@ -491,7 +495,9 @@ pub(crate) fn baseline(
     choice.integrating = plan.integrating;
     let opts = &*opts.for_plan(&plan);
     // the delay: an output-error scan proposes, the decision data confirm
-    let (oe, poles) = oe_delay_scan(&plan.fits, n_ref, bound, &scan.best, opts);
+    let (oe, poles) = crate::diagnose::timed_phase("baseline: output-error delay scan", || {
+        oe_delay_scan(&plan.fits, n_ref, bound, &scan.best, opts)
+    });
     choice.oe_delay = oe.clone();
     let mut cands = vec![];
     around(&oe, bound, &mut cands);
@@ -507,14 +513,17 @@ pub(crate) fn baseline(
             std::iter::once((v.clone(), false)).chain(ft)
         })
         .collect();
-    let mut fits: Vec<((Vec<usize>, bool), Evaluated)> = cands
-        .par_iter()
-        .filter_map(|(v, ft)| {
-            fit_structure(&plan, d, opts, n_ref, (v, *ft), poles.as_ref())
-                .ok()
-                .map(|e| ((v.clone(), *ft), e))
-        })
-        .collect();
+    let mut fits: Vec<((Vec<usize>, bool), Evaluated)> =
+        crate::diagnose::timed_phase("baseline: delay candidates", || {
+            cands
+                .par_iter()
+                .filter_map(|(v, ft)| {
+                    fit_structure(&plan, d, opts, n_ref, (v, *ft), poles.as_ref())
+                        .ok()
+                        .map(|e| ((v.clone(), *ft), e))
+                })
+                .collect()
+        });
     let listed = |with: bool| -> Vec<(Vec<usize>, f64)> {
         fits.iter()
             .filter(|((_, ft), _)| *ft == with)
@@ -529,7 +538,9 @@ pub(crate) fn baseline(
         ))
     })?;
     let ((delay, feedthrough), eval) = fits.swap_remove(pick);
-    let eval = refit_from_reduction(&plan, d, eval);
+    let eval = crate::diagnose::timed_phase("baseline: reduction refit", || {
+        refit_from_reduction(&plan, d, eval)
+    });
     choice.delay = delay.clone();
     choice.feedthrough = feedthrough;
     let eval = match opts.order {

@@ -133,6 +133,9 @@ struct Iteration {
     /// For the decisions line: what the screening of the costly candidates
     /// left out, which candidates diverged.
     notes: Option<String>,
+    /// The chosen candidate was checked for carrying over a repeated
+    /// excitation ([`carried_over_choice`]).
+    carry_checked: bool,
 }
 
 /// A candidate that did not pay at a step: its extension and proposal text.
@@ -837,6 +840,9 @@ struct Run<'a> {
     plan: &'a Plan,
     opts: &'a DiagnoseOptions,
     obs: &'a dyn Observer,
+    /// The select block repeats the fit block's input: a chosen step must
+    /// carry over ([`carried_over_choice`]).
+    repeated: bool,
 }
 
 /// Free-run simulation of the dynamics `m` extends on `rec`, started from
@@ -865,7 +871,9 @@ fn iterate(
     (tried, skip): (&mut HashSet<&'static str>, &Skip),
     it: usize,
 ) -> Option<Iteration> {
-    let Run { d, plan, opts, obs } = *run;
+    let Run {
+        d, plan, opts, obs, ..
+    } = *run;
     let ev = Evidence::compute(&cur.select.e, &cur.select.yhat, &plan.decision_inputs(d));
     let simulated_fit = simulated_on(&cur.model, &plan.fit);
     let fold_sims: Vec<Option<Vec<f64>>> = cur
@@ -916,7 +924,11 @@ fn iterate(
         note: mut screened,
         held,
     } = timed_phase("candidates", || screened_candidates(&ctx, props, it));
-    let (mut chosen, note) = timed_phase("choose", || choose(&mut cands, &ctx, it));
+    let (mut chosen, mut note) = timed_phase("choose", || choose(&mut cands, &ctx, it));
+    let mut carry = CarryOver::default();
+    if run.repeated {
+        (chosen, note) = carried_over_choice(&mut cands, (chosen, note), &ctx, it, &mut carry);
+    }
     let new_cause = chosen
         .is_some_and(|i| cands[i].role() == Role::NewCause && !causes.contains(&cands[i].cause()));
     // an order increase after a named hysteresis may only stand in for the
@@ -949,9 +961,10 @@ fn iterate(
         .collect();
     let rows = rows(&cands, (chosen, &diverged), note.as_deref(), &ctx, it);
     let notes = appended(
-        screened,
+        appended(screened, carry.note),
         diverged_note(&cands, &diverged, cur, ctx.policy(), it),
     );
+    let carry_checked = chosen.is_some() && chosen == carry.checked;
     let lost = cands
         .iter()
         .filter(|c| !c.pays)
@@ -969,7 +982,96 @@ fn iterate(
         lost,
         beaten,
         notes,
+        carry_checked,
     })
+}
+
+/// What [`carried_over_choice`] found: the decisions line's text and the
+/// candidate it checked last and kept.
+#[derive(Default)]
+struct CarryOver {
+    note: Option<String>,
+    checked: Option<usize>,
+}
+
+/// On a repeated excitation, the step's choice (and its note) among
+/// candidates that carry over: a structural choice that parts from the current model on
+/// shifted inputs more than `repeat_shift_ratio` times as much as on the
+/// fit block's input ([`crate::repeat::shift_disagreement`]) no longer
+/// pays, and the step chooses again among the rest (duffing 5 of the
+/// sweep at its own length, 635 samples of a periodic PRBS: the nonlinear
+/// spring parts 3.8× as much time-reversed from a linear model 32× the
+/// noise floor; the search stopped there with no cause). A choice that a
+/// paying rival of another class agrees with off the trajectory
+/// ([`crate::repeat::shift_witness`]) carries over: the current model is
+/// what the trajectory tuned (duffing 5: the nonlinear spring and the
+/// polynomial NOE 4.9e-4 apart time-reversed, each 9.9e-3 from the linear
+/// model there and 2.6e-3 on the input itself; 32 → 1.06× the floor). A
+/// noise step is not checked, nor are models that cannot be compared.
+fn carried_over_choice(
+    cands: &mut [Candidate],
+    (mut chosen, mut note): (Option<usize>, Option<String>),
+    ctx: &Context,
+    it: usize,
+    out: &mut CarryOver,
+) -> (Option<usize>, Option<String>) {
+    let d = ctx.data;
+    let u: Vec<Vec<f64>> = d
+        .train
+        .inputs
+        .iter()
+        .map(|s| s[d.fit.clone()].to_vec())
+        .collect();
+    let max = ctx.policy().repeat_shift_ratio;
+    let mut texts = vec![];
+    while let Some(i) = chosen {
+        if cands[i].cause() == Cause::Noise {
+            break;
+        }
+        let Some((r, how)) =
+            crate::repeat::shift_disagreement(&ctx.current.model, &cands[i].fitted.model, &u)
+        else {
+            break;
+        };
+        if r <= max {
+            texts.push(format!(
+                "step {it}'s choice carries over the repeated excitation (on the fit block's input {how} it parts from the current model {r:.2}× as much as on the input itself; at most {max}×)"
+            ));
+            out.checked = Some(i);
+            break;
+        }
+        let rivals: Vec<usize> = (0..cands.len())
+            .filter(|&j| {
+                let c = &cands[j];
+                j != i && c.pays && c.structural_new() && c.ext.name() != cands[i].ext.name()
+            })
+            .collect();
+        let witness = crate::repeat::shift_witness(
+            &cands[i].fitted.model,
+            &ctx.current.model,
+            rivals.iter().map(|&j| &cands[j].fitted.model),
+            &u,
+            how,
+        );
+        if let Some((j, gap)) = witness.map(|(k, gap)| (rivals[k], gap)) {
+            texts.push(format!(
+                "step {it}'s choice parts from the current model {r:.1}× as much on the fit block's input {how} as on the input itself (more than {max}×), but {} agrees with it there to {gap:.2}× its departure on the input itself: the current model, not the choice, is what the trajectory tuned",
+                short_label(&cands[j])
+            ));
+            out.checked = Some(i);
+            break;
+        }
+        texts.push(format!(
+            "step {it}: {} was not accepted: simulated on the fit block's input {how} it parts from the current model {r:.1}× as much as on the input itself (at most {max}×) — it reproduces the repeated trajectory, not what carries over to other inputs",
+            short_label(&cands[i])
+        ));
+        cands[i].pays = false;
+        (chosen, note) = choose(cands, ctx, it);
+    }
+    if !texts.is_empty() {
+        out.note = Some(format!("; {}", texts.join("; ")));
+    }
+    (chosen, note)
 }
 
 /// The extensions of the step whose every candidate lost decisively: the
@@ -1321,6 +1423,7 @@ pub(crate) fn search(
             plan: &plan,
             opts,
             obs,
+            repeated,
         };
         let Some(step) = timed_phase("step", || {
             iterate(&run, cur, &causes, (&mut tried, &skip), it)
@@ -1336,6 +1439,7 @@ pub(crate) fn search(
         }
         let mut rows = step.rows;
         let stop = repeated
+            && !step.carry_checked
             && step.chosen.as_ref().is_some_and(|(model, pick)| {
                 carry_over_stop(
                     d,

@@ -195,6 +195,56 @@ pub(crate) fn shift_disagreement(
     worst
 }
 
+/// The [`rms_difference`] of the simulations of `a` and `b` on the
+/// shifted input `how` of `u` (a name [`shift_disagreement`] gave) and on
+/// `u` itself: `(on the shifted input, on u)`; `None` when a simulation
+/// fails.
+fn shifted_difference(
+    a: &FittedModel,
+    b: &FittedModel,
+    u: &[Vec<f64>],
+    how: &str,
+) -> Option<(f64, f64)> {
+    let n = u.first().map_or(0, Vec::len);
+    let skip = (n / 10).min(50);
+    let (_, v) = shifted_inputs(u)
+        .into_iter()
+        .find(|(name, _)| *name == how)?;
+    let on_v = rms_difference(&finite_simulation(a, &v)?, &finite_simulation(b, &v)?, skip)?;
+    let on_u = rms_difference(&finite_simulation(a, u)?, &finite_simulation(b, u)?, skip)?;
+    Some((on_v, on_u))
+}
+
+/// A witness that `candidate`'s departure from `current` on the shifted
+/// input `how` of `u` is the system's, not the trajectory's: among
+/// `others` (rival models of other classes fitted to the same
+/// trajectory), the one whose simulation there differs least from the
+/// candidate's, when by at most as much (rms) as the candidate differs
+/// from `current` on `u` itself; its index in `others` and that ratio.
+/// Two model classes fitted to one trajectory agree off it only where both
+/// found the system; a model the trajectory tuned (the current model, a
+/// network that learnt it) parts from them there.
+pub(crate) fn shift_witness<'m>(
+    candidate: &FittedModel,
+    current: &FittedModel,
+    others: impl IntoIterator<Item = &'m FittedModel>,
+    u: &[Vec<f64>],
+    how: &str,
+) -> Option<(usize, f64)> {
+    let (_, base) = shifted_difference(candidate, current, u, how)?;
+    if !(base > 0.0 && base.is_finite()) {
+        return None;
+    }
+    others
+        .into_iter()
+        .enumerate()
+        .filter_map(|(j, m)| {
+            let (on_v, _) = shifted_difference(candidate, m, u, how)?;
+            (on_v <= base).then_some((j, on_v / base))
+        })
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -320,5 +370,40 @@ mod tests {
         assert!(b.is_infinite(), "{b}");
         // no difference on the input itself: nothing to compare
         assert!(shift_disagreement(&current, &current, &uu).is_none());
+    }
+
+    /// The current model learnt the trajectory (+0.3 off it), the
+    /// candidate is the plain system: it parts from the current model 30×
+    /// as much off the trajectory. A rival of another gain (1.02) agrees
+    /// with it off the trajectory (a witness, ratio 0.02/0.3-ish); a rival
+    /// that learnt the trajectory too, or none, is no witness.
+    #[test]
+    fn a_rival_that_agrees_off_the_trajectory_witnesses_for_the_candidate() {
+        let mut r = gb_core::rng::seeded(7);
+        let u: Vec<f64> = (0..2000).map(|_| r.random::<f64>() - 0.3).collect();
+        let model = |b: f64, on: f64, off: f64| {
+            fitted(Tracker {
+                a: 0.9,
+                b,
+                track: u.clone(),
+                on,
+                off,
+            })
+        };
+        let current = model(1.0, 0.01, 0.3);
+        let candidate = model(1.0, 0.0, 0.0);
+        let uu = vec![u.clone()];
+        let (ratio, how) = shift_disagreement(&current, &candidate, &uu).unwrap();
+        assert!(ratio > 20.0, "{ratio}");
+        let near = model(1.002, 0.0, 0.0);
+        let learnt = model(1.0, 0.0, 0.25);
+        let (j, gap) = shift_witness(&candidate, &current, [&learnt, &near], &uu, how).unwrap();
+        assert_eq!(j, 1, "{gap}");
+        assert!(gap > 0.0 && gap < 1.0, "{gap}");
+        assert_eq!(
+            shift_witness(&candidate, &current, [&learnt], &uu, how),
+            None
+        );
+        assert_eq!(shift_witness(&candidate, &current, [], &uu, how), None);
     }
 }

@@ -384,3 +384,28 @@ fn a_candidate_that_cannot_be_fitted_is_named_in_the_decisions_line() {
         "a row for the failed candidate"
     );
 }
+
+/// `duffing` seed 5 at its own length (635 + 376 samples, a periodic
+/// PRBS: the select block repeats the fit block's input). The nonlinear
+/// spring parts from the linear baseline 3.8× as much on the input
+/// time-reversed as on the input itself, more than `repeat_shift_ratio`,
+/// but so does the polynomial NOE, and the two agree there: the baseline,
+/// not the spring, is what the trajectory tuned. The spring is accepted
+/// (the search used to stop with no cause at 32× the noise floor).
+#[test]
+fn a_choice_that_a_rival_class_agrees_with_off_the_trajectory_carries_over() {
+    let c = draw("duffing", 5).unwrap();
+    let r = diagnosed_with("duffing", 5, DecisionPolicy::default());
+    let decision = &r.structure.decision;
+    assert!(
+        decision.contains("repeats the fit block's input"),
+        "{decision}"
+    );
+    assert!(decision.contains("agrees with it there"), "{decision}");
+    let ratio = r.final_model.nrmse / c.noise_floor_nrmse;
+    assert!(
+        r.cause_names() == ["nonlinearity"] && ratio < 1.3,
+        "causes {:?}, final/floor {ratio:.2}: {decision}",
+        r.cause_names()
+    );
+}
