@@ -223,7 +223,7 @@ fn fit_net(
 /// `fitted` (a fit of `p` on `recs`) or, when it simulates `recs` with a
 /// smaller error, the fit refined from the reduction of the order n + 2
 /// fit ([`reduction_start`]).
-fn reduced_or(
+pub(crate) fn reduced_or(
     p: &IoNetworkParams,
     recs: &[Record],
     fitted: LocalModelNetwork,

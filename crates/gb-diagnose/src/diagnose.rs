@@ -986,6 +986,16 @@ fn iterate(
     })
 }
 
+/// The training record's inputs over its fit block (what the carry-over
+/// check of a repeated excitation simulates).
+fn fit_block_inputs(d: &DiagnoseData) -> Vec<Vec<f64>> {
+    d.train
+        .inputs
+        .iter()
+        .map(|s| s[d.fit.clone()].to_vec())
+        .collect()
+}
+
 /// What [`carried_over_choice`] found: the decisions line's text and the
 /// candidate it checked last and kept.
 #[derive(Default)]
@@ -1016,12 +1026,7 @@ fn carried_over_choice(
     out: &mut CarryOver,
 ) -> (Option<usize>, Option<String>) {
     let d = ctx.data;
-    let u: Vec<Vec<f64>> = d
-        .train
-        .inputs
-        .iter()
-        .map(|s| s[d.fit.clone()].to_vec())
-        .collect();
+    let u = fit_block_inputs(d);
     let max = ctx.policy().repeat_shift_ratio;
     let mut texts = vec![];
     while let Some(i) = chosen {
@@ -1565,12 +1570,7 @@ fn carry_over_stop(
     if pick.0 == Cause::Noise {
         return false;
     }
-    let u: Vec<Vec<f64>> = d
-        .train
-        .inputs
-        .iter()
-        .map(|s| s[d.fit.clone()].to_vec())
-        .collect();
+    let u = fit_block_inputs(d);
     let Some((r, how)) = crate::repeat::shift_disagreement(&cur.model, &chosen.model, &u) else {
         return false;
     };
