@@ -166,8 +166,7 @@ pub(crate) fn shift_disagreement(
     candidate: &FittedModel,
     u: &[Vec<f64>],
 ) -> Option<(f64, &'static str)> {
-    let n = u.first().map_or(0, Vec::len);
-    let skip = (n / 10).min(50);
+    let skip = skip_of(u);
     let base = rms_difference(
         &finite_simulation(current, u)?,
         &finite_simulation(candidate, u)?,
@@ -195,24 +194,10 @@ pub(crate) fn shift_disagreement(
     worst
 }
 
-/// The [`rms_difference`] of the simulations of `a` and `b` on the
-/// shifted input `how` of `u` (a name [`shift_disagreement`] gave) and on
-/// `u` itself: `(on the shifted input, on u)`; `None` when a simulation
-/// fails.
-fn shifted_difference(
-    a: &FittedModel,
-    b: &FittedModel,
-    u: &[Vec<f64>],
-    how: &str,
-) -> Option<(f64, f64)> {
-    let n = u.first().map_or(0, Vec::len);
-    let skip = (n / 10).min(50);
-    let (_, v) = shifted_inputs(u)
-        .into_iter()
-        .find(|(name, _)| *name == how)?;
-    let on_v = rms_difference(&finite_simulation(a, &v)?, &finite_simulation(b, &v)?, skip)?;
-    let on_u = rms_difference(&finite_simulation(a, u)?, &finite_simulation(b, u)?, skip)?;
-    Some((on_v, on_u))
+/// The samples [`rms_difference`] skips at the start of a simulation of
+/// `u` (its transient from the stored start).
+fn skip_of(u: &[Vec<f64>]) -> usize {
+    (u.first().map_or(0, Vec::len) / 10).min(50)
 }
 
 /// A witness that `candidate`'s departure from `current` on the shifted
@@ -231,15 +216,21 @@ pub(crate) fn shift_witness<'m>(
     u: &[Vec<f64>],
     how: &str,
 ) -> Option<(usize, f64)> {
-    let (_, base) = shifted_difference(candidate, current, u, how)?;
+    let skip = skip_of(u);
+    let (_, v) = shifted_inputs(u)
+        .into_iter()
+        .find(|(name, _)| *name == how)?;
+    let cand_u = finite_simulation(candidate, u)?;
+    let base = rms_difference(&cand_u, &finite_simulation(current, u)?, skip)?;
     if !(base > 0.0 && base.is_finite()) {
         return None;
     }
+    let cand_v = finite_simulation(candidate, &v)?;
     others
         .into_iter()
         .enumerate()
         .filter_map(|(j, m)| {
-            let (on_v, _) = shifted_difference(candidate, m, u, how)?;
+            let on_v = rms_difference(&cand_v, &finite_simulation(m, &v)?, skip)?;
             (on_v <= base).then_some((j, on_v / base))
         })
         .min_by(|a, b| a.1.total_cmp(&b.1))
