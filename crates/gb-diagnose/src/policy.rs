@@ -50,6 +50,7 @@ use crate::DiagnoseError;
 /// | `cv_cover_pad`, `cv_cover_min` | 0.1, 0.2 | a fold scores only the held-out samples whose output and inputs lie in the range of the fold's fit record widened by a tenth of it (a fold fitted on one side of a drifting record extrapolates where the model fitted on the whole record does not); a fold with less than a fifth of its samples covered is scored whole |
 /// | `cv_fold_wins` | 0.5 | under cross-validation a paying candidate must also beat the current model on at least this share of the folds (2 of 4): a pooled gain can come from one fold where the current structure's refit failed (3 of 4 is too strict for sweeps, whose folds are different frequency bands and an effect shows on some of them) |
 /// | `cv_refit_gain` | 0.01 | under cross-validation a candidate that pays on the folds must also be realised by its refit on the whole training record: that model must lower the training record's in-sample RMSE by ≥ 1 % against the current model (a structure chosen inside the fit — LOLIMOT's leaves by AICc — can come out as the current model on the whole record, and then the folds' gain is not the final model's) |
+/// | `cv_dynamics_realised` | true | under cross-validation a `dynamics` candidate (an order increase) must realise on the whole training record the gain it needs to pay — `min_gain`, or `evidenced_dynamics_gain` where it answers the residual evidence — not only `cv_refit_gain`: the pooled fold gain of a nested model can come from the current structure's fold refits extrapolating badly (a sweep's held-out band) while on the whole record the extra order gains next to nothing (backlash 4 of the sweep at its own length: +0.50 on the folds, 2.4 % in-sample, 2.6 % on the report block at the noise floor) |
 /// | `long_record` | 100 000 | training records this long are searched on a subsample … |
 /// | `search_samples` | 20 000 | … of this many training samples (the first ones; fit/select 75/25), and the chosen baseline and final structures are then refitted on the whole fit block |
 /// | `search_budget_s` | 300 | no new extension step starts after this many seconds of search, on every record (`greybox diagnose --budget`); on a long record the structure found so far is refitted and reported |
@@ -193,6 +194,10 @@ pub struct DecisionPolicy {
     /// Smallest in-sample RMSE gain of a candidate's whole-record refit
     /// under cross-validation.
     pub cv_refit_gain: f64,
+    /// Under cross-validation a `dynamics` candidate's whole-record refit
+    /// must realise the gain it needs (`min_gain`, or the evidenced
+    /// dynamics gain), not only `cv_refit_gain`.
+    pub cv_dynamics_realised: bool,
     /// Share of the folds a paying candidate must win.
     pub cv_fold_wins: f64,
     /// Widening of a fold fit's signal range that its scored samples must
@@ -335,6 +340,7 @@ impl Default for DecisionPolicy {
             block_shift_outside: 0.05,
             cv_folds: 4,
             cv_refit_gain: 0.01,
+            cv_dynamics_realised: true,
             cv_whole_short_record: true,
             cv_whole_min_samples: 800,
             cv_fold_wins: 0.5,

@@ -165,3 +165,25 @@ fn an_order_increase_from_a_reduction_finds_a_weak_mode_the_warm_start_misses() 
     let c = draw_with("two-mass", 2, &Knobs::lengths(8000, 4000)).unwrap();
     assert_named_by_order_2_to_4(diagnosed_case(c), 1.05);
 }
+
+/// `backlash` seed 4 (an input backlash before two first-order lags,
+/// 10 847 training samples of a sweep, judged by cross-validation): once
+/// the backlash is in (1.02× the floor), the order increase 2 → 4 gained
+/// +0.50 on the folds — the backlash model's fold refits extrapolate badly
+/// into the sweep's held-out band — but only 2.4 % on the whole training
+/// record (2.6 % on the report block). An order increase must realise on
+/// the whole record the gain it needs (policy `cv_dynamics_realised`):
+/// `hysteresis` alone, where `hysteresis, dynamics` was named before.
+#[test]
+fn an_order_increase_must_realise_its_gain_on_the_whole_record() {
+    let (r, causes, ratio) = diagnosed("backlash", 4);
+    assert!(
+        causes == ["hysteresis"] && ratio <= 1.1,
+        "{causes:?}, final/floor {ratio:.3}; steps: {:?}",
+        r.steps
+            .iter()
+            .filter(|s| s.accepted)
+            .map(|s| &s.extension)
+            .collect::<Vec<_>>()
+    );
+}

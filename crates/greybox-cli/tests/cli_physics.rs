@@ -173,6 +173,63 @@ fn fit_model_file_prints_intervals_that_cover_the_truth() {
     assert_eq!(o.status.code(), Some(0), "{:?}", text(&o));
 }
 
+/// A model file that states every parameter and initial state (nothing
+/// left to estimate) is scored, not refused: `fit` exits 0, says there
+/// were no free parameters, and the stated truth simulates the training
+/// record at the noise level (RMSE within 10 % of the noise's standard
+/// deviation). Until 2026-12-06 the empty covariance panicked.
+#[test]
+fn fit_model_file_with_every_parameter_fixed_scores_the_stated_model() {
+    let d = tmp("fixed");
+    let data = d.join("train.csv");
+    let sd = 0.02;
+    msd_csv(&data, 2000, 5, sd, 0.0);
+    let file = d.join("msd_fixed.toml");
+    let text_of = std::fs::read_to_string(example("msd.toml")).unwrap();
+    let stated = text_of
+        .replace(
+            "x = { initial = 0.0 }",
+            "x = { initial = 0.0, free = false }",
+        )
+        .replace(
+            "v = { initial = 0.0 }",
+            "v = { initial = 0.0, free = false }",
+        )
+        .replace(
+            "m = { value = 1.5, min = 0.01, max = 100.0 }",
+            "m = { value = 1.0, fixed = true }",
+        )
+        .replace(
+            "c = { value = 0.3, min = 0.0, max = 100.0 }",
+            "c = { value = 0.4, fixed = true }",
+        )
+        .replace(
+            "k = { value = 2.0, min = 0.0, max = 1000.0 }",
+            "k = { value = 4.0, fixed = true }",
+        );
+    assert_eq!(stated.matches("fixed = true").count(), 3, "{stated}");
+    std::fs::write(&file, stated).unwrap();
+    let out = d.join("msd.gbm");
+    let so = fit_ok(&data, &file, &out);
+    assert!(so.contains("0 free parameters"), "{so}");
+    assert!(so.contains("(no free parameters)"), "{so}");
+    let line = so
+        .lines()
+        .find(|l| l.starts_with("training fit"))
+        .unwrap_or_else(|| panic!("no training fit line in {so}"));
+    let rmse: f64 = line
+        .split_whitespace()
+        .skip_while(|w| *w != "RMSE")
+        .nth(1)
+        .and_then(|w| w.parse().ok())
+        .unwrap_or_else(|| panic!("no RMSE in {line}"));
+    assert!(
+        (0.9 * sd..1.1 * sd).contains(&rmse),
+        "the stated truth should simulate at the noise level {sd}: {line}"
+    );
+    assert!(out.exists());
+}
+
 /// A model file with a free input delay, started at 0, estimates a dead
 /// time of 2.4 samples (the interval covers it) and the physical
 /// parameters with it.

@@ -422,10 +422,12 @@ impl FitReport {
         for (a, b, r) in &self.correlated {
             v.push(format!("strongly correlated: {a} and {b} (ρ = {r:+.3})"));
         }
-        v.push(format!(
-            "condition number of the scaled JᵀJ: {:.2e}",
-            self.condition
-        ));
+        if self.estimates.iter().any(|e| !e.fixed) {
+            v.push(format!(
+                "condition number of the scaled JᵀJ: {:.2e}",
+                self.condition
+            ));
+        }
         for w in &self.warnings {
             v.push(format!("warning: {w}"));
         }
@@ -598,6 +600,10 @@ fn precision_inverse(
     warnings: &mut Vec<String>,
 ) -> (Vec<f64>, f64, Vec<bool>) {
     let l = o.coords.len();
+    if l == 0 {
+        // every parameter and initial state stated: nothing to invert
+        return (vec![], 1.0, vec![]);
+    }
     let mut a = DMatrix::from_row_slice(l, l, o.gram) / s2;
     let gmax = (0..l).map(|k| o.gram[k * l + k]).fold(0.0, f64::max);
     let mut unidentified = vec![false; l];
@@ -644,9 +650,7 @@ fn precision_inverse(
         .iter()
         .cloned()
         .fold(f64::INFINITY, f64::min);
-    let condition = if l == 0 {
-        1.0
-    } else if lmin > 0.0 {
+    let condition = if lmin > 0.0 {
         lmax / lmin
     } else {
         f64::INFINITY
