@@ -452,9 +452,7 @@ fn memory_priority(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usi
     }
     // the loop must outlive the order increase: a missing pole's lagging
     // residual is gone once the pole is there
-    let inputs = ctx.plan.decision_inputs(ctx.data);
-    let sel = &cands[ci].fitted.select;
-    let after = crate::Evidence::compute(&sel.e, &sel.yhat, &inputs).memory;
+    let after = residual_loop(&cands[ci], ctx);
     if after.1 >= ctx.policy().memory_priority_p {
         return None;
     }
@@ -660,6 +658,14 @@ fn without_loop(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize,
     ))
 }
 
+/// The direction-of-motion memory test `(F, p)` on a candidate's decision
+/// residual (a loop: the residual depends on the direction of motion).
+fn residual_loop(c: &Candidate, ctx: &Context) -> (f64, f64) {
+    let sel = &c.fitted.select;
+    let inputs = ctx.plan.decision_inputs(ctx.data);
+    crate::Evidence::compute(&sel.e, &sel.yhat, &inputs).memory
+}
+
 /// A tie the unique contributions cannot resolve (the static candidate is
 /// not an input–output network: a map of the simulated output fed back, a
 /// law of the mechanical template), the static explanation chosen, and the
@@ -679,18 +685,13 @@ fn with_loop(cands: &[Candidate], ci: usize, ctx: &Context) -> Option<(usize, St
     if cands[ci].cause() != Cause::Nonlinearity || !memory.1.is_finite() || memory.1 >= level {
         return None;
     }
-    let inputs = ctx.plan.decision_inputs(ctx.data);
-    let loop_of = |c: &Candidate| {
-        let sel = &c.fitted.select;
-        crate::Evidence::compute(&sel.e, &sel.yhat, &inputs).memory
-    };
-    let kept = loop_of(&cands[ci]);
+    let kept = residual_loop(&cands[ci], ctx);
     if kept.1 >= level {
         return None;
     }
     let best = cands[ci].ci;
     let h = best_overlapping(cands, best, Cause::Hysteresis)?;
-    let removed = loop_of(&cands[h]);
+    let removed = residual_loop(&cands[h], ctx);
     if cands[h].gain < best[0] || removed.1.is_nan() || removed.1 < level {
         return None;
     }
