@@ -506,6 +506,7 @@ fn screened_candidates(
         let (now, later): (Vec<_>, Vec<_>) =
             left.into_iter().partition(|(_, (e, _))| tier(*e) == t);
         left = later;
+        prepare_tier(ctx, &now);
         let (fitted, f) = fit_candidates(ctx, now, it);
         cands.extend(fitted);
         failed.extend(f);
@@ -515,6 +516,18 @@ fn screened_candidates(
         cands: cands.into_iter().map(|(_, c)| c).collect(),
         note: appended(note, failed_note(&failed, it)),
         held,
+    }
+}
+
+/// [`Extension::prepare`] of each extension with proposals in a tier,
+/// once, in proposal order.
+fn prepare_tier(ctx: &Context, now: &[(usize, (&'static dyn Extension, Proposal))]) {
+    let mut done: Vec<&str> = vec![];
+    for (_, (e, _)) in now {
+        if !done.contains(&e.name()) {
+            done.push(e.name());
+            e.prepare(ctx);
+        }
     }
 }
 

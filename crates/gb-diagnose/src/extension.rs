@@ -210,6 +210,12 @@ pub trait Extension: Sync {
     fn screen_tier(&self) -> u8 {
         0
     }
+    /// Work its proposals of a step share, done once before the step's
+    /// tier fits them side by side (the decisions never depend on it): a
+    /// shared fit that the first proposal would otherwise make while the
+    /// others wait for it on their threads, its own parallel paths left on
+    /// one core. Nothing by default.
+    fn prepare(&self, _ctx: &Context) {}
     /// A rough class of what one candidate's fit costs, for scheduling a
     /// step's fits longest first (the decisions never depend on it): 0 a
     /// few linear fits, 1 (the default) one nonlinear fit, 2 several, 3 a

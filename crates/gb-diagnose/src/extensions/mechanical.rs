@@ -258,6 +258,19 @@ fn fitted_template(ctx: &Context, order: usize) -> Result<Template, DiagnoseErro
         .map_err(DiagnoseError::InvalidArgument)
 }
 
+/// The linear template of `order` fitted into the step's
+/// [`TemplateCache`] before the template's proposals are fitted side by
+/// side ([`Extension::prepare`]): from the first proposal's thread the fit
+/// kept the others' threads waiting and ran its two paths (direct and
+/// growing prefixes) on one core. Nothing without a cache (the fit would
+/// be lost) or when the proposals start from the whole fit block's model.
+fn prepare_template(ctx: &Context, order: usize) {
+    if ctx.templates.is_some() && ctx.whole_fit.is_none() {
+        // an error is kept in the cache, for the proposals to report
+        let _ = fitted_template(ctx, order);
+    }
+}
+
 /// A fold's fit (cross-validation) of a template law, started where the
 /// law's fit on the whole fit block ended, on the fold's template record:
 /// from its own linear template with the law at 0, a fold on three
@@ -396,6 +409,12 @@ impl Extension for MechanicalNonlinearity {
     fn once(&self) -> bool {
         true
     }
+    /// The linear template's fit, shared with the hysteretic template.
+    fn prepare(&self, ctx: &Context) {
+        if let Some(order) = plain_order(ctx) {
+            prepare_template(ctx, order);
+        }
+    }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         let Some(order) = plain_order(ctx) else {
             return vec![];
@@ -480,6 +499,11 @@ impl Extension for MechanicalHysteresis {
     }
     fn once(&self) -> bool {
         true
+    }
+    fn prepare(&self, ctx: &Context) {
+        if plain_order_two(ctx) {
+            prepare_template(ctx, 2);
+        }
     }
     fn propose(&self, ctx: &Context) -> Vec<Proposal> {
         if !plain_order_two(ctx) {
