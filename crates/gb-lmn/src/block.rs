@@ -1628,17 +1628,8 @@ fn screen_sse(
         if !lin.run(&mp, &mut x, &mut y, k0) {
             return None;
         }
-        let g = StaticMap::identity(basis, knots, &x[..cut]);
-        let nm = g.coef.len();
-        let mut cols = vec![vec![0.0; n]; nm + 1];
-        let (mut phi, mut d) = (vec![0.0; nm], vec![0.0; nm]);
-        for (k, &v) in x.iter().enumerate() {
-            g.basis(v, &mut phi, &mut d);
-            for (c, p) in cols.iter_mut().zip(&phi) {
-                c[k] = *p;
-            }
-            cols[nm][k] = 1.0;
-        }
+        let mut cols = basis_columns(&StaticMap::identity(basis, knots, &x[..cut]), &x);
+        cols.push(vec![1.0; n]);
         (cols, yn.to_vec())
     } else if mapped_inputs {
         hammerstein_columns(lin, input_maps, (basis, knots), (un, yn), cut)?
@@ -1700,16 +1691,7 @@ fn hammerstein_columns(
             )
         };
         if input_maps.get(i).copied().unwrap_or(false) {
-            let f = StaticMap::identity(basis, knots, &u[..cut]);
-            let nm = f.coef.len();
-            let mut ph = vec![vec![0.0; n]; nm];
-            let (mut phi, mut d) = (vec![0.0; nm], vec![0.0; nm]);
-            for (k, &v) in u.iter().enumerate() {
-                f.basis(v, &mut phi, &mut d);
-                for (c, p) in ph.iter_mut().zip(&phi) {
-                    c[k] = *p;
-                }
-            }
+            let ph = basis_columns(&StaticMap::identity(basis, knots, &u[..cut]), u);
             cols.extend(ph.iter().map(|w| through_b(w)));
         } else {
             for (t, s) in target.iter_mut().zip(through_b(u)) {
@@ -1720,6 +1702,21 @@ fn hammerstein_columns(
     cols.push(filter(&|_| 1.0, None));
     cols.extend((0..na).map(|r| filter(&|_| 0.0, Some(r))));
     Some((cols, target))
+}
+
+/// The basis functions of `f` at each value of `v`, one column per
+/// function.
+fn basis_columns(f: &StaticMap, v: &[f64]) -> Vec<Vec<f64>> {
+    let nm = f.coef.len();
+    let mut cols = vec![vec![0.0; v.len()]; nm];
+    let (mut phi, mut d) = (vec![0.0; nm], vec![0.0; nm]);
+    for (k, &x) in v.iter().enumerate() {
+        f.basis(x, &mut phi, &mut d);
+        for (c, p) in cols.iter_mut().zip(&phi) {
+            c[k] = *p;
+        }
+    }
+    cols
 }
 
 /// Squared simulation error of `m` on `un`, `yn` after its history
