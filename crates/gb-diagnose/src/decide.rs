@@ -67,9 +67,10 @@ impl Candidate {
     /// Whether its gain is a reading of the decision data: not for a
     /// candidate screened out by a rival at another input delay (its gain
     /// is in-sample; the rival's, cross-validated, speaks for the
-    /// structure).
+    /// structure), nor for one screened out by the step's best
+    /// cross-validated error.
     pub fn gain_counts(&self) -> bool {
-        self.fitted.screened_by_rival.is_none()
+        self.fitted.screened_by_rival.is_none() && self.fitted.screened_by_bound.is_none()
     }
 }
 

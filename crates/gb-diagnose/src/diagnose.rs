@@ -157,13 +157,16 @@ fn proposals(
 /// order (`i` of each pair, its index among the step's proposals). First
 /// each proposal's fit on the whole fit block ([`first_fit`]), then the
 /// in-sample screen among rivals of one structure at different delays
-/// ([`screen_delay_rivals`]), then the folds of those left. A proposal
-/// whose fit fails is left out; its extension and error are returned for
-/// the decisions line.
+/// ([`screen_delay_rivals`]), then the folds of those left: first of the
+/// ones near the best in-sample error, then of the others unless their
+/// in-sample error is far above the smallest cross-validated error of the
+/// step so far, `bound`, which the folds lower ([`bound_phases`],
+/// [`screen_by_bound`]). A proposal whose fit fails is left out; its
+/// extension and error are returned for the decisions line.
 fn fit_candidates(
     ctx: &Context,
     proposals: Vec<(usize, (&'static dyn Extension, Proposal))>,
-    it: usize,
+    (it, bound): (usize, &mut Option<f64>),
 ) -> (Vec<(usize, Candidate)>, Vec<String>) {
     let pol = ctx.policy();
     let cost = |k: usize| proposals[k].1 .0.fit_cost();
@@ -178,32 +181,48 @@ fn fit_candidates(
             timed(e.name(), &p.lineage, || first_fit(*e, p, &c))
         });
     screen_delay_rivals(ctx, &proposals, &mut firsts);
-    let waiting: Vec<usize> = (0..firsts.len())
-        .filter(|&k| matches!(firsts[k], Ok(FirstFit::Whole(_))))
-        .collect();
-    let folded = longest_first(
-        waiting.len(),
-        |j| cost(waiting[j]),
-        |j| {
-            let k = waiting[j];
-            let (e, p) = &proposals[k].1;
-            match &firsts[k] {
-                Ok(FirstFit::Whole(w)) => timed(e.name(), &p.lineage, || {
-                    fold_fits(*e, p, ctx, (&w.raw, w.start))
-                }),
-                _ => Err(DiagnoseError::InvalidArgument(
-                    "no fit waits for its folds".into(),
-                )),
-            }
-        },
-    );
-    let mut folded = folded.into_iter();
+    let fold = |firsts: &[Result<FirstFit, DiagnoseError>], k: usize| {
+        let (e, p) = &proposals[k].1;
+        match &firsts[k] {
+            Ok(FirstFit::Whole(w)) => timed(e.name(), &p.lineage, || {
+                fold_fits(*e, p, ctx, (&w.raw, w.start))
+            }),
+            _ => Err(DiagnoseError::InvalidArgument(
+                "no fit waits for its folds".into(),
+            )),
+        }
+    };
+    for (k, f) in firsts.iter().enumerate() {
+        if let Ok(FirstFit::Done(c)) = f {
+            *bound = lower_bound(*bound, &proposals[k].1, Some(c));
+        }
+    }
+    let (lead, rest) = bound_phases(ctx, &firsts, *bound);
+    let mut folded: Vec<Option<Result<Evaluated, DiagnoseError>>> =
+        (0..firsts.len()).map(|_| None).collect();
+    for (k, r) in lead.iter().zip(longest_first(
+        lead.len(),
+        |j| cost(lead[j]),
+        |j| fold(&firsts, lead[j]),
+    )) {
+        *bound = lower_bound(*bound, &proposals[*k].1, r.as_ref().ok());
+        folded[*k] = Some(r);
+    }
+    let rest = screen_by_bound(ctx, (&proposals, &mut firsts), rest, *bound);
+    for (k, r) in rest.iter().zip(longest_first(
+        rest.len(),
+        |j| cost(rest[j]),
+        |j| fold(&firsts, rest[j]),
+    )) {
+        *bound = lower_bound(*bound, &proposals[*k].1, r.as_ref().ok());
+        folded[*k] = Some(r);
+    }
     let mut failed = vec![];
     let mut cands = vec![];
-    for ((i, (e, p)), first) in proposals.into_iter().zip(firsts) {
+    for (((i, (e, p)), first), fold) in proposals.into_iter().zip(firsts).zip(folded) {
         let f = match first {
             Ok(FirstFit::Done(c)) => Ok(*c),
-            Ok(FirstFit::Whole(_)) => folded.next().unwrap_or_else(|| {
+            Ok(FirstFit::Whole(_)) => fold.unwrap_or_else(|| {
                 Err(DiagnoseError::InvalidArgument(
                     "a fold fit is missing".into(),
                 ))
@@ -219,6 +238,107 @@ fn fit_candidates(
         }
     }
     (cands, failed)
+}
+
+/// The in-sample RMS residual over the folds' samples of a fit waiting for
+/// its folds (`None`: no reading, or not waiting).
+fn in_sample_rms(f: &Result<FirstFit, DiagnoseError>) -> Option<f64> {
+    match f {
+        Ok(FirstFit::Whole(w)) if !w.in_sample.1.e.is_empty() => {
+            Some(metrics::rms(&w.in_sample.1.e)).filter(|r| r.is_finite())
+        }
+        _ => None,
+    }
+}
+
+/// The fits waiting for their folds in two phases (policy
+/// `cv_bound_ratio`): first those within the factor of the smallest
+/// in-sample RMS residual among them (and those without a reading), which
+/// set the bound; then the others, each cross-validated unless
+/// [`screen_by_bound`] scores it in-sample. Without cross-validation or
+/// with the screen off, every waiting fit in the first phase. The step's
+/// bound so far (earlier tiers) moves a fit above it to the second phase.
+fn bound_phases(
+    ctx: &Context,
+    firsts: &[Result<FirstFit, DiagnoseError>],
+    bound: Option<f64>,
+) -> (Vec<usize>, Vec<usize>) {
+    let waiting = (0..firsts.len()).filter(|&k| matches!(firsts[k], Ok(FirstFit::Whole(_))));
+    let ratio = ctx.policy().cv_bound_ratio;
+    if ratio < 1.0 || !ctx.plan.cv() {
+        return (waiting.collect(), vec![]);
+    }
+    let best = (0..firsts.len())
+        .filter_map(|k| in_sample_rms(&firsts[k]))
+        .min_by(f64::total_cmp);
+    waiting.partition(|&k| match (in_sample_rms(&firsts[k]), best) {
+        (Some(r), Some(b)) => r <= ratio * b && bound.is_none_or(|c| r <= ratio * c),
+        _ => true,
+    })
+}
+
+/// `bound` lowered to the cross-validated RMS residual of `c` when it is a
+/// reading of the decision data (not scored in-sample) of a candidate that
+/// competes on the NRMSE for a new or the named cause (nonlinearity,
+/// hysteresis, dynamics).
+fn lower_bound(
+    bound: Option<f64>,
+    (e, p): &(&'static dyn Extension, Proposal),
+    c: Option<&Evaluated>,
+) -> Option<f64> {
+    let competes = matches!(
+        p.cause,
+        Cause::Nonlinearity | Cause::Hysteresis | Cause::Dynamics
+    ) && matches!(e.role(), Role::NewCause | Role::Refinement)
+        && e.metric() == crate::extension::GainMetric::Nrmse;
+    let r = c
+        .filter(|c| competes && c.screened.is_none() && !c.select.e.is_empty())
+        .map(|c| metrics::rms(&c.select.e))
+        .filter(|r| r.is_finite());
+    match (bound, r) {
+        (Some(b), Some(r)) => Some(b.min(r)),
+        (b, r) => b.or(r),
+    }
+}
+
+/// Of the fits `rest` waiting for their folds, those whose in-sample RMS
+/// residual exceeds the policy's `cv_bound_ratio` times `bound` are scored
+/// in-sample ([`crate::plan::scored_in_sample`]) and do not pay; the
+/// others are returned to be cross-validated.
+fn screen_by_bound(
+    ctx: &Context,
+    (proposals, firsts): (
+        &[(usize, (&'static dyn Extension, Proposal))],
+        &mut [Result<FirstFit, DiagnoseError>],
+    ),
+    rest: Vec<usize>,
+    bound: Option<f64>,
+) -> Vec<usize> {
+    let ratio = ctx.policy().cv_bound_ratio;
+    let mut left = vec![];
+    for k in rest {
+        let (Some(r), Some(b)) = (in_sample_rms(&firsts[k]), bound) else {
+            left.push(k);
+            continue;
+        };
+        let scored = match &firsts[k] {
+            Ok(FirstFit::Whole(w)) if r > ratio * b => crate::plan::scored_in_sample(
+                ctx.plan,
+                ctx.data,
+                (&w.finished, &proposals[k].1 .1.lineage),
+                w.in_sample.clone(),
+            ),
+            _ => None,
+        };
+        match scored {
+            Some(mut c) => {
+                c.screened_by_bound = Some(r / b);
+                firsts[k] = Ok(FirstFit::Done(Box::new(c)));
+            }
+            None => left.push(k),
+        }
+    }
+    left
 }
 
 /// Of the proposals whose fit on the whole fit block waits for its folds,
@@ -483,6 +603,9 @@ fn screened_candidates(
     // whether the current model reads quiet at the screen's reading (asked
     // once, when a tier paid nothing)
     let mut current_quiet: Option<bool> = None;
+    // the smallest cross-validated RMS residual of the step's candidates
+    // so far (policy `cv_bound_ratio`)
+    let mut bound: Option<f64> = None;
     while let Some(t) = left.iter().map(|(_, (e, _))| tier(*e)).min() {
         let quiet = (!cands.is_empty())
             .then(|| quiet_after_tier(&cands, ctx, &mut current_quiet))
@@ -507,7 +630,7 @@ fn screened_candidates(
             left.into_iter().partition(|(_, (e, _))| tier(*e) == t);
         left = later;
         prepare_tier(ctx, &now);
-        let (fitted, f) = fit_candidates(ctx, now, it);
+        let (fitted, f) = fit_candidates(ctx, now, (it, &mut bound));
         cands.extend(fitted);
         failed.extend(f);
     }
@@ -821,6 +944,11 @@ fn rows(
             cause: c.cause(),
             evidence,
             extension: match (f.screened, f.screened_by_rival) {
+                (Some(_), None) if f.screened_by_bound.is_some() => format!(
+                    "{} (select gain: on the training data in-sample; its in-sample error is {:.2}× the smallest cross-validated error of the step, so not cross-validated)",
+                    c.ext.row_text(&c.proposal, &f.model),
+                    f.screened_by_bound.unwrap_or(f64::NAN)
+                ),
                 (Some(_), Some(r)) => format!(
                     "{} (select gain: on the training data in-sample; its in-sample error is {r:.2}× that of the same structure at another input delay, so not cross-validated)",
                     c.ext.row_text(&c.proposal, &f.model)

@@ -164,6 +164,11 @@ pub struct Evaluated {
     /// `rival_screen_ratio`): its in-sample RMS residual over the best
     /// rival's; `screened` holds its in-sample gain.
     pub screened_by_rival: Option<f64>,
+    /// Under cross-validation, a candidate whose in-sample RMS residual
+    /// exceeds the policy's `cv_bound_ratio` times the step's smallest
+    /// cross-validated one: that ratio; `screened` holds its in-sample
+    /// gain.
+    pub screened_by_bound: Option<f64>,
 }
 
 /// Residuals of `model` on `range` of `data`, simulating in free run from
@@ -317,5 +322,6 @@ pub(crate) fn evaluate_on(
         start_choice: None,
         screened: None,
         screened_by_rival: None,
+        screened_by_bound: None,
     })
 }

@@ -796,6 +796,7 @@ fn fold_scores(
         start_choice: None,
         screened: None,
         screened_by_rival: None,
+        screened_by_bound: None,
     })
 }
 

@@ -70,6 +70,7 @@ use crate::DiagnoseError;
 /// | `futile_gain` | 0.025 | a fit of the mechanical template's extensions and of its static laws (the law from 0 on the fitted linear template; not on an integrating plan) on the whole fit block (not a fold's, not a refit) stops after 4 Levenberg–Marquardt iterations when its training RMSE has not fallen by this fraction (half of `min_gain`): such a candidate would be dropped by the in-sample screen anyway; a fit that passes goes on unchanged (0: never stop early) |
 /// | `cv_in_sample_screen` | true | under cross-validation a `nonlinearity` or `hysteresis` candidate is first fitted on the whole training range; when its free-run residual over the folds' samples is not `min_gain` below the current model's (fitted the same way), its four fold fits are skipped and it does not pay (a held-out gain rarely exceeds the in-sample one; the row says so) |
 /// | `rival_screen_ratio` | 1.0 | under cross-validation, the in-sample screen's second test: of the candidates that differ only in their input delay (the Hammerstein, Wiener and backlash structures at the current model's delay and its neighbours, `Extension::delay_rivals_key`), the one at the current delay and the one with the smallest in-sample RMS residual over the folds' samples are cross-validated; another whose in-sample residual exceeds the smallest times this factor is scored in-sample and does not pay (the same structure and number of parameters, so the in-sample error compares them; its row says so). At 1 only those two: the delays of an oversampled record fit alike (hammerstein-odd 4 of the 8000 + 4000 sweep: the three within 0.1 %, held-out gains +0.176, +0.175, +0.175), and their folds were a third of a case's time; 0 turns it off |
+/// | `cv_bound_ratio` | 1.5 | under cross-validation, the in-sample screen's third test: a `nonlinearity` or `hysteresis` candidate whose in-sample RMS residual over the folds' samples exceeds this factor times the smallest cross-validated RMS residual of the step's candidates (nonlinearity, hysteresis, dynamics) is scored in-sample and does not pay (its row says so): the cross-validated error of a structure is not below its in-sample error, so it could not have come near the best. The candidates within the factor of the tier's best in-sample error are cross-validated first, the bound is read from them, then the rest; 0 turns it off |
 /// | `screen_costly`, `screen_level`, `screen_bonferroni`, `screen_noise_ratio` | true, 0.01, true, 1.1 | the candidates of a step are fitted in tiers ([`crate::Extension::screen_tier`]: the cheap ones; the static laws of the mechanical template; the hysteretic template, the Wiener–Hammerstein network and the hidden-state model), a tier only when the paying candidate with the largest gain so far — or, when none paid, the current model — does not leave a quiet residual on the decision data: the verdict's tests pass at 1 % Bonferroni-corrected over the tests, as the final verdict reads them (uncorrected, at 5 % one of six or nine tests rejects by chance in a third of the cases at the floor, and at 1 % a Duffing case whose spring law reached the floor, input cross-correlation p = 0.0019, still fitted the hysteretic template and a second step: 32 → 10 s), the Jarque–Bera test at 1 %, and the residual is within 1.1× the white-noise level; under cross-validation the tests read as the final verdict reads them (each p-value the smaller of the model's own over the folds' samples and the lower median of the folds', [`crate::verdict`]) and the Jarque–Bera test reads the model's own residual (the pooled held-out residuals of four fold refits mix four error levels and failed it at p ≈ 0 for a model at the floor). A structure that the cheap candidates already explain to the noise level, or a residual none of them improves that is quiet already, leaves nothing a costly one could gain significantly (a wiener case: 4.3 → 1.7 s; a Duffing case whose spring law reaches the floor: 82 → 43 s without the hysteretic template; a clean linear record of 8000 samples whose residual failed one test at the search stop's 5 %: the whole diagnosis 4.5 → 3.0 s). When only noise models pay (gain in nll) and no structural candidate reaches `min_gain` at its point estimate (a short friction record: a process-noise model absorbed the friction, a network gained 22 % without paying, and the template's dry friction in the next tier reached the floor), the best one's residual is read on the input tests alone (cross-correlation, higher-order, static nonlinearity, memory): its noise model explains the colour, tails and size, and the structural tiers have nothing to gain; the proposals so held back stay out of the next step after a noise-only step (a process-noise case 6.9 → 4.0 s, a Student-t case 6.1 → 1.6 s, the same models) |
 /// | `diverged_ratio`, `diverged_nrmse` | 10, 1 | a candidate whose RMS error on the decision data exceeds 10× the current model's and the spread of the measured output there (NRMSE above 1: worse than its mean) diverged; it is left out of the report's table and the decisions line names it by what it adds (on the sweep such fits reached select NRMSE up to 1e50: a hidden-state model, play operators on the simulated output) |
 /// | `verdict_noise_ratio` | 3 | "adequate" or "coloured noise" only while the residual RMS is at most this many times the white-noise level of the measured output (its finest db4 wavelet scale); above, the misfit is unexplained |
@@ -261,6 +262,9 @@ pub struct DecisionPolicy {
     /// See the table: the in-sample screen among the delays of one
     /// structure (0: off).
     pub rival_screen_ratio: f64,
+    /// See the table: the in-sample screen against the step's best
+    /// cross-validated error (0: off).
+    pub cv_bound_ratio: f64,
     /// See the table: the RMSE gain the template's extension fits must show
     /// after a few iterations (0: never stop early).
     pub futile_gain: f64,
@@ -367,6 +371,7 @@ impl Default for DecisionPolicy {
             linear_before_nonlinear: true,
             cv_in_sample_screen: true,
             rival_screen_ratio: 1.0,
+            cv_bound_ratio: 1.5,
             futile_gain: 0.025,
             screen_costly: true,
             screen_level: 0.01,
@@ -410,6 +415,11 @@ impl DecisionPolicy {
             || (self.rival_screen_ratio >= 1.0 && self.rival_screen_ratio.is_finite()))
         {
             return bad("rival_screen_ratio 0 (off) or in [1, inf)");
+        }
+        if !(self.cv_bound_ratio == 0.0
+            || (self.cv_bound_ratio >= 1.0 && self.cv_bound_ratio.is_finite()))
+        {
+            return bad("cv_bound_ratio 0 (off) or in [1, inf)");
         }
         if self.repeat_shift_ratio.is_nan() || self.repeat_shift_ratio < 1.0 {
             return bad("repeat_shift_ratio >= 1 (infinity: no check)");

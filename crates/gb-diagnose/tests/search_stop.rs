@@ -409,3 +409,43 @@ fn a_choice_that_a_rival_class_agrees_with_off_the_trajectory_carries_over() {
         r.cause_names()
     );
 }
+
+/// Under cross-validation a `nonlinearity` or `hysteresis` candidate whose
+/// in-sample error is far above the smallest cross-validated error of the
+/// step (policy `cv_bound_ratio`) is scored in-sample, does not pay and
+/// says so in its row; the folds of the others decide as before: the same
+/// causes and final NRMSE without the screen.
+#[test]
+fn candidates_far_behind_the_best_cross_validated_are_not_cross_validated() {
+    let bounded = |r: &Report| {
+        r.steps
+            .iter()
+            .filter(|s| s.extension.contains("the smallest cross-validated error"))
+            .map(|s| s.accepted)
+            .collect::<Vec<bool>>()
+    };
+    let on = DecisionPolicy {
+        stop_when_adequate: false,
+        ..DecisionPolicy::default()
+    };
+    let off = DecisionPolicy {
+        cv_bound_ratio: 0.0,
+        ..on.clone()
+    };
+    let r = diagnosed_with("backlash", 1, on);
+    assert!(r.data.decision.contains("blocked cross-validation"));
+    let screened = bounded(&r);
+    assert!(!screened.is_empty(), "no candidate screened by the bound");
+    assert!(
+        screened.iter().all(|&a| !a),
+        "a screened candidate was accepted"
+    );
+    let all = diagnosed_with("backlash", 1, off);
+    assert!(bounded(&all).is_empty());
+    assert_eq!(all.cause_names(), r.cause_names());
+    let (a, b) = (all.final_model.nrmse, r.final_model.nrmse);
+    assert!(
+        (a - b).abs() <= 0.01 * a,
+        "final NRMSE {a} without the screen, {b} with"
+    );
+}
