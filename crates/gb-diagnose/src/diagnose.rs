@@ -208,7 +208,7 @@ fn fit_candidates(
         *bound = lower_bound(*bound, &proposals[*k].1, r.as_ref().ok());
         folded[*k] = Some(r);
     }
-    let rest = screen_by_bound(ctx, (&proposals, &mut firsts), rest, *bound);
+    let rest = screen_by_bound(ctx, &proposals, &mut firsts, rest, *bound);
     for (k, r) in rest.iter().zip(longest_first(
         rest.len(),
         |j| cost(rest[j]),
@@ -307,10 +307,8 @@ fn lower_bound(
 /// others are returned to be cross-validated.
 fn screen_by_bound(
     ctx: &Context,
-    (proposals, firsts): (
-        &[(usize, (&'static dyn Extension, Proposal))],
-        &mut [Result<FirstFit, DiagnoseError>],
-    ),
+    proposals: &[(usize, (&'static dyn Extension, Proposal))],
+    firsts: &mut [Result<FirstFit, DiagnoseError>],
     rest: Vec<usize>,
     bound: Option<f64>,
 ) -> Vec<usize> {
