@@ -311,10 +311,27 @@ fn candidates_that_gain_nothing_in_sample_are_not_cross_validated() {
 /// 1 % of the same final NRMSE.
 #[test]
 fn delay_rivals_behind_in_sample_are_not_cross_validated() {
-    let rivals = |r: &Report| {
+    screen_keeps_the_decision(("saturation", 1), "at another input delay", |on| {
+        DecisionPolicy {
+            rival_screen_ratio: 0.0,
+            ..on
+        }
+    });
+}
+
+/// Under cross-validation the candidates of `case` whose rows contain
+/// `marker` (a screen's words) are at least one and none is accepted;
+/// with the screen off (`off` of the policy) no row says so, and the
+/// causes and the final NRMSE are the same.
+fn screen_keeps_the_decision(
+    (family, seed): (&str, u64),
+    marker: &str,
+    off: impl Fn(DecisionPolicy) -> DecisionPolicy,
+) {
+    let marked = |r: &Report| {
         r.steps
             .iter()
-            .filter(|s| s.extension.contains("at another input delay"))
+            .filter(|s| s.extension.contains(marker))
             .map(|s| s.accepted)
             .collect::<Vec<bool>>()
     };
@@ -322,20 +339,16 @@ fn delay_rivals_behind_in_sample_are_not_cross_validated() {
         stop_when_adequate: false,
         ..DecisionPolicy::default()
     };
-    let off = DecisionPolicy {
-        rival_screen_ratio: 0.0,
-        ..on.clone()
-    };
-    let r = diagnosed_with("saturation", 1, on);
+    let r = diagnosed_with(family, seed, on.clone());
     assert!(r.data.decision.contains("blocked cross-validation"));
-    let screened = rivals(&r);
-    assert!(!screened.is_empty(), "no delay rival screened");
+    let screened = marked(&r);
+    assert!(!screened.is_empty(), "no candidate screened ({marker})");
     assert!(
         screened.iter().all(|&a| !a),
-        "a screened rival was accepted"
+        "a screened candidate was accepted"
     );
-    let all = diagnosed_with("saturation", 1, off);
-    assert!(rivals(&all).is_empty());
+    let all = diagnosed_with(family, seed, off(on));
+    assert!(marked(&all).is_empty());
     assert_eq!(all.cause_names(), r.cause_names());
     let (a, b) = (all.final_model.nrmse, r.final_model.nrmse);
     assert!(
@@ -417,35 +430,12 @@ fn a_choice_that_a_rival_class_agrees_with_off_the_trajectory_carries_over() {
 /// causes and final NRMSE without the screen.
 #[test]
 fn candidates_far_behind_the_best_cross_validated_are_not_cross_validated() {
-    let bounded = |r: &Report| {
-        r.steps
-            .iter()
-            .filter(|s| s.extension.contains("the smallest cross-validated error"))
-            .map(|s| s.accepted)
-            .collect::<Vec<bool>>()
-    };
-    let on = DecisionPolicy {
-        stop_when_adequate: false,
-        ..DecisionPolicy::default()
-    };
-    let off = DecisionPolicy {
-        cv_bound_ratio: 0.0,
-        ..on.clone()
-    };
-    let r = diagnosed_with("backlash", 1, on);
-    assert!(r.data.decision.contains("blocked cross-validation"));
-    let screened = bounded(&r);
-    assert!(!screened.is_empty(), "no candidate screened by the bound");
-    assert!(
-        screened.iter().all(|&a| !a),
-        "a screened candidate was accepted"
-    );
-    let all = diagnosed_with("backlash", 1, off);
-    assert!(bounded(&all).is_empty());
-    assert_eq!(all.cause_names(), r.cause_names());
-    let (a, b) = (all.final_model.nrmse, r.final_model.nrmse);
-    assert!(
-        (a - b).abs() <= 0.01 * a,
-        "final NRMSE {a} without the screen, {b} with"
+    screen_keeps_the_decision(
+        ("backlash", 1),
+        "the smallest cross-validated error",
+        |on| DecisionPolicy {
+            cv_bound_ratio: 0.0,
+            ..on
+        },
     );
 }
