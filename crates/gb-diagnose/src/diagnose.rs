@@ -941,17 +941,16 @@ fn rows(
             iteration: it,
             cause: c.cause(),
             evidence,
-            extension: match (f.screened, f.screened_by_rival) {
-                (Some(_), None) if f.screened_by_bound.is_some() => format!(
-                    "{} (select gain: on the training data in-sample; its in-sample error is {:.2}× the smallest cross-validated error of the step, so not cross-validated)",
-                    c.ext.row_text(&c.proposal, &f.model),
-                    f.screened_by_bound.unwrap_or(f64::NAN)
+            extension: match (f.screened, f.screened_by_rival, f.screened_by_bound) {
+                (Some(_), _, Some(r)) => format!(
+                    "{} (select gain: on the training data in-sample; its in-sample error is {r:.2}× the smallest cross-validated error of the step, so not cross-validated)",
+                    c.ext.row_text(&c.proposal, &f.model)
                 ),
-                (Some(_), Some(r)) => format!(
+                (Some(_), Some(r), None) => format!(
                     "{} (select gain: on the training data in-sample; its in-sample error is {r:.2}× that of the same structure at another input delay, so not cross-validated)",
                     c.ext.row_text(&c.proposal, &f.model)
                 ),
-                (Some(_), None) => format!(
+                (Some(_), None, None) => format!(
                     "{} (select gain: on the training data in-sample, below min_gain, so not cross-validated)",
                     c.ext.row_text(&c.proposal, &f.model)
                 ),
