@@ -7,9 +7,9 @@
 use crate::evaluate::{Evaluated, Lineage, Residuals};
 use crate::extensions::{
     Backlash, Capacity, FeedbackMap, Hammerstein, HiddenState, HiddenStateDetail, LinearOrder,
-    Lolimot, MechanicalHysteresis, MechanicalNonlinearity, PhysicsHysteresis, PhysicsInputDelay,
-    PhysicsTerms, PolyNoe, PolySimpler, PreisachColumns, ProcessNoise, StateNetwork, StudentTNoise,
-    TreeLmn, Wiener, WienerHammerstein,
+    Lolimot, MechanicalHysteresis, MechanicalNonlinearity, OperatorPoly, PhysicsHysteresis,
+    PhysicsInputDelay, PhysicsTerms, PolyNoe, PolySimpler, PreisachColumns, ProcessNoise,
+    StateNetwork, StudentTNoise, TreeLmn, Wiener, WienerHammerstein,
 };
 use crate::plan::Chosen;
 use crate::{Cause, DecisionPolicy, DiagnoseData, DiagnoseError, DiagnoseOptions, Evidence};
@@ -332,6 +332,8 @@ pub static EXTENSIONS: &[&dyn Extension] = &[
     &FeedbackMap,
     // last: its place in the list sets the bootstrap seeds of the others
     &PolySimpler,
+    // after the seeds of the others
+    &OperatorPoly,
 ];
 
 /// The extension that introduces `cause` as a new cause (for its evidence

@@ -110,13 +110,80 @@ pub(crate) fn repeated_note(
     ))
 }
 
+/// Correlation above which an input counts as the rate of another.
+const RATE_CORRELATION: f64 = 0.95;
+
+/// Pearson correlation of `a` and `b` (0 when either is constant).
+fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    if n < 3 {
+        return 0.0;
+    }
+    let (ma, mb) = (
+        a[..n].iter().sum::<f64>() / n as f64,
+        b[..n].iter().sum::<f64>() / n as f64,
+    );
+    let (mut ab, mut aa, mut bb) = (0.0, 0.0, 0.0);
+    for (x, y) in a[..n].iter().zip(&b[..n]) {
+        ab += (x - ma) * (y - mb);
+        aa += (x - ma) * (x - ma);
+        bb += (y - mb) * (y - mb);
+    }
+    if aa > 0.0 && bb > 0.0 {
+        ab / (aa * bb).sqrt()
+    } else {
+        0.0
+    }
+}
+
+/// The sign each input takes when time runs backwards: −1 for an input
+/// that is the rate of another (its correlation with the other's central
+/// difference `(u_i(k+1) − u_i(k−1))/2` above [`RATE_CORRELATION`]: a
+/// velocity beside its displacement) whose own sign is +1, and so on along
+/// a chain (an acceleration beside them flips twice). Reversing time
+/// reverses a rate's sign; reversing the samples alone would pair a
+/// displacement with the velocity of another motion.
+fn reversal_signs(u: &[Vec<f64>]) -> Vec<f64> {
+    let rates: Vec<Vec<f64>> = u
+        .iter()
+        .map(|s| {
+            (0..s.len())
+                .map(|k| {
+                    let (a, b) = (k.saturating_sub(1), (k + 1).min(s.len() - 1));
+                    (s[b] - s[a]) / 2.0
+                })
+                .collect()
+        })
+        .collect();
+    let of: Vec<Option<usize>> = u
+        .iter()
+        .enumerate()
+        .map(|(j, s)| {
+            (0..u.len()).find(|&i| i != j && correlation(&rates[i], s) > RATE_CORRELATION)
+        })
+        .collect();
+    // along a chain: each pass settles one more link
+    let mut sign = vec![1.0; u.len()];
+    for _ in 0..u.len() {
+        for (j, i) in of.iter().enumerate() {
+            if let Some(i) = *i {
+                sign[j] = -sign[i];
+            }
+        }
+    }
+    sign
+}
+
 /// The training input transformed so that it keeps its amplitude
 /// distribution and spectrum but is not the trajectory: every input
-/// time-reversed, and every input scaled by 0.8 about its mean.
+/// time-reversed (a rate of another input also negated,
+/// [`reversal_signs`]), and every input scaled by 0.8 about its mean.
 fn shifted_inputs(u: &[Vec<f64>]) -> [(&'static str, Vec<Vec<f64>>); 2] {
+    let signs = reversal_signs(u);
     let reversed = u
         .iter()
-        .map(|s| s.iter().rev().copied().collect())
+        .zip(&signs)
+        .map(|(s, &g)| s.iter().rev().map(|v| g * v).collect())
         .collect();
     let scaled = u
         .iter()
@@ -244,6 +311,32 @@ mod tests {
     fn record(u: Vec<f64>) -> Record {
         let y = u.clone();
         Record::new(vec!["u".into()], "y".into(), vec![u], y).unwrap()
+    }
+
+    /// A displacement, its velocity (sampled derivative), its acceleration
+    /// and an unrelated input: reversed in time, the velocity changes sign,
+    /// the acceleration and the others do not.
+    #[test]
+    fn time_reversal_negates_the_rates() {
+        let n = 2000;
+        let mut r = gb_core::rng::seeded(5);
+        let mut x = vec![0.0; n];
+        for k in 1..n {
+            x[k] = 0.99 * x[k - 1] + r.random::<f64>() - 0.5;
+        }
+        let diff = |s: &[f64]| -> Vec<f64> {
+            (0..s.len())
+                .map(|k| s[(k + 1).min(s.len() - 1)] - s[k.saturating_sub(1)])
+                .collect()
+        };
+        let v = diff(&x);
+        let a = diff(&v);
+        let other: Vec<f64> = (0..n).map(|_| r.random::<f64>()).collect();
+        assert_eq!(
+            reversal_signs(&[v.clone(), other.clone(), x.clone(), a]),
+            vec![-1.0, 1.0, 1.0, 1.0]
+        );
+        assert_eq!(reversal_signs(&[x, other]), vec![1.0, 1.0]);
     }
 
     /// A random input repeated with period 1000 is found (shift a multiple

@@ -243,7 +243,11 @@ fn diverged_candidates_are_left_out_of_the_table_with_a_note() {
         kept.structure.decision
     );
     assert!(!all.structure.decision.contains("diverged"));
-    assert_eq!(kept.steps.len() + 1, all.steps.len());
+    // the rows left out are the diverged ones (the hidden-state model and,
+    // since session 65, the static hysteresis of the input)
+    let n_wild = all.steps.iter().filter(|s| wild(s)).count();
+    assert!(n_wild >= 1);
+    assert_eq!(kept.steps.len() + n_wild, all.steps.len());
     assert_eq!(kept.cause_names(), all.cause_names());
     assert!((kept.final_model.nrmse - all.final_model.nrmse).abs() < 1e-12);
 }

@@ -124,6 +124,15 @@ impl PolyNarx {
             .collect()
     }
 
+    /// Whether some term reads input `j` (at any lag).
+    pub fn reads_input(&self, j: usize) -> bool {
+        self.terms.iter().flatten().any(|&r| {
+            self.regressors
+                .get(r as usize)
+                .is_some_and(|t| t.signal == Signal::Input(j))
+        })
+    }
+
     /// Sizes, indices, finiteness.
     pub fn check_consistency(&self) -> Result<(), LmnError> {
         let bad = |m: &str| Err(LmnError::InvalidArgument(format!("polynomial model: {m}")));
@@ -1016,6 +1025,16 @@ impl DynamicModel for PolyNarx {
     }
 }
 
+/// The options of a `poly` model spec.
+pub const SPEC_OPTIONS: [&str; 6] = [
+    "order",
+    "input_lags",
+    "delay",
+    "degree",
+    "max_terms",
+    "focus",
+];
+
 /// `greybox fit --model poly[:order=N,delay=D,degree=3,max_terms=15,focus=simulation]`:
 /// the fitted model (Gaussian noise of its training simulation residuals)
 /// and a line on the chosen terms.
@@ -1035,14 +1054,7 @@ pub fn fit_spec(
         "prediction" => Focus::Prediction,
         _ => Focus::Simulation,
     };
-    o.finish(&[
-        "order",
-        "input_lags",
-        "delay",
-        "degree",
-        "max_terms",
-        "focus",
-    ])?;
+    o.finish(&SPEC_OPTIONS)?;
     for (i, r) in data.iter().enumerate() {
         r.check_identifiable(&format!("record {}", i + 1), 50 + 4 * max_terms)?;
     }

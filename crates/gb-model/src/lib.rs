@@ -44,6 +44,7 @@ mod legacy;
 mod linear;
 mod model;
 mod multi_output;
+pub mod operators;
 // `PhysicsError` carries the file, line, expression and symbol of a model
 // error for its one-line message; errors are the cold path.
 #[allow(clippy::result_large_err)]

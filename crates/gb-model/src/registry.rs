@@ -74,6 +74,11 @@ pub static CLASSES: &[ModelClass] = &[
         decode: |b, v| boxed(crate::IntegratingModel::decode(b, v)),
     },
     ModelClass {
+        tag: "input-operators",
+        summary: "input operators: stop operators (hysteresis) and low-pass filters of the inputs as further inputs of a model of any class (gb-model)",
+        decode: |b, v| boxed(crate::operators::OperatorInputsModel::decode(b, v)),
+    },
+    ModelClass {
         tag: "multi-output",
         summary: "several outputs: one one-output model of any class per output, sharing the inputs (no output is an input of another; gb-model)",
         decode: |b, v| boxed(crate::MultiOutputModel::decode(b, v)),

@@ -35,11 +35,42 @@ struct TestSet {
     best: Option<(f64, &'static str)>,
 }
 
+/// How one file holds both the training and the test rows (the test set's
+/// `file` is the training file).
+#[derive(Clone, Copy)]
+enum OneFile {
+    /// The first `num/den` of the rows train, the rest test.
+    Fraction(usize, usize),
+    /// Training rows `train.0..train.1`, test rows `test.0..test.1` (a
+    /// published split).
+    Rows {
+        train: (usize, usize),
+        test: (usize, usize),
+    },
+}
+
+impl OneFile {
+    /// The training and test row ranges of a file of `n` rows.
+    fn ranges(self, n: usize) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+        match self {
+            OneFile::Fraction(num, den) => {
+                let end = n * num / den;
+                (0..end, end..n)
+            }
+            OneFile::Rows { train, test } => {
+                (train.0.min(n)..train.1.min(n), test.0.min(n)..test.1.min(n))
+            }
+        }
+    }
+}
+
 struct Benchmark {
     name: &'static str,
     title: &'static str,
     dir: &'static str,
     train: &'static str,
+    /// `Some` when the test rows come from the training file.
+    one_file: Option<OneFile>,
     inputs: &'static [&'static str],
     output: &'static str,
     /// Display unit and factor from the file's unit.
@@ -163,6 +194,7 @@ fn benchmarks() -> Vec<Benchmark> {
         tanks(),
         emps(),
         mr_damper(),
+        mr_damper_sim(),
     ]
 }
 
@@ -173,6 +205,7 @@ fn bouc_wen() -> Benchmark {
         title: "Bouc-Wen hysteretic benchmark",
         dir: "bouc_wen",
         train: "train_multisine_forgione.csv",
+        one_file: None,
         inputs: &["u"],
         output: "y",
         unit: "m",
@@ -209,6 +242,7 @@ fn silverbox() -> Benchmark {
         title: "Silverbox (electronic Duffing oscillator)",
         dir: "silverbox",
         train: "train_multisine.csv",
+        one_file: None,
         inputs: &["u"],
         output: "y",
         unit: "mV",
@@ -255,6 +289,7 @@ fn wh2009() -> Benchmark {
         title: "Wiener-Hammerstein 2009",
         dir: "wiener_hammerstein_2009",
         train: "train.csv",
+        one_file: None,
         inputs: &["u"],
         output: "y",
         unit: "mV",
@@ -281,6 +316,7 @@ fn tanks() -> Benchmark {
         title: "Cascaded tanks with overflow",
         dir: "cascaded_tanks",
         train: "train.csv",
+        one_file: None,
         inputs: &["u"],
         output: "y",
         unit: "V",
@@ -308,6 +344,7 @@ fn emps() -> Benchmark {
         title: "Electro-mechanical positioning system",
         dir: "emps",
         train: "train.csv",
+        one_file: None,
         inputs: &["u"],
         output: "y",
         unit: "mm",
@@ -330,6 +367,7 @@ fn mr_damper() -> Benchmark {
         title: "MR damper, Dyke white-noise test (first 60 % train, last 40 % test)",
         dir: "mr_damper_dyke_nees",
         train: "ranran_50.csv",
+        one_file: Some(OneFile::Fraction(6, 10)),
         inputs: &["D", "V", "Y"],
         output: "F",
         unit: "N",
@@ -342,6 +380,34 @@ fn mr_damper() -> Benchmark {
         tests: vec![TestSet {
             name: "last 40 %",
             file: "ranran_50.csv",
+            init: Init::Window(50),
+            lti: None,
+            best: None,
+        }],
+    }
+}
+
+/// The Spencer MR-damper model simulated (Leva & Piroddi 2002 parameters,
+/// inputs filtered white noise; the data of the SysIdentPy book), the
+/// book's split. Column `a` (acceleration) holds spikes and is not an input.
+fn mr_damper_sim() -> Benchmark {
+    Benchmark {
+        name: "mr-damper-sim",
+        title: "MR damper, Spencer model simulated (SysIdentPy data; train rows 400-1999, test 2001-3599)",
+        dir: "mr_damper_boucwen_sim_sysidentpy",
+        train: "boucwen_histeretic_system.csv",
+        one_file: Some(OneFile::Rows {
+            train: (400, 2000),
+            test: (2001, 3600),
+        }),
+        inputs: &["x", "v", "E"],
+        output: "f",
+        unit: "N",
+        factor: 1.0,
+        class: None,
+        tests: vec![TestSet {
+            name: "rows 2001-3599",
+            file: "boucwen_histeretic_system.csv",
             init: Init::Window(50),
             lti: None,
             best: None,
@@ -675,23 +741,25 @@ fn score(m: &FittedModel, test: &Record, init: Init) -> Result<(f64, f64, usize)
 fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, String> {
     let root = dir.join(b.dir);
     let full = load(&root.join(b.train), b.inputs, b.output)?;
-    // MR damper: one record, the last 40 % is the test set
-    let split_test = b.tests.len() == 1 && b.tests[0].file == b.train;
-    let train_end = if split_test {
-        full.len() * 6 / 10
-    } else {
-        full.len()
+    // one record holding the test rows (MR dampers)
+    let (train_rows, test_rows) = match b.one_file {
+        Some(split) => {
+            let (tr, te) = split.ranges(full.len());
+            (tr, Some(te))
+        }
+        None => (0..full.len(), None),
     };
     let test_cap = o.quick.then_some(QUICK_TEST_ROWS);
     let train = if o.quick {
-        full.slice(0..QUICK_TRAIN_ROWS.min(train_end))
+        let end = train_rows.end.min(train_rows.start + QUICK_TRAIN_ROWS);
+        full.slice(train_rows.start..end)
     } else {
-        full.slice(0..train_end)
+        full.slice(train_rows.clone())
     };
     let mut tests = vec![];
     for t in &b.tests {
-        let mut d = if split_test {
-            full.slice(train_end..full.len())
+        let mut d = if let Some(te) = &test_rows {
+            full.slice(te.clone())
         } else {
             load(&root.join(t.file), b.inputs, b.output)?
         };
@@ -706,7 +774,7 @@ fn run_one(b: &Benchmark, dir: &Path, o: &BenchOptions) -> Result<Vec<Row>, Stri
         Some(c) => {
             let c = if o.quick { c.quick() } else { c };
             let t1 = Instant::now();
-            let pre = full.slice(0..train_end);
+            let pre = full.slice(train_rows.clone());
             let (f, text, rows) = fit_class(c, &pre, o.quiet)?;
             Some((f, text, rows, t1.elapsed().as_secs_f64()))
         }
