@@ -9,6 +9,7 @@
 //! least-squares offset of the summed simulation to the window; with a
 //! history the level is anchored at the last history sample; at rest the
 //! level is 0; an explicit state is `[level, inner state…]`.
+use crate::registry::StoredPart;
 use gb_core::{check_inputs, CoreError, DynamicModel, Init, ModelView, Stepper, Workspace};
 use serde::{Deserialize, Serialize};
 use std::any::Any;
@@ -24,9 +25,7 @@ pub struct IntegratingModel {
 
 #[derive(Serialize, Deserialize)]
 struct Body {
-    class: String,
-    class_version: u32,
-    body: Vec<u8>,
+    inner: StoredPart,
 }
 
 /// The increments of `y` (Δy(0) = Δy(1): same length, same alignment).
@@ -65,12 +64,7 @@ impl IntegratingModel {
     /// decoded through the registry).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
         let b: Body = gb_core::decode_postcard(INTEGRATING_CLASS, version, 1, body)?;
-        let inner = crate::registry::decode_part(
-            INTEGRATING_CLASS,
-            "of an unknown class",
-            (&b.class, b.class_version, &b.body),
-        )?;
-        Self::new(inner)
+        Self::new(b.inner.decode(INTEGRATING_CLASS, "of an unknown class")?)
     }
 }
 
@@ -291,9 +285,7 @@ impl DynamicModel for IntegratingModel {
     }
     fn encode(&self) -> Result<Vec<u8>, CoreError> {
         let b = Body {
-            class: self.inner.class().to_string(),
-            class_version: self.inner.class_version(),
-            body: self.inner.encode()?,
+            inner: StoredPart::of(self.inner.as_ref())?,
         };
         postcard::to_allocvec(&b)
             .map_err(|e| CoreError::ModelFile(format!("cannot encode model: {e}")))

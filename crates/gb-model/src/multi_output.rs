@@ -7,6 +7,7 @@
 //! measured outputs output-major (the same number of samples of each
 //! output); [`Init::State`] the parts' states one after the other; the other
 //! starts go to every part unchanged.
+use crate::registry::StoredPart;
 use gb_core::{
     check_inputs, CoreError, DynamicModel, Init, ModelView, NoiseModel, Stepper, Workspace,
 };
@@ -25,9 +26,7 @@ pub struct MultiOutputModel {
 
 #[derive(Serialize, Deserialize)]
 struct Part {
-    class: String,
-    class_version: u32,
-    body: Vec<u8>,
+    model: StoredPart,
     noise: NoiseModel,
 }
 
@@ -76,11 +75,9 @@ impl MultiOutputModel {
         let parts = b
             .into_iter()
             .map(|p| {
-                let m = crate::registry::decode_part(
-                    MULTI_OUTPUT_CLASS,
-                    "with a part of unknown class",
-                    (&p.class, p.class_version, &p.body),
-                )?;
+                let m = p
+                    .model
+                    .decode(MULTI_OUTPUT_CLASS, "with a part of unknown class")?;
                 Ok((m, p.noise))
             })
             .collect::<Result<Vec<_>, CoreError>>()?;
@@ -202,9 +199,7 @@ impl DynamicModel for MultiOutputModel {
             .zip(&self.noise)
             .map(|(p, noise)| {
                 Ok(Part {
-                    class: p.class().to_string(),
-                    class_version: p.class_version(),
-                    body: p.encode()?,
+                    model: StoredPart::of(p.as_ref())?,
                     noise: noise.clone(),
                 })
             })

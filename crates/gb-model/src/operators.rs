@@ -23,6 +23,7 @@
 //! // s = 0, clamp(1) = 1, clamp(1 + 2) = 1.5, 1.5 − 1 = 0.5
 //! assert_eq!(ch[0], vec![0.0, 1.0, 1.5, 0.5]);
 //! ```
+use crate::registry::StoredPart;
 use gb_core::{check_inputs, CoreError, DynamicModel, Init, ModelView, Stepper, Workspace};
 use serde::{Deserialize, Serialize};
 use std::any::Any;
@@ -157,9 +158,7 @@ pub struct OperatorInputsModel {
 struct Body {
     operators: Vec<InputOperator>,
     n_measured: usize,
-    class: String,
-    class_version: u32,
-    body: Vec<u8>,
+    inner: StoredPart,
 }
 
 impl OperatorInputsModel {
@@ -218,11 +217,7 @@ impl OperatorInputsModel {
     /// model through the registry).
     pub fn decode(body: &[u8], version: u32) -> Result<Self, CoreError> {
         let b: Body = gb_core::decode_postcard(OPERATORS_CLASS, version, 1, body)?;
-        let inner = crate::registry::decode_part(
-            OPERATORS_CLASS,
-            "of an unknown class",
-            (&b.class, b.class_version, &b.body),
-        )?;
+        let inner = b.inner.decode(OPERATORS_CLASS, "of an unknown class")?;
         Self::new(b.operators, b.n_measured, inner)
             .map_err(|e| CoreError::ModelFile(format!("corrupt '{OPERATORS_CLASS}' model ({e})")))
     }
@@ -293,9 +288,7 @@ impl DynamicModel for OperatorInputsModel {
         let b = Body {
             operators: self.operators.clone(),
             n_measured: self.n_measured,
-            class: self.inner.class().to_string(),
-            class_version: self.inner.class_version(),
-            body: self.inner.encode()?,
+            inner: StoredPart::of(self.inner.as_ref())?,
         };
         postcard::to_allocvec(&b)
             .map_err(|e| CoreError::ModelFile(format!("cannot encode model: {e}")))

@@ -108,23 +108,45 @@ impl ClassDecoder for Registry {
     }
 }
 
-/// Decode a model stored inside a wrapper class (`wrapper`: `integrating`,
-/// `multi-output`): a part of the wrapper's own class (a nesting no writer
-/// produces) or of an unknown class is a model-file error; `unknown` says
-/// what the part is in that message.
-pub(crate) fn decode_part(
-    wrapper: &str,
-    unknown: &str,
-    (class, version, body): (&str, u32, &[u8]),
-) -> Result<Box<dyn DynamicModel>, CoreError> {
-    if class == wrapper {
-        return Err(CoreError::ModelFile(format!(
-            "corrupt '{wrapper}' model (nested)"
-        )));
+/// A model stored inside a wrapper class (`integrating`, `multi-output`,
+/// `input-operators`): its class tag, class version and body. Postcard
+/// writes a nested struct as its fields in order, so a wrapper body that
+/// holds one is byte for byte the body that listed the three fields.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub(crate) struct StoredPart {
+    class: String,
+    class_version: u32,
+    body: Vec<u8>,
+}
+
+impl StoredPart {
+    /// The stored form of `m`.
+    pub(crate) fn of(m: &dyn DynamicModel) -> Result<Self, CoreError> {
+        Ok(Self {
+            class: m.class().to_string(),
+            class_version: m.class_version(),
+            body: m.encode()?,
+        })
     }
-    Registry
-        .decode(class, version, body)
-        .ok_or_else(|| CoreError::ModelFile(format!("'{wrapper}' model {unknown} '{class}'")))?
+
+    /// The model, decoded through the registry: a part of the wrapper's own
+    /// class (a nesting no writer produces) or of an unknown class is a
+    /// model-file error; `unknown` says what the part is in that message.
+    pub(crate) fn decode(
+        &self,
+        wrapper: &str,
+        unknown: &str,
+    ) -> Result<Box<dyn DynamicModel>, CoreError> {
+        let class = self.class.as_str();
+        if class == wrapper {
+            return Err(CoreError::ModelFile(format!(
+                "corrupt '{wrapper}' model (nested)"
+            )));
+        }
+        Registry
+            .decode(class, self.class_version, &self.body)
+            .ok_or_else(|| CoreError::ModelFile(format!("'{wrapper}' model {unknown} '{class}'")))?
+    }
 }
 
 /// Read a model file of any format greybox ever wrote; `name` labels errors.
@@ -158,6 +180,46 @@ pub fn class(tag: &str) -> Option<&'static ModelClass> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Wrapper bodies written before `StoredPart` listed the part's three
+    /// fields inline (`integrating`: class, version, body; `multi-output`:
+    /// those and the noise per part): the bytes are the same, both ways.
+    #[test]
+    fn a_stored_part_keeps_the_inline_layout_of_earlier_files() {
+        #[derive(serde::Serialize, serde::Deserialize)]
+        struct Inline {
+            class: String,
+            class_version: u32,
+            body: Vec<u8>,
+            noise: gb_core::NoiseModel,
+        }
+        #[derive(serde::Serialize, serde::Deserialize)]
+        struct Nested {
+            part: StoredPart,
+            noise: gb_core::NoiseModel,
+        }
+        let ss = SparseStateSpace::linear(vec![0.5], vec![1.0], vec![1.0], vec![0.0]).unwrap();
+        let noise = gb_core::NoiseModel::Gaussian { sd: 0.25 };
+        let inline = Inline {
+            class: "state-space".into(),
+            class_version: DynamicModel::class_version(&ss),
+            body: ss.encode().unwrap(),
+            noise: noise.clone(),
+        };
+        let old = postcard::to_allocvec(&inline).unwrap();
+        let nested = Nested {
+            part: StoredPart::of(&ss).unwrap(),
+            noise,
+        };
+        assert_eq!(postcard::to_allocvec(&nested).unwrap(), old);
+        let back: Nested = postcard::from_bytes(&old).unwrap();
+        let m = back
+            .part
+            .decode("multi-output", "of an unknown class")
+            .unwrap();
+        assert_eq!(m.class(), "state-space");
+        assert!(back.part.decode("state-space", "x").is_err());
+    }
 
     #[test]
     fn tags_are_unique_and_match_the_models() {
