@@ -28,6 +28,35 @@ pub fn autocorrelation(e: &[f64], max_lag: usize) -> Vec<f64> {
     cross_correlation(e, e, max_lag)
 }
 
+/// The AR(`p`) coefficients `a₁…a_p` of a series from its
+/// auto-correlation `r` (lags `0..=p`; a missing lag counts as 0) by the
+/// Levinson–Durbin recursion on the Yule–Walker equations
+/// `Σⱼ aⱼ r(|i − j|) = r(i)`, the reflection coefficients clamped inside
+/// ±0.9999 (the filter `1 − Σ aᵢ q⁻ⁱ` always minimum phase).
+///
+/// ```
+/// // AR(1) with a = 0.8: r(k) = 0.8^k, so a₁ = 0.8 and a₂ = 0
+/// let a = gb_diagnose::stats::ar_yule_walker(&[1.0, 0.8, 0.64], 2);
+/// assert!((a[0] - 0.8).abs() < 1e-12 && a[1].abs() < 1e-12);
+/// ```
+pub fn ar_yule_walker(r: &[f64], p: usize) -> Vec<f64> {
+    let r = |i: usize| r.get(i).copied().unwrap_or(0.0);
+    let mut a = vec![0.0; p + 1];
+    let mut err = r(0).max(1e-300);
+    for i in 1..=p {
+        let acc: f64 = (1..i).map(|j| a[j] * r(i - j)).sum();
+        let k = ((r(i) - acc) / err).clamp(-0.9999, 0.9999);
+        let prev = a.clone();
+        a[i] = k;
+        for j in 1..i {
+            a[j] = prev[j] - k * prev[i - j];
+        }
+        err *= 1.0 - k * k;
+    }
+    a.remove(0);
+    a
+}
+
 /// Regularised upper incomplete gamma Q(a, x) (Numerical Recipes: series or
 /// continued fraction).
 pub fn gamma_q(a: f64, x: f64) -> f64 {

@@ -162,26 +162,14 @@ fn prewhiten_runs(
     let m = gb_core::metrics::mean(x);
     let xc: Vec<f64> = x.iter().map(|v| v - m).collect();
     let rr = cross_correlation_runs(&xc, &xc, rs, p);
-    let r = |i: usize| rr.get(i).copied().unwrap_or(0.0);
-    let mut a = vec![0.0; p + 1];
-    let mut err = r(0).max(1e-300);
-    for i in 1..=p {
-        let acc: f64 = (1..i).map(|j| a[j] * r(i - j)).sum();
-        let k = ((r(i) - acc) / err).clamp(-0.9999, 0.9999);
-        let prev = a.clone();
-        a[i] = k;
-        for j in 1..i {
-            a[j] = prev[j] - k * prev[i - j];
-        }
-        err *= 1.0 - k * k;
-    }
+    let a = stats::ar_yule_walker(&rr, p);
     let mut out = Vec::with_capacity(xc.len());
     let mut out_runs = Vec::with_capacity(rs.len());
     for run in rs.iter().filter(|r| r.len() > p) {
         let from = out.len();
         out.extend(
             (run.start + p..run.end)
-                .map(|t| xc[t] - (1..=p).map(|i| a[i] * xc[t - i]).sum::<f64>()),
+                .map(|t| xc[t] - (1..=p).map(|i| a[i - 1] * xc[t - i]).sum::<f64>()),
         );
         out_runs.push(from..out.len());
     }
