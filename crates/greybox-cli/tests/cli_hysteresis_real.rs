@@ -5,26 +5,13 @@
 //! voltage E; output force f), the book's split — training rows 400–1999,
 //! test rows 2001–3599 — the test scored once by `greybox simulate`.
 mod common;
-use common::{run, scratch, simulated, text};
+use common::{csv_rows, run, scratch, simulated, text};
 use std::path::{Path, PathBuf};
 
 /// Rows `rows` of `from` (after its header), columns x, v, E, f, written to
 /// `to` (the record's column `a` holds spikes and is left out).
 fn rows(from: &Path, to: &Path, rows: std::ops::Range<usize>) {
-    let all = std::fs::read_to_string(from).unwrap();
-    let mut lines = all.lines();
-    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
-    let col = |n: &str| head.iter().position(|h| h.trim() == n).unwrap();
-    let keep = [col("x"), col("v"), col("E"), col("f")];
-    let body: Vec<String> = lines
-        .skip(rows.start)
-        .take(rows.len())
-        .map(|l| {
-            let v: Vec<&str> = l.split(',').collect();
-            keep.iter().map(|&i| v[i]).collect::<Vec<_>>().join(",")
-        })
-        .collect();
-    std::fs::write(to, format!("x,v,E,f\n{}\n", body.join("\n"))).unwrap();
+    csv_rows(from, to, rows, Some(&["x", "v", "E", "f"]));
 }
 
 /// The force is a voltage-scaled Bouc–Wen loop of the displacement: the

@@ -11,14 +11,7 @@ fn tmp(name: &str) -> PathBuf {
 
 /// Rows `rows` of the CSV `from` (header kept) written to `to`.
 fn rows(from: &Path, to: &Path, rows: std::ops::Range<usize>) {
-    let text = std::fs::read_to_string(from).unwrap();
-    let mut lines = text.lines();
-    let mut out = format!("{}\n", lines.next().unwrap());
-    for l in lines.skip(rows.start).take(rows.len()) {
-        out.push_str(l);
-        out.push('\n');
-    }
-    std::fs::write(to, out).unwrap();
+    common::csv_rows(from, to, rows, None);
 }
 
 /// `greybox diagnose --train a --train b EXTRA --json json --quiet`.

@@ -4,16 +4,12 @@
 //! 600 samples the training record and the next 400 the test record, the
 //! test scored once by `greybox simulate --init-window 20`.
 mod common;
-use common::{run, scratch, simulated, text};
+use common::{csv_rows, run, scratch, simulated, text};
 use std::path::{Path, PathBuf};
 
 /// Rows `rows` of `from` (after its header) written to `to` with the header.
 fn rows(from: &Path, to: &Path, rows: std::ops::Range<usize>) {
-    let all = std::fs::read_to_string(from).unwrap();
-    let mut lines = all.lines();
-    let head = lines.next().unwrap();
-    let body: Vec<&str> = lines.skip(rows.start).take(rows.len()).collect();
-    std::fs::write(to, format!("{head}\n{}\n", body.join("\n"))).unwrap();
+    csv_rows(from, to, rows, None);
 }
 
 /// The reference is a least-squares ARX model of order (na = nb, nk)

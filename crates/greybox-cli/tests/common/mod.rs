@@ -1,7 +1,7 @@
 //! Helpers shared by the CLI tests: a fresh scratch folder per test and the
 //! `greybox` binary run as a user runs it.
 #![allow(dead_code)]
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 /// The number printed after `label` (e.g. `"RMSE "`, `"NRMSE "`) on the
@@ -95,4 +95,26 @@ pub fn text(o: &Output) -> (String, String) {
         String::from_utf8_lossy(&o.stdout).to_string(),
         String::from_utf8_lossy(&o.stderr).to_string(),
     )
+}
+
+/// Rows `rows` of the CSV `from` (after its header) written to `to` with
+/// a header: every column, or only `columns` in that order.
+pub fn csv_rows(from: &Path, to: &Path, rows: std::ops::Range<usize>, columns: Option<&[&str]>) {
+    let all = std::fs::read_to_string(from).unwrap();
+    let mut lines = all.lines();
+    let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let keep: Vec<usize> = match columns {
+        Some(cs) => cs
+            .iter()
+            .map(|n| head.iter().position(|h| h.trim() == *n).unwrap())
+            .collect(),
+        None => (0..head.len()).collect(),
+    };
+    let pick = |l: &str| {
+        let v: Vec<&str> = l.split(',').collect();
+        keep.iter().map(|&i| v[i]).collect::<Vec<_>>().join(",")
+    };
+    let body: Vec<String> = lines.skip(rows.start).take(rows.len()).map(pick).collect();
+    let header = keep.iter().map(|&i| head[i]).collect::<Vec<_>>().join(",");
+    std::fs::write(to, format!("{header}\n{}\n", body.join("\n"))).unwrap();
 }
